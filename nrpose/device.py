@@ -1,0 +1,85 @@
+"""OpenCL device selection and program cache.
+
+Default device: the first PoCL CPU device. ``PYOPENCL_CTX`` (pyopencl's own
+variable, e.g. ``PYOPENCL_CTX=0`` or ``0:0``) overrides the choice. Programs are
+built once per (context, kernel file, build options) and kept for the life of
+the process; callers keep their ``cl.Kernel`` objects and buffers alive.
+"""
+from __future__ import annotations
+
+import functools
+import os
+from importlib import resources
+
+from .errors import DeviceError
+
+INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
+                "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
+
+
+def _cl():
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - dependency is declared
+        raise DeviceError(f"pyopencl is not importable ({exc}); {INSTALL_HINT}") from None
+    return cl
+
+
+@functools.lru_cache(maxsize=None)
+def context():
+    """Return the shared ``(cl.Context, cl.CommandQueue)`` pair.
+
+    Raises DeviceError with an installation hint when no platform exists.
+    """
+    cl = _cl()
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        platforms = []
+    if not platforms:
+        raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
+    if os.environ.get("PYOPENCL_CTX"):
+        try:
+            ctx = cl.create_some_context(interactive=False)
+        except (cl.Error, RuntimeError, ValueError, IndexError) as exc:
+            raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no usable "
+                              f"device ({exc}); unset it to use PoCL") from None
+    else:
+        ctx = None
+        ordered = sorted(platforms, key=lambda p: "Portable Computing Language" not in p.name)
+        for plat in ordered:
+            try:
+                devs = plat.get_devices(device_type=cl.device_type.CPU)
+            except cl.Error:
+                devs = []
+            if devs:
+                ctx = cl.Context(devices=[devs[0]])
+                break
+        if ctx is None:
+            raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
+    return ctx, cl.CommandQueue(ctx)
+
+
+def describe() -> dict:
+    """Device facts for benchmark records: platform, device, version, compute units."""
+    ctx, _ = context()
+    dev = ctx.devices[0]
+    return {"platform": dev.platform.name, "platform_version": dev.platform.version,
+            "device": dev.name, "device_version": dev.version,
+            "driver_version": dev.driver_version, "compute_units": dev.max_compute_units}
+
+
+def kernel_source(name: str) -> str:
+    """Text of ``kernels/<name>`` as shipped in the installed package."""
+    return resources.files("nrpose.kernels").joinpath(name).read_text()
+
+
+@functools.lru_cache(maxsize=None)
+def program(name: str, options: tuple[str, ...] = ()):
+    """Build (once) and return the program for kernel file ``name``."""
+    cl = _cl()
+    ctx, _ = context()
+    try:
+        return cl.Program(ctx, kernel_source(name)).build(options=list(options))
+    except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
+        raise DeviceError(f"building kernels/{name} failed: {exc}") from None

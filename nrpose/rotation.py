@@ -1,0 +1,88 @@
+"""Rotation algebra and the project's conventions, stated once.
+
+Conventions (followed everywhere in nrpose):
+
+* Points are rows: an array of N points has shape ``(N, 3)``.
+* Rotation matrices act on column vectors: ``x' = R @ x``; for an ``(N, 3)``
+  array that is ``X @ R.T``. (The seed paper writes row vectors, ``x R``.)
+* Quaternions are ``(x, y, z, w)``, scalar last, as in glTF and scipy.
+* Rotation vectors are axis × angle in radians.
+* Host arithmetic is float64; device arithmetic is float32.
+* No axis conversion is ever applied: coordinates stay in the input's frame
+  (glTF is Y-up, metres; BVH and OBJ as authored).
+
+Rotation algebra goes through :class:`scipy.spatial.transform.Rotation`.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = ["Rotation", "minimal_rotvec", "apply", "kabsch", "relative_rotvec_table"]
+
+
+def minimal_rotvec(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Rotation vectors of the smallest rotations taking direction ``a`` to ``b``.
+
+    a, b: (..., 3) float64, any non-zero length. Returns (..., 3) float64 with
+    angle ``atan2(|a×b|, a·b)`` about ``a×b``. Zero vectors give a zero rotation;
+    exactly opposite directions (angle π, axis undefined) give a zero axis
+    too, i.e. a zero rotation vector: the direction is ill-posed there.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    cross = np.cross(a, b)
+    s = np.linalg.norm(cross, axis=-1)
+    c = np.sum(a * b, axis=-1)
+    angle = np.arctan2(s, c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = np.where(s > 0, angle / np.where(s > 0, s, 1.0), 0.0)
+    return cross * scale[..., None]
+
+
+def apply(R: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Rotate rows: R (3,3) or (N,3,3) applied to X (N,3) as column vectors."""
+    R = np.asarray(R, dtype=np.float64)
+    if R.ndim == 2:
+        return X @ R.T
+    return np.einsum("nij,nj->ni", R, X)
+
+
+def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
+    """Best rotation R (3,3) with ``R @ (p - p̄) ≈ (q - q̄)`` for the rows of P, Q (M,3).
+
+    Unweighted least squares (Kabsch). Where the fit is not unique (a single
+    point, collinear points: the covariance is rank-deficient) a tiny multiple
+    of the identity added to the covariance picks, among the optimal
+    rotations, the one closest to the identity (the minimal rotation).
+    The result is exactly equivariant (R -> G R when Q -> G Q) whenever the
+    fit is unique.
+    """
+    P = np.asarray(P, dtype=np.float64)
+    Q = np.asarray(Q, dtype=np.float64)
+    Pc = P - P.mean(axis=0)
+    Qc = Q - Q.mean(axis=0)
+    C = Qc.T @ Pc  # maximise trace(R^T C)
+    scale = max(np.abs(C).max(), np.abs(Pc).max() ** 2, 1e-300)
+    C = C + 1e-9 * scale * np.eye(3)
+    U, _, Vt = np.linalg.svd(C)
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    return U @ np.diag([1.0, 1.0, d]) @ Vt
+
+
+def relative_rotvec_table(quats: np.ndarray) -> np.ndarray:
+    """Table T[j, i] = log(R_j⁻¹ R_i) as rotation vectors, shape (M, M, 3) float64.
+
+    quats: (M, 4) (x, y, z, w). The table is made exactly antisymmetric
+    (T[i, j] = -T[j, i]) so that at an angle of exactly π, where the log is
+    ambiguous, the blends seen from either handle agree.
+    """
+    R = Rotation.from_quat(np.asarray(quats, dtype=np.float64))
+    m = len(R)
+    jj, ii = np.triu_indices(m, k=1)
+    T = np.zeros((m, m, 3))
+    if len(jj):
+        upper = (R[jj].inv() * R[ii]).as_rotvec()
+        T[jj, ii] = upper
+        T[ii, jj] = -upper
+    return T
