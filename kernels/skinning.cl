@@ -1,0 +1,151 @@
+/* Linear blend skinning (LBS) and dual quaternion skinning (DQS).
+ *
+ * Layout (structure of arrays in blocks of 8 vertices, one block per
+ * work-item, one vertex per float8 lane):
+ *
+ *   rest    (G, 3, 8) float : block g holds x[8], y[8], z[8] of vertices 8g..8g+7
+ *   joints  (G, K, 8) int   : influence k of the 8 vertices of block g
+ *   weights (G, K, 8) float : matching weights; rows sum to 1; within a vertex
+ *                             the influences are sorted by decreasing weight
+ *                             (so k = 0 is the dominant joint) and padding has
+ *                             weight 0 and joint 0. Padding vertices (beyond N)
+ *                             have weight 0 everywhere.
+ *   out     (F, 8G, 3) float: posed vertices as rows (array of structures),
+ *           one slab per frame, padding vertices included.
+ *
+ * Per pose:
+ *   lbs: mats (F, J, 12) float: rows 0..2 of M_j = G_j @ IBM_j, row-major
+ *        (m00 m01 m02 m03 m10 ... m23); x' = M x for column vectors.
+ *   dqs: dq   (F, J, 8) float: unit dual quaternion (qr.xyzw, qd.xyzw) per
+ *        joint, scalar last, qd = 0.5 (t, 0) qr.
+ *
+ * global size (>= G, F): dimension 0 is the block, dimension 1 the frame.
+ *
+ * Because influences are sorted by decreasing weight, once every lane of a
+ * block has weight 0 at influence k all later influences are 0 too: the loop
+ * stops there.
+ *
+ * Per the PoCL notes: no fma()/mad() builtins, explicit float8 lanes.
+ */
+
+/* Store the 8 lanes of (x, y, z) as 8 consecutive rows of 3 floats. */
+#define STORE_ROWS(x, y, z, q) do {                           \
+    vstore3((float3)((x).s0, (y).s0, (z).s0), 0, (q));        \
+    vstore3((float3)((x).s1, (y).s1, (z).s1), 1, (q));        \
+    vstore3((float3)((x).s2, (y).s2, (z).s2), 2, (q));        \
+    vstore3((float3)((x).s3, (y).s3, (z).s3), 3, (q));        \
+    vstore3((float3)((x).s4, (y).s4, (z).s4), 4, (q));        \
+    vstore3((float3)((x).s5, (y).s5, (z).s5), 5, (q));        \
+    vstore3((float3)((x).s6, (y).s6, (z).s6), 6, (q));        \
+    vstore3((float3)((x).s7, (y).s7, (z).s7), 7, (q));        \
+} while (0)
+
+#define GATHER8(base, idx, c) ((float8)(                 \
+    (base)[(idx).s0 + (c)], (base)[(idx).s1 + (c)],      \
+    (base)[(idx).s2 + (c)], (base)[(idx).s3 + (c)],      \
+    (base)[(idx).s4 + (c)], (base)[(idx).s5 + (c)],      \
+    (base)[(idx).s6 + (c)], (base)[(idx).s7 + (c)]))
+
+__kernel void lbs(__global const float *restrict rest,
+                  __global const int *restrict joints,
+                  __global const float *restrict weights,
+                  __global const float *restrict mats,
+                  __global float *restrict out,
+                  const int K, const int J, const int G)
+{
+    const int g = get_global_id(0);
+    const int f = get_global_id(1);
+    if (g >= G) return;
+    __global const float *M = mats + (size_t)f * (size_t)J * 12;
+
+    float8 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f;
+    float8 a4 = 0.0f, a5 = 0.0f, a6 = 0.0f, a7 = 0.0f;
+    float8 a8 = 0.0f, a9 = 0.0f, a10 = 0.0f, a11 = 0.0f;
+
+    for (int k = 0; k < K; ++k) {
+        const size_t o = ((size_t)g * K + k) * 8;
+        const float8 w = vload8(0, weights + o);
+        if (!any(w != 0.0f)) break;
+        const int8 j = vload8(0, joints + o) * 12;
+        a0  += w * GATHER8(M, j, 0);
+        a1  += w * GATHER8(M, j, 1);
+        a2  += w * GATHER8(M, j, 2);
+        a3  += w * GATHER8(M, j, 3);
+        a4  += w * GATHER8(M, j, 4);
+        a5  += w * GATHER8(M, j, 5);
+        a6  += w * GATHER8(M, j, 6);
+        a7  += w * GATHER8(M, j, 7);
+        a8  += w * GATHER8(M, j, 8);
+        a9  += w * GATHER8(M, j, 9);
+        a10 += w * GATHER8(M, j, 10);
+        a11 += w * GATHER8(M, j, 11);
+    }
+
+    __global const float *p = rest + (size_t)g * 24;
+    const float8 x = vload8(0, p), y = vload8(1, p), z = vload8(2, p);
+    __global float *q = out + ((size_t)f * G + g) * 24;
+    const float8 ox = a0 * x + a1 * y + a2  * z + a3;
+    const float8 oy = a4 * x + a5 * y + a6  * z + a7;
+    const float8 oz = a8 * x + a9 * y + a10 * z + a11;
+    STORE_ROWS(ox, oy, oz, q);
+}
+
+__kernel void dqs(__global const float *restrict rest,
+                  __global const int *restrict joints,
+                  __global const float *restrict weights,
+                  __global const float *restrict dq,
+                  __global float *restrict out,
+                  const int K, const int J, const int G)
+{
+    const int g = get_global_id(0);
+    const int f = get_global_id(1);
+    if (g >= G) return;
+    __global const float *D = dq + (size_t)f * (size_t)J * 8;
+
+    /* Dominant joint's rotation quaternion (influence 0) for the
+     * hemisphere test. */
+    const int8 j0 = vload8(0, joints + (size_t)g * K * 8) * 8;
+    const float8 px = GATHER8(D, j0, 0), py = GATHER8(D, j0, 1);
+    const float8 pz = GATHER8(D, j0, 2), pw = GATHER8(D, j0, 3);
+
+    float8 rx = 0.0f, ry = 0.0f, rz = 0.0f, rw = 0.0f;
+    float8 dx = 0.0f, dy = 0.0f, dz = 0.0f, dw = 0.0f;
+
+    for (int k = 0; k < K; ++k) {
+        const size_t o = ((size_t)g * K + k) * 8;
+        const float8 w = vload8(0, weights + o);
+        if (!any(w != 0.0f)) break;
+        const int8 j = vload8(0, joints + o) * 8;
+        const float8 qx = GATHER8(D, j, 0), qy = GATHER8(D, j, 1);
+        const float8 qz = GATHER8(D, j, 2), qw = GATHER8(D, j, 3);
+        const float8 dot = qx * px + qy * py + qz * pz + qw * pw;
+        const float8 s = select(w, -w, dot < 0.0f);   /* antipodality */
+        rx += s * qx; ry += s * qy; rz += s * qz; rw += s * qw;
+        dx += s * GATHER8(D, j, 4);
+        dy += s * GATHER8(D, j, 5);
+        dz += s * GATHER8(D, j, 6);
+        dw += s * GATHER8(D, j, 7);
+    }
+
+    /* Normalise by the blended real part's norm. */
+    const float8 inv = rsqrt(rx * rx + ry * ry + rz * rz + rw * rw);
+    rx *= inv; ry *= inv; rz *= inv; rw *= inv;
+    dx *= inv; dy *= inv; dz *= inv; dw *= inv;
+
+    __global const float *p = rest + (size_t)g * 24;
+    const float8 x = vload8(0, p), y = vload8(1, p), z = vload8(2, p);
+
+    /* x' = x + 2 r × (r × x + w x) + 2 (w d - dw r + r × d) */
+    const float8 cx = ry * z - rz * y + rw * x;
+    const float8 cy = rz * x - rx * z + rw * y;
+    const float8 cz = rx * y - ry * x + rw * z;
+    const float8 tx = rw * dx - dw * rx + (ry * dz - rz * dy);
+    const float8 ty = rw * dy - dw * ry + (rz * dx - rx * dz);
+    const float8 tz = rw * dz - dw * rz + (rx * dy - ry * dx);
+
+    __global float *q = out + ((size_t)f * G + g) * 24;
+    const float8 ox = x + 2.0f * ((ry * cz - rz * cy) + tx);
+    const float8 oy = y + 2.0f * ((rz * cx - rx * cz) + ty);
+    const float8 oz = z + 2.0f * ((rx * cy - ry * cx) + tz);
+    STORE_ROWS(ox, oy, oz, q);
+}

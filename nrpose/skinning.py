@@ -1,0 +1,369 @@
+"""Linear blend skinning (LBS) and dual quaternion skinning (DQS) on the device.
+
+Inputs (conventions of :mod:`nrpose.rotation`: rows are points, matrices act
+on column vectors, quaternions are ``(x, y, z, w)``):
+
+* ``rest`` (N, 3): rest-pose vertices.
+* ``joints`` (N, K) integers and ``weights`` (N, K) non-negative floats: the
+  K influences of each vertex (K is free: 1, 4, 8, ...). Entries with weight
+  0 are padding; their joint index is ignored (it may be anything, e.g. -1).
+  **Each weight row is normalised to sum 1 at bind**; a row whose weights are
+  all zero is an error.
+* ``mats`` (J, 4, 4): skinning matrices ``M_j = G_j @ IBM_j`` (global joint
+  transform times inverse bind matrix). They must be affine (bottom row
+  ``0 0 0 1``); J must exceed every joint index that carries weight.
+
+LBS: ``x' = (sum_k w_k M_{j_k}) x``; scale and shear in ``M_j`` are honoured.
+
+DQS (Kavan et al. 2007): each ``M_j`` is reduced to its rigid part -- the
+rotation :meth:`scipy.spatial.transform.Rotation.from_matrix` extracts from
+the 3x3 block (exact for a rotation times a uniform scale) and the
+translation column -- and converted to a unit dual quaternion. **Scale and
+shear in M_j are ignored by DQS.** Per vertex, each joint's dual quaternion
+is sign-flipped to lie in the hemisphere of the vertex's dominant (largest
+weight, first on ties) joint's rotation quaternion, the weighted sum is
+divided by the norm of its real part, and the resulting rigid transform is
+applied.
+
+Device side: float32, 8 vertices per work-item in float8 lanes, bound data
+(rest vertices, influences) uploaded once in a structure-of-arrays layout,
+see ``kernels/skinning.cl``. One pose costs one small upload, one kernel
+launch and one read-back; :meth:`pose_frames` poses F frames in one launch.
+
+The numpy references :func:`lbs_reference` and :func:`dqs_reference` compute
+the same in float64 and apply the same validation and weight normalisation.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from . import device
+from .errors import InputError
+
+__all__ = ["LbsDeformer", "DqsDeformer", "Deformer", "lbs_reference", "dqs_reference",
+           "dqs_reference_dq", "dual_quaternions", "prepare_influences"]
+
+LANES = 8          # vertices per work-item (float8 lanes)
+LOCAL_SIZE = 32    # work-items per work-group: measured best of 8..128 on PoCL (2 cores)
+
+
+# --------------------------------------------------------------------------- validation
+
+def _finite(name: str, a: np.ndarray) -> None:
+    if not np.all(np.isfinite(a)):
+        bad = int(np.count_nonzero(~np.isfinite(a).reshape(len(a), -1).all(axis=1)))
+        raise InputError(f"{name} contain NaN or inf ({bad} of {len(a)} rows); "
+                         f"give finite values")
+
+
+def prepare_influences(rest, joints, weights):
+    """Validate bind inputs; return (rest (N,3) f64, joints (N,K) int64, weights (N,K) f64).
+
+    Weights rows are normalised to sum 1; padding entries (weight 0) get joint 0.
+    Also returns the largest joint index that carries weight, as a 4th item.
+    """
+    rest = np.asarray(rest)
+    if rest.ndim != 2 or rest.shape[1] != 3:
+        raise InputError(f"rest vertices must have shape (N, 3), got {rest.shape}")
+    if not (np.issubdtype(rest.dtype, np.floating) or np.issubdtype(rest.dtype, np.integer)):
+        raise InputError(f"rest vertices must be real numbers, got dtype {rest.dtype}")
+    rest = rest.astype(np.float64)
+    n = rest.shape[0]
+    if n == 0:
+        raise InputError("rest vertices are empty (N = 0); give at least one vertex")
+    _finite("rest vertices", rest)
+
+    joints = np.asarray(joints)
+    if joints.ndim == 1:
+        joints = joints[:, None]
+    if joints.ndim != 2 or joints.shape[0] != n or joints.shape[1] == 0:
+        raise InputError(f"joint indices must have shape (N, K) = ({n}, K) with K >= 1, "
+                         f"got {np.shape(joints)}")
+    if not np.issubdtype(joints.dtype, np.integer):
+        raise InputError(f"joint indices must be integers, got dtype {joints.dtype}")
+    weights = np.asarray(weights)
+    if weights.ndim == 1:
+        weights = weights[:, None]
+    if weights.shape != joints.shape:
+        raise InputError(f"weights must have the shape of the joint indices {joints.shape}, "
+                         f"got {weights.shape}")
+    if not (np.issubdtype(weights.dtype, np.floating) or np.issubdtype(weights.dtype, np.integer)):
+        raise InputError(f"weights must be real numbers, got dtype {weights.dtype}")
+    weights = weights.astype(np.float64)
+    _finite("weights", weights)
+    if np.any(weights < 0):
+        rows = np.flatnonzero((weights < 0).any(axis=1))
+        raise InputError(f"weights must be non-negative: {len(rows)} of {n} vertices have "
+                         f"negative weights (first: vertex {rows[0]})")
+    sums = weights.sum(axis=1)
+    if np.any(sums <= 0):
+        rows = np.flatnonzero(sums <= 0)
+        raise InputError(f"{len(rows)} of {n} vertices have all-zero weights (first: vertex "
+                         f"{rows[0]}); every vertex needs at least one positive weight")
+    used = weights > 0
+    joints = joints.astype(np.int64)
+    if np.any(joints[used] < 0):
+        rows = np.flatnonzero((used & (joints < 0)).any(axis=1))
+        raise InputError(f"joint indices must be >= 0: {len(rows)} of {n} vertices have a "
+                         f"negative index with positive weight (first: vertex {rows[0]})")
+    joints = np.where(used, joints, 0)
+    weights = weights / sums[:, None]
+    max_joint = int(joints.max())
+    return rest, joints, weights, max_joint
+
+
+def _check_mats(mats, max_joint: int, *, frames: bool = False) -> np.ndarray:
+    mats = np.asarray(mats, dtype=np.float64)
+    want = "(F, J, 4, 4)" if frames else "(J, 4, 4)"
+    nd = 4 if frames else 3
+    if mats.ndim != nd or mats.shape[-2:] != (4, 4) or mats.shape[-3] == 0 \
+            or (frames and mats.shape[0] == 0):
+        raise InputError(f"skinning matrices must have shape {want}, got {mats.shape}")
+    if not np.all(np.isfinite(mats)):
+        raise InputError("skinning matrices contain NaN or inf; give finite values")
+    j = mats.shape[-3]
+    if max_joint >= j:
+        raise InputError(f"joint index {max_joint} is out of range for {j} skinning matrices "
+                         f"(valid: 0..{j - 1})")
+    bottom = mats[..., 3, :]
+    scale = max(1.0, float(np.abs(mats).max()))
+    if np.any(np.abs(bottom - np.array([0.0, 0.0, 0.0, 1.0])) > 1e-6 * scale):
+        raise InputError("skinning matrices must be affine: bottom row 0 0 0 1")
+    return mats
+
+
+# --------------------------------------------------------------------------- dual quaternions
+
+def dual_quaternions(mats) -> np.ndarray:
+    """Unit dual quaternions (..., 8) = (qr.xyzw, qd.xyzw) of the rigid parts of mats (..., 4, 4).
+
+    The rotation is what ``Rotation.from_matrix`` extracts from the 3x3 block
+    (scale and shear are dropped); ``qd = 0.5 (t, 0) qr`` with t the
+    translation column. Reflections (det <= 0) are rejected.
+    """
+    mats = np.asarray(mats, dtype=np.float64)
+    lead = mats.shape[:-2]
+    flat = mats.reshape(-1, 4, 4)
+    lin = flat[:, :3, :3]
+    c0, c1, c2 = lin[:, :, 0], lin[:, :, 1], lin[:, :, 2]
+    det = np.einsum("ni,ni->n", c0, _cross(c1, c2))
+    if np.any(det <= 0):
+        raise InputError(f"{int(np.count_nonzero(det <= 0))} skinning matrices have a "
+                         f"non-positive determinant (reflection or collapse); DQS needs rotations")
+    # Fast path (scipy skips its orthogonalisation) when the 3x3 block is a
+    # rotation times a uniform scale; otherwise scipy's general method.
+    rot = lin / np.cbrt(det)[:, None, None]
+    err = np.abs(np.matmul(rot.transpose(0, 2, 1), rot) - _EYE3).max()
+    qr = Rotation.from_matrix(rot if err < 1e-6 else lin, assume_valid=err < 1e-6).as_quat()
+    t = flat[:, :3, 3]
+    out = np.empty((len(flat), 8))
+    out[:, :4] = qr                                   # (x, y, z, w)
+    v, w = qr[:, :3], qr[:, 3:]
+    out[:, 4:7] = 0.5 * (w * t + _cross(t, v))        # qd = 0.5 (t, 0) qr
+    out[:, 7] = -0.5 * np.einsum("ni,ni->n", t, v)
+    return out.reshape(lead + (8,))
+
+
+_EYE3 = np.eye(3)
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross product of (M, 3) arrays (np.cross is slow on small arrays)."""
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
+
+
+# --------------------------------------------------------------------------- references
+
+def lbs_reference(rest, joints, weights, mats) -> np.ndarray:
+    """Linear blend skinning in float64 numpy: (N, 3) posed vertices."""
+    rest, joints, weights, max_joint = prepare_influences(rest, joints, weights)
+    mats = _check_mats(mats, max_joint)
+    blend = np.einsum("nk,nkij->nij", weights, mats[joints, :3, :])   # (N, 3, 4)
+    return np.einsum("nij,nj->ni", blend[:, :, :3], rest) + blend[:, :, 3]
+
+
+def dqs_reference(rest, joints, weights, mats) -> np.ndarray:
+    """Dual quaternion skinning in float64 numpy of the rigid parts of mats: (N, 3)."""
+    rest, joints, weights, max_joint = prepare_influences(rest, joints, weights)
+    mats = _check_mats(mats, max_joint)
+    return _dqs(rest, joints, weights, dual_quaternions(mats))
+
+
+def dqs_reference_dq(rest, joints, weights, dq) -> np.ndarray:
+    """Dual quaternion skinning from per-joint unit dual quaternions dq (J, 8) directly."""
+    rest, joints, weights, max_joint = prepare_influences(rest, joints, weights)
+    dq = _check_dq(dq, max_joint)
+    return _dqs(rest, joints, weights, dq)
+
+
+def _check_dq(dq, max_joint: int, *, frames: bool = False) -> np.ndarray:
+    dq = np.asarray(dq, dtype=np.float64)
+    nd = 3 if frames else 2
+    if dq.ndim != nd or dq.shape[-1] != 8 or dq.shape[-2] == 0:
+        raise InputError(f"dual quaternions must have shape {'(F, J, 8)' if frames else '(J, 8)'}"
+                         f", got {dq.shape}")
+    if not np.all(np.isfinite(dq)):
+        raise InputError("dual quaternions contain NaN or inf; give finite values")
+    if max_joint >= dq.shape[-2]:
+        raise InputError(f"joint index {max_joint} is out of range for {dq.shape[-2]} dual "
+                         f"quaternions (valid: 0..{dq.shape[-2] - 1})")
+    if np.any(np.abs(np.linalg.norm(dq[..., :4], axis=-1) - 1.0) > 1e-3):
+        raise InputError("dual quaternions must have unit real parts (|qr| = 1)")
+    return dq
+
+
+def _dqs(rest, joints, weights, dq) -> np.ndarray:
+    n = len(rest)
+    dominant = joints[np.arange(n), np.argmax(weights, axis=1)]     # first max on ties
+    q = dq[joints]                                                  # (N, K, 8)
+    dot = np.einsum("nki,ni->nk", q[..., :4], dq[dominant, :4])
+    s = np.where(dot < 0, -weights, weights)
+    b = np.einsum("nk,nki->ni", s, q)
+    b = b / np.linalg.norm(b[:, :4], axis=1, keepdims=True)
+    r, rw, d, dw = b[:, :3], b[:, 3:4], b[:, 4:7], b[:, 7:8]
+    c = np.cross(r, rest) + rw * rest
+    t = rw * d - dw * r + np.cross(r, d)
+    return rest + 2.0 * (np.cross(r, c) + t)
+
+
+# --------------------------------------------------------------------------- device
+
+class Deformer:
+    """Skinning deformer bound once to a mesh's rest vertices and influences.
+
+    ``method`` is ``"lbs"`` or ``"dqs"``. Construction validates the inputs,
+    normalises weights, sorts each vertex's influences by decreasing weight and
+    uploads everything once; :meth:`pose` and :meth:`pose_frames` then cost one
+    kernel launch each.
+    """
+
+    def __init__(self, rest, joints, weights, method: str = "lbs"):
+        if method not in ("lbs", "dqs"):
+            raise InputError(f"skinning method must be 'lbs' or 'dqs', got {method!r}")
+        import pyopencl as cl
+        self._cl = cl
+        self.method = method
+        rest, joints, weights, self.max_joint = prepare_influences(rest, joints, weights)
+        n, k = joints.shape
+        self.n_vertices, self.n_influences = n, k
+        order = np.argsort(-weights, axis=1, kind="stable")         # dominant first
+        joints = np.take_along_axis(joints, order, axis=1)
+        weights = np.take_along_axis(weights, order, axis=1)
+
+        g = -(-n // LANES)
+        npad = g * LANES
+        self.n_blocks = g
+        r = np.zeros((npad, 3), np.float32)
+        r[:n] = rest
+        jj = np.zeros((npad, k), np.int32)
+        jj[:n] = joints
+        ww = np.zeros((npad, k), np.float32)
+        ww[:n] = weights
+        ww[n:, 0] = 1.0                                              # padding: joint 0, weight 1
+        # (G, 8, C) -> (G, C, 8): SoA per block of 8 vertices
+        soa = lambda a: np.ascontiguousarray(a.reshape(g, LANES, -1).transpose(0, 2, 1))
+        ctx, self._queue = device.context()
+        self._ctx = ctx
+        mf = cl.mem_flags
+        ro = mf.READ_ONLY | mf.COPY_HOST_PTR
+        self._rest = cl.Buffer(ctx, ro, hostbuf=soa(r))
+        self._joints = cl.Buffer(ctx, ro, hostbuf=soa(jj))
+        self._weights = cl.Buffer(ctx, ro, hostbuf=soa(ww))
+        self._kernel = cl.Kernel(device.program("skinning.cl"), method)
+        self._kernel.set_arg(0, self._rest)
+        self._kernel.set_arg(1, self._joints)
+        self._kernel.set_arg(2, self._weights)
+        self._kernel.set_arg(5, np.int32(k))
+        self._kernel.set_arg(7, np.int32(g))
+        self._local = LOCAL_SIZE
+        self._global0 = -(-g // LOCAL_SIZE) * LOCAL_SIZE
+        try:
+            caps = ctx.devices[0].svm_capabilities
+            self._svm = bool(caps & cl.device_svm_capabilities.FINE_GRAIN_BUFFER)
+        except (cl.Error, AttributeError):  # pragma: no cover - OpenCL 1.x device
+            self._svm = False
+        self._in = self._in_buf = None           # per-pose parameters (host view, buffer)
+        self._out = self._out_buf = None         # posed vertices (host view, buffer)
+        self._joints_bound = -1
+
+    # -- per pose -------------------------------------------------------------
+    def pose(self, mats) -> np.ndarray:
+        """Posed vertices (N, 3) float64 for skinning matrices (J, 4, 4)."""
+        mats = _check_mats(mats, self.max_joint)
+        return self._run(self._params(mats[None]))[0]
+
+    def pose_frames(self, mats) -> np.ndarray:
+        """Posed vertices (F, N, 3) float64 for F frames of matrices (F, J, 4, 4), one launch."""
+        mats = _check_mats(mats, self.max_joint, frames=True)
+        return self._run(self._params(mats))
+
+    def _params(self, mats: np.ndarray) -> np.ndarray:
+        if self.method == "lbs":
+            return mats[:, :, :3, :].reshape(mats.shape[0], mats.shape[1], 12)
+        return dual_quaternions(mats)
+
+    def _alloc(self, n_floats: int, arg: int, which: str) -> None:
+        """(Re)allocate the host-visible float32 array `which` with >= n_floats, bind to arg."""
+        cl = self._cl
+        cur = getattr(self, which)
+        if cur is not None and cur.size >= n_floats:
+            return
+        if self._svm:
+            flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER
+            ary = cl.svm_empty(self._ctx, flags, (n_floats,), np.float32)
+            self._kernel.set_arg(arg, cl.SVM(ary))
+        else:
+            ary = np.empty(n_floats, np.float32)
+            buf = cl.Buffer(self._ctx, cl.mem_flags.READ_WRITE, ary.nbytes)
+            self._kernel.set_arg(arg, buf)
+            setattr(self, which + "_buf", buf)
+        setattr(self, which, ary)
+
+    def _run(self, params: np.ndarray) -> np.ndarray:
+        """params (F, J, W) -> posed (F, N, 3) float64: one launch (SVM) or write+launch+read."""
+        cl = self._cl
+        f, j, width = params.shape
+        npad = self.n_blocks * LANES
+        self._alloc(f * j * width, 3, "_in")
+        self._alloc(f * npad * 3, 4, "_out")
+        if j != self._joints_bound:
+            self._kernel.set_arg(6, np.int32(j))
+            self._joints_bound = j
+        host_in = self._in[: f * j * width].reshape(params.shape)
+        host_in[...] = params                                        # float64 -> float32
+        q = self._queue
+        if not self._svm:
+            cl.enqueue_copy(q, self._in_buf, host_in, is_blocking=False)
+        cl.enqueue_nd_range_kernel(q, self._kernel, (self._global0, f), (self._local, 1))
+        if self._svm:
+            q.finish()
+        else:
+            cl.enqueue_copy(q, self._out[: f * npad * 3], self._out_buf, is_blocking=True)
+        out = self._out[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
+        return out.astype(np.float64)
+
+    def pose_dual_quaternions(self, dq) -> np.ndarray:
+        """DQS only: posed vertices (N, 3) from per-joint unit dual quaternions dq (J, 8)."""
+        if self.method != "dqs":
+            raise InputError("pose_dual_quaternions needs a deformer built with method='dqs'")
+        dq = _check_dq(dq, self.max_joint)
+        return self._run(dq[None])[0]
+
+
+class LbsDeformer(Deformer):
+    """Linear blend skinning deformer: ``LbsDeformer(rest, joints, weights).pose(mats)``."""
+
+    def __init__(self, rest, joints, weights):
+        super().__init__(rest, joints, weights, method="lbs")
+
+
+class DqsDeformer(Deformer):
+    """Dual quaternion skinning deformer: ``DqsDeformer(rest, joints, weights).pose(mats)``."""
+
+    def __init__(self, rest, joints, weights):
+        super().__init__(rest, joints, weights, method="dqs")

@@ -1,0 +1,270 @@
+"""LBS / DQS kernels against the float64 numpy references, plus properties and input errors."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from nrpose.errors import InputError
+from nrpose.skinning import (DqsDeformer, LbsDeformer, Deformer, dqs_reference,
+                             dqs_reference_dq, dual_quaternions, lbs_reference)
+
+
+# --------------------------------------------------------------------------- helpers
+
+def make_rig(rng, n, j, k, pad=True):
+    rest = rng.normal(size=(n, 3)) * np.array([0.3, 1.0, 0.2]) + np.array([0.1, 0.9, 0.0])
+    joints = rng.integers(0, j, size=(n, k))
+    weights = rng.random((n, k)) + 0.05
+    if pad and k > 1:  # some padding entries: weight 0, joint -1 (ignored)
+        drop = rng.random((n, k)) < 0.3
+        drop[:, 0] = False
+        weights[drop] = 0.0
+        joints[drop] = -1
+    return rest, joints, weights
+
+
+def rigid(rng, j, scale=1.0):
+    m = np.tile(np.eye(4), (j, 1, 1))
+    m[:, :3, :3] = Rotation.random(j, random_state=rng).as_matrix()
+    m[:, :3, 3] = rng.normal(size=(j, 3)) * scale
+    return m
+
+
+def affine(rng, j):
+    m = rigid(rng, j)
+    m[:, :3, :3] = m[:, :3, :3] @ (np.eye(3) + 0.3 * rng.normal(size=(j, 3, 3)))
+    return m
+
+
+def rotation_about(center, rotvec):
+    m = np.eye(4)
+    r = Rotation.from_rotvec(rotvec).as_matrix()
+    m[:3, :3] = r
+    m[:3, 3] = center - r @ center
+    return m
+
+
+def diag(x):
+    return float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+
+
+def assert_close(got, want, rel=1e-5):
+    tol = rel * max(diag(want.reshape(-1, 3)), 1e-12)
+    err = np.abs(got - want).max()
+    assert err <= tol, f"max error {err:.3g} > {tol:.3g} (1e-5 of bbox diagonal)"
+
+
+# --------------------------------------------------------------------------- kernel vs reference
+
+@pytest.mark.parametrize("k", [1, 4, 8])
+@pytest.mark.parametrize("n", [13, 1001])
+def test_lbs_matches_reference(k, n):
+    rng = np.random.default_rng(100 * k + n)
+    rest, joints, weights = make_rig(rng, n, 17, k)
+    d = LbsDeformer(rest, joints, weights)
+    for mats in (rigid(rng, 17), affine(rng, 17)):
+        got = d.pose(mats)
+        assert got.shape == (n, 3) and got.dtype == np.float64
+        assert_close(got, lbs_reference(rest, joints, weights, mats))
+
+
+@pytest.mark.parametrize("k", [1, 4, 8])
+@pytest.mark.parametrize("n", [13, 1001])
+def test_dqs_matches_reference(k, n):
+    rng = np.random.default_rng(200 * k + n)
+    rest, joints, weights = make_rig(rng, n, 17, k)
+    d = DqsDeformer(rest, joints, weights)
+    for _ in range(2):
+        mats = rigid(rng, 17)
+        got = d.pose(mats)
+        assert got.shape == (n, 3) and got.dtype == np.float64
+        assert_close(got, dqs_reference(rest, joints, weights, mats))
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_pose_frames_matches_pose(method):
+    rng = np.random.default_rng(5)
+    rest, joints, weights = make_rig(rng, 203, 9, 4)
+    d = Deformer(rest, joints, weights, method=method)
+    frames = np.stack([rigid(rng, 9) for _ in range(5)])
+    got = d.pose_frames(frames)
+    assert got.shape == (5, 203, 3)
+    ref = lbs_reference if method == "lbs" else dqs_reference
+    for f in range(5):
+        assert_close(got[f], ref(rest, joints, weights, frames[f]))
+    # a smaller batch and a single pose after a larger batch reuse the buffers
+    assert_close(d.pose_frames(frames[:2])[1], ref(rest, joints, weights, frames[1]))
+    assert_close(d.pose(frames[3]), ref(rest, joints, weights, frames[3]))
+
+
+def test_lbs_scale_is_honoured_dqs_ignores_it():
+    rng = np.random.default_rng(6)
+    rest, joints, weights = make_rig(rng, 40, 3, 2)
+    mats = rigid(rng, 3)
+    scaled = mats.copy()
+    scaled[:, :3, :3] *= 2.0
+    assert_close(DqsDeformer(rest, joints, weights).pose(scaled),
+                 dqs_reference(rest, joints, weights, mats))
+    one = np.zeros((40, 1), int)
+    assert_close(LbsDeformer(rest, one, np.ones((40, 1))).pose(scaled),
+                 rest @ scaled[0, :3, :3].T + scaled[0, :3, 3])
+
+
+# --------------------------------------------------------------------------- properties
+
+@pytest.mark.parametrize("cls", [LbsDeformer, DqsDeformer])
+def test_identity_gives_rest(cls):
+    rng = np.random.default_rng(1)
+    rest, joints, weights = make_rig(rng, 77, 6, 4)
+    eye = np.tile(np.eye(4), (6, 1, 1))
+    assert_close(cls(rest, joints, weights).pose(eye), rest)
+    ref = lbs_reference if cls is LbsDeformer else dqs_reference
+    np.testing.assert_allclose(ref(rest, joints, weights, eye), rest, atol=1e-12)
+
+
+@pytest.mark.parametrize("cls", [LbsDeformer, DqsDeformer])
+def test_common_rigid_motion(cls):
+    rng = np.random.default_rng(2)
+    rest, joints, weights = make_rig(rng, 77, 6, 8)
+    m = rigid(rng, 1)[0]
+    mats = np.tile(m, (6, 1, 1))
+    want = rest @ m[:3, :3].T + m[:3, 3]
+    assert_close(cls(rest, joints, weights).pose(mats), want)
+    ref = lbs_reference if cls is LbsDeformer else dqs_reference
+    np.testing.assert_allclose(ref(rest, joints, weights, mats), want, atol=1e-12)
+
+
+def test_weight_rows_are_normalised():
+    rng = np.random.default_rng(3)
+    rest, joints, weights = make_rig(rng, 30, 5, 4)
+    mats = affine(rng, 5)
+    a = LbsDeformer(rest, joints, weights).pose(mats)
+    b = LbsDeformer(rest, joints, 7.0 * weights).pose(mats)
+    assert_close(a, b)
+    np.testing.assert_allclose(lbs_reference(rest, joints, 7.0 * weights, mats),
+                               lbs_reference(rest, joints, weights, mats), atol=1e-12)
+
+
+def test_dqs_rigidity_about_a_shared_centre():
+    """Joints rotating about one point c: DQS keeps every |x - c| (LBS shrinks)."""
+    rng = np.random.default_rng(4)
+    n = 50
+    c = np.array([0.2, 1.0, -0.1])
+    rest = c + rng.normal(size=(n, 3))
+    mats = np.stack([np.eye(4), rotation_about(c, [0.0, 2.8, 0.0]),
+                     rotation_about(c, rng.normal(size=3))])
+    # single joint per vertex
+    single = np.full((n, 1), 1)
+    got = DqsDeformer(rest, single, np.ones((n, 1))).pose(mats)
+    np.testing.assert_allclose(np.linalg.norm(got - c, axis=1),
+                               np.linalg.norm(rest - c, axis=1), rtol=1e-5)
+    # blended between the three joints (the candy-wrapper set-up)
+    joints = np.tile([0, 1, 2], (n, 1))
+    weights = rng.random((n, 3))
+    r0 = np.linalg.norm(rest - c, axis=1)
+    got = DqsDeformer(rest, joints, weights).pose(mats)
+    np.testing.assert_allclose(np.linalg.norm(got - c, axis=1), r0, rtol=1e-5)
+    ref = dqs_reference(rest, joints, weights, mats)
+    np.testing.assert_allclose(np.linalg.norm(ref - c, axis=1), r0, rtol=1e-12)
+    lbs = np.linalg.norm(lbs_reference(rest, joints, weights, mats) - c, axis=1)
+    assert np.all(lbs <= r0 + 1e-12) and np.any(lbs < 0.9 * r0)
+
+
+def test_dqs_antipodal_quaternions_agree():
+    rng = np.random.default_rng(8)
+    rest, joints, weights = make_rig(rng, 301, 11, 4)
+    dq = dual_quaternions(rigid(rng, 11))
+    flipped = dq * np.where(rng.random(11) < 0.5, -1.0, 1.0)[:, None]
+    flipped[0] = -dq[0]
+    d = DqsDeformer(rest, joints, weights)
+    a = d.pose_dual_quaternions(dq)
+    b = d.pose_dual_quaternions(flipped)
+    assert_close(a, b)
+    ref = dqs_reference_dq(rest, joints, weights, dq)
+    np.testing.assert_allclose(dqs_reference_dq(rest, joints, weights, flipped), ref, atol=1e-12)
+    assert_close(a, ref)
+
+
+def test_dual_quaternions_encode_the_rigid_transform():
+    rng = np.random.default_rng(9)
+    mats = rigid(rng, 7)
+    dq = dual_quaternions(mats)
+    np.testing.assert_allclose(np.linalg.norm(dq[:, :4], axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.sum(dq[:, :4] * dq[:, 4:], axis=1), 0.0, atol=1e-12)
+    p = rng.normal(size=(7, 1, 3))
+    one = np.zeros((1, 1), int)
+    for j in range(7):
+        got = dqs_reference(p[j], one, np.ones((1, 1)), mats[j:j + 1])
+        np.testing.assert_allclose(got, p[j] @ mats[j, :3, :3].T + mats[j, :3, 3], atol=1e-12)
+
+
+# --------------------------------------------------------------------------- errors
+
+@pytest.fixture(scope="module")
+def good():
+    rng = np.random.default_rng(11)
+    rest, joints, weights = make_rig(rng, 10, 4, 2, pad=False)
+    return rest, joints, weights
+
+
+def _raises(match, fn, *args, **kw):
+    with pytest.raises(InputError, match=match):
+        fn(*args, **kw)
+
+
+@pytest.mark.parametrize("fn", [LbsDeformer, DqsDeformer,
+                                lambda r, j, w: lbs_reference(r, j, w, np.tile(np.eye(4), (4, 1, 1)))])
+def test_bad_bind_inputs(fn, good):
+    rest, joints, weights = good
+    _raises(r"shape \(N, 3\)", fn, rest[:, :2], joints, weights)
+    _raises(r"empty", fn, rest[:0], joints[:0], weights[:0])
+    _raises(r"\(N, K\) = \(10, K\)", fn, rest, joints[:5], weights[:5])
+    _raises(r"integers", fn, rest, joints.astype(float), weights)
+    _raises(r"shape of the joint indices", fn, rest, joints, weights[:, :1])
+    bad = rest.copy()
+    bad[3, 1] = np.nan
+    _raises(r"rest vertices contain NaN or inf \(1 of 10", fn, bad, joints, weights)
+    w = weights.copy()
+    w[2, 0] = np.inf
+    _raises(r"weights contain NaN or inf", fn, rest, joints, w)
+    w = weights.copy()
+    w[4, 1] = -0.1
+    _raises(r"non-negative.*vertex 4", fn, rest, joints, w)
+    w = weights.copy()
+    w[[1, 6]] = 0.0
+    _raises(r"2 of 10 vertices have all-zero weights \(first: vertex 1\)", fn, rest, joints, w)
+    j = joints.copy()
+    j[5, 0] = -2
+    _raises(r"joint indices must be >= 0.*vertex 5", fn, rest, j, weights)
+
+
+@pytest.mark.parametrize("cls", [LbsDeformer, DqsDeformer])
+def test_bad_pose_inputs(cls, good):
+    rest, joints, weights = good
+    d = cls(rest, joints, weights)
+    eye = np.tile(np.eye(4), (4, 1, 1))
+    _raises(r"joint index 3 is out of range for 3 skinning matrices", d.pose, eye[:3])
+    _raises(r"shape \(J, 4, 4\)", d.pose, eye[:, :3])
+    _raises(r"shape \(F, J, 4, 4\)", d.pose_frames, eye)
+    m = eye.copy()
+    m[1, 0, 0] = np.nan
+    _raises(r"NaN or inf", d.pose, m)
+    m = eye.copy()
+    m[2, 3, 0] = 0.5
+    _raises(r"affine", d.pose, m)
+    # still usable afterwards
+    assert_close(d.pose(eye), rest)
+
+
+def test_dqs_rejects_reflections_and_bad_quaternions(good):
+    rest, joints, weights = good
+    d = DqsDeformer(rest, joints, weights)
+    m = np.tile(np.eye(4), (4, 1, 1))
+    m[1, 0, 0] = -1.0
+    _raises(r"non-positive determinant", d.pose, m)
+    dq = np.zeros((4, 8))
+    dq[:, 3] = 2.0
+    _raises(r"unit real parts", d.pose_dual_quaternions, dq)
+    _raises(r"method='dqs'", LbsDeformer(rest, joints, weights).pose_dual_quaternions, dq)
+    _raises(r"'lbs' or 'dqs'", Deformer, rest, joints, weights, method="slerp")
