@@ -1,0 +1,132 @@
+"""Weight maps as PNG: a mesh coloured by one handle's blend weight.
+
+``save_weight_map(V, F, w, path, title)`` draws two views (front and
+oblique) of the mesh with every face coloured by the mean weight of its
+vertices (viridis, 0..1). ``save_weight_maps`` stacks several labelled
+weight columns (e.g. Euclidean vs heat) as rows. ``python -m
+nrpose.weightmap [out.png]`` renders the seed paper's Figure-2 comparison on
+the palm-and-two-fingers shape (default ``bench/results/fingers_weights.png``).
+Matplotlib's Agg backend: no display needed.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from .errors import InputError
+
+__all__ = ["save_weight_map", "save_weight_maps", "fingers_figure"]
+
+_VIEWS = (("front", 90.0, -90.0), ("oblique", 28.0, -62.0))
+
+
+def _check(vertices, faces, w):
+    V = np.asarray(vertices, dtype=np.float64)
+    F = np.asarray(faces, dtype=np.int64)
+    w = np.asarray(w, dtype=np.float64).reshape(-1)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        raise InputError(f"vertices must have shape (N, 3), got {V.shape}")
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or F.min() < 0 or F.max() >= len(V):
+        raise InputError("faces must be a non-empty (F, 3) array of valid vertex indices")
+    if len(w) != len(V) or not np.isfinite(w).all():
+        raise InputError(f"weights must be {len(V)} finite values, got {w.shape}")
+    return V, F, w
+
+
+def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, title: str = "",
+                     vmax: float | None = None, gamma: float = 1.0) -> Path:
+    """One row per labelled weight column, two views each; returns the path.
+
+    ``gamma`` < 1 stretches the colour scale near 0 (``PowerNorm``) so that
+    small leaked weights show."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    cols = list(columns.items())
+    if not cols:
+        raise InputError("no weight columns to draw")
+    checked = [(label, *_check(vertices, faces, w)) for label, w in cols]
+    V = checked[0][1]
+    lo, hi = V.min(axis=0), V.max(axis=0)
+    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
+    top = vmax if vmax is not None else max(1e-12, max(float(c[3].max()) for c in checked))
+    norm = (matplotlib.colors.Normalize(0.0, top) if gamma == 1.0
+            else matplotlib.colors.PowerNorm(gamma, 0.0, top))
+    cmap = matplotlib.colormaps["viridis"]
+
+    fig = plt.figure(figsize=(9, 3.6 * len(cols) + 0.6), dpi=110)
+    for r, (label, V, F, w) in enumerate(checked):
+        fw = w[F].mean(axis=1)
+        # a little Lambert shading so the shape reads in the oblique view
+        n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+        for c, (vname, elev, azim) in enumerate(_VIEWS):
+            ax = fig.add_subplot(len(cols), 2, 2 * r + c + 1, projection="3d")
+            e, a = np.radians(elev), np.radians(azim)
+            eye = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+            shade = 0.55 + 0.45 * np.abs(n @ eye)
+            rgba = cmap(norm(fw))
+            rgba[:, :3] *= shade[:, None]
+            poly = Poly3DCollection(V[F], facecolors=rgba, edgecolors="none", linewidths=0)
+            ax.add_collection3d(poly)
+            ext = np.maximum(hi - lo, 1e-3 * half)
+            ax.set_xlim(lo[0], lo[0] + ext[0])
+            ax.set_ylim(lo[1], lo[1] + ext[1])
+            ax.set_zlim(lo[2], lo[2] + ext[2])
+            ax.set_box_aspect(tuple(ext), zoom=1.0)
+            ax.view_init(elev=elev, azim=azim)
+            ax.set_axis_off()
+            ax.set_title(f"{label} — {vname}", fontsize=10)
+    fig.suptitle(title, fontsize=12)
+    sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
+    fig.subplots_adjust(left=0.0, right=0.86, bottom=0.02, top=0.9, wspace=0.0, hspace=0.08)
+    cax = fig.add_axes((0.89, 0.2, 0.02, 0.6))
+    fig.colorbar(sm, cax=cax, label="weight" + (f" (colour scale γ={gamma:g})" if gamma != 1.0 else ""))
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+    plt.close(fig)
+    return path
+
+
+def save_weight_map(vertices, faces, weights_column, path, title: str = "") -> Path:
+    """Two views of the mesh coloured by one handle's weights; returns the path."""
+    return save_weight_maps(vertices, faces, {"weight": weights_column}, path, title)
+
+
+def fingers_figure(path="bench/results/fingers_weights.png", alpha: float = 1.0) -> dict:
+    """Figure 2 of the seed paper on the palm-and-two-fingers shape: the blend
+    weight of finger A's bone with Euclidean vs heat-geodesic distances.
+    Returns a few numbers (max weight of bone A on finger B for both)."""
+    from .distances import distance_matrix
+    from .weights import dense_weights
+
+    try:
+        from rigs.fingers import fingers_shape
+    except ImportError:  # installed package layout
+        from nrpose.rigs.fingers import fingers_shape
+
+    s = fingers_shape()
+    V, F = s.vertices, s.faces
+    a = s.bone_names.index("finger_a")
+    W = {}
+    for method in ("euclidean", "heat"):
+        D = distance_matrix(V, F, None, s.bones, method=method)
+        W[method] = dense_weights(D, alpha)[:, a]
+    on_b = (V[:, 0] > 0.5 * s.finger_gap) & (V[:, 1] > 0.3)  # finger B, above the palm
+    stats = {m: float(W[m][on_b].max()) for m in W}
+    save_weight_maps(V, F, {f"{m}: max on finger B {stats[m]:.3f}": W[m] for m in W}, path,
+                     f"weight of finger A's bone (α={alpha:g}): spatial vs topological distance",
+                     gamma=0.5)
+    return stats
+
+
+if __name__ == "__main__":  # pragma: no cover
+    out = sys.argv[1] if len(sys.argv) > 1 else "bench/results/fingers_weights.png"
+    print(fingers_figure(out))
