@@ -1,0 +1,281 @@
+"""Skeleton model: joints, forward kinematics, and bones as segment handles.
+
+A :class:`Skeleton` has J joints in topological order (``parents[j] < j``,
+``-1`` for a root). Each joint has a rest *local* transform: translation
+(J, 3), rotation quaternion (J, 4) ``(x, y, z, w)`` and scale (J, 3), all
+float64, plus a fixed ``pre`` matrix (J, 4, 4), identity unless a file puts
+non-joint nodes between a joint and its parent joint (glTF: e.g. a Mixamo
+``Armature`` node above the hips). Global transforms follow the column-vector
+convention::
+
+    G[j] = G[parents[j]] @ pre[j] @ T(translation[j]) @ R(rotation[j]) @ S(scale[j])
+
+with ``G[parent] = I`` for roots. A :class:`LocalPose` holds local TRS for any
+batch of frames, shape (..., J, 3|4|3); :meth:`Skeleton.forward_kinematics`
+maps it to (..., J, 4, 4), level by level of the hierarchy (vectorised over
+all joints of a level and over frames).
+
+Bones (``Skeleton.bones()``) are the line-segment handles of the skeleton.
+They are formed from the rest pose by these rules, in this order:
+
+1. Targets of a joint j: every child c gives a segment from j to c, driven by
+   j (a joint with several children gets one segment per child, all driven by
+   j). A child at the same position as j (a zero-length bone, e.g. BVH
+   ``LHipJoint`` with offset 0) is looked through: its own targets, computed
+   recursively by this rule, become targets of j as well. A root with one child
+   therefore gives the segment root → child.
+2. An explicit tip (``tips[j]``: a BVH ``End Site`` or the far end of a leaf
+   TGF bone, an offset in j's local frame) gives a segment from j to the tip.
+3. A joint left without any segment by rules 1–2 (a glTF/TGF leaf, or a
+   joint whose descendants all coincide with it) gets a short segment along
+   the direction from its nearest ancestor at a different position to the
+   joint, of length ``leaf_fraction`` (default 0.5) times that distance.
+   A joint with no such ancestor drives no segment.
+4. Segments shorter than ``1e-9`` times the skeleton's extent are dropped, as
+   are repeated (driver, start, end) triples. Joints with ``deform[j] False``
+   drive no segment.
+
+A posed bone is its rest segment carried by its driving joint's transform
+``M_j = G_j(pose) @ G_j(rest)^-1``; its rotation is
+``R_pose_global @ R_rest_global^-1`` (polar rotation parts of the global
+matrices), which carries the rest bone onto the posed bone, twist included.
+A child translated by the pose (stretch) is therefore not followed.
+"""
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError
+from .rotation import Rotation
+
+__all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation"]
+
+#: relative length below which a bone is considered degenerate
+ZERO_LENGTH = 1e-9
+
+
+@dataclass(frozen=True)
+class LocalPose:
+    """Local joint transforms for a batch of frames.
+
+    translation: (..., J, 3), rotation: (..., J, 4) unit quaternions (x, y, z, w),
+    scale: (..., J, 3); float64, in the file's units.
+    """
+
+    translation: np.ndarray
+    rotation: np.ndarray
+    scale: np.ndarray
+
+
+def local_matrices(translation: np.ndarray, rotation: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """``T @ R @ S`` as (..., 4, 4) float64 from (..., 3), (..., 4) xyzw, (..., 3)."""
+    translation = np.asarray(translation, dtype=np.float64)
+    rotation = np.asarray(rotation, dtype=np.float64)
+    scale = np.asarray(scale, dtype=np.float64)
+    batch = np.broadcast_shapes(translation.shape[:-1], rotation.shape[:-1], scale.shape[:-1])
+    R = Rotation.from_quat(np.broadcast_to(rotation, batch + (4,)).reshape(-1, 4)).as_matrix()
+    M = np.zeros(batch + (4, 4))
+    M[..., :3, :3] = R.reshape(batch + (3, 3)) * np.broadcast_to(scale, batch + (3,))[..., None, :]
+    M[..., :3, 3] = translation
+    M[..., 3, 3] = 1.0
+    return M
+
+
+def polar_rotation(A: np.ndarray) -> np.ndarray:
+    """Rotation part of (..., 3, 3) linear maps (polar decomposition), (..., 3, 3).
+
+    For ``A = R @ S`` with S symmetric positive (uniform or axis scale) this is R.
+    """
+    U, _, Vt = np.linalg.svd(A)
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[..., :, 2] *= d[..., None]
+    return U @ Vt
+
+
+def _match_hint(name: str, names) -> str:
+    close = difflib.get_close_matches(name, list(names), n=5, cutoff=0.5)
+    if close:
+        return "did you mean " + ", ".join(repr(c) for c in close) + "?"
+    shown = ", ".join(repr(n) for n in list(names)[:12])
+    return f"known joints: {shown}{', ...' if len(names) > 12 else ''}"
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """Joint hierarchy with rest local transforms (see the module docstring).
+
+    names: J unique strings; parents: (J,) int64, ``parents[j] < j`` or -1;
+    translation (J, 3), rotation (J, 4) xyzw, scale (J, 3): rest local TRS;
+    pre: (J, 4, 4) fixed matrix between parent frame and local TRS (identity
+    default); tips: (J, 3) explicit bone tips in the joint's local frame, NaN
+    where none; deform: (J,) bool, joints that drive bones (all by default).
+    """
+
+    names: tuple[str, ...]
+    parents: np.ndarray
+    translation: np.ndarray
+    rotation: np.ndarray
+    scale: np.ndarray
+    pre: np.ndarray = None
+    tips: np.ndarray = None
+    deform: np.ndarray = None
+    _levels: tuple = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self):
+        names = tuple(str(n) for n in self.names)
+        J = len(names)
+        if J == 0:
+            raise InputError("a skeleton needs at least one joint")
+        if len(set(names)) != J:
+            dup = sorted({n for n in names if names.count(n) > 1})
+            raise InputError(f"duplicate joint names: {', '.join(dup)}")
+        parents = np.asarray(self.parents, dtype=np.int64).reshape(-1)
+        if parents.shape != (J,):
+            raise InputError(f"parents: expected {J} entries, got {parents.size}")
+        bad = np.flatnonzero((parents >= np.arange(J)) | (parents < -1))
+        if bad.size:
+            j = int(bad[0])
+            raise InputError(f"joint {names[j]!r} (index {j}) has parent {parents[j]}: joints must "
+                             "be in topological order (parent index < child index, -1 for roots)")
+        eye = np.broadcast_to(np.eye(4), (J, 4, 4))
+        arrays = {
+            "translation": (self.translation, (J, 3), None),
+            "rotation": (self.rotation, (J, 4), None),
+            "scale": (self.scale, (J, 3), None),
+            "pre": (self.pre, (J, 4, 4), eye),
+            "tips": (self.tips, (J, 3), np.full((J, 3), np.nan)),
+        }
+        for key, (value, shape, default) in arrays.items():
+            arr = np.array(default if value is None else value, dtype=np.float64)
+            if arr.shape != shape:
+                raise InputError(f"skeleton {key}: expected shape {shape}, got {arr.shape}")
+            if key != "tips" and not np.isfinite(arr).all():
+                raise InputError(f"skeleton {key}: contains NaN or infinite values")
+            object.__setattr__(self, key, arr)
+        norms = np.linalg.norm(self.rotation, axis=1)
+        if (norms < 1e-12).any():
+            raise InputError(f"skeleton rotation of joint {names[int(np.argmin(norms))]!r} is a zero quaternion")
+        self.rotation[:] /= norms[:, None]
+        deform = np.ones(J, bool) if self.deform is None else np.asarray(self.deform, dtype=bool)
+        if deform.shape != (J,):
+            raise InputError(f"skeleton deform: expected shape ({J},), got {deform.shape}")
+        depth = np.zeros(J, np.int64)
+        for j in range(J):
+            depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
+        levels = tuple(np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1))
+        for key, value in (("names", names), ("parents", parents), ("deform", deform), ("_levels", levels)):
+            object.__setattr__(self, key, value)
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.names)
+
+    @property
+    def rest_pose(self) -> LocalPose:
+        """The rest local transforms as a :class:`LocalPose` of shape (J, ...) (copies)."""
+        return LocalPose(self.translation.copy(), self.rotation.copy(), self.scale.copy())
+
+    def index(self, name: str) -> int:
+        """Index of joint ``name``; InputError naming close matches if unknown."""
+        try:
+            return self.names.index(name)
+        except ValueError:
+            raise InputError(f"unknown joint {name!r}; {_match_hint(name, self.names)}") from None
+
+    def children(self, j: int) -> np.ndarray:
+        """Indices (int64) of the children of joint j, ascending."""
+        return np.flatnonzero(self.parents == j)
+
+    def forward_kinematics(self, pose: LocalPose | None = None) -> np.ndarray:
+        """Global matrices (..., J, 4, 4) float64 of ``pose`` (rest pose if None)."""
+        pose = self.rest_pose if pose is None else pose
+        L = self.pre @ local_matrices(pose.translation, pose.rotation, pose.scale)
+        if L.shape[-3] != self.num_joints:
+            raise InputError(f"pose has {L.shape[-3]} joints, skeleton has {self.num_joints}")
+        G = np.empty_like(L)
+        G[..., self._levels[0], :, :] = L[..., self._levels[0], :, :]
+        for level in self._levels[1:]:
+            G[..., level, :, :] = G[..., self.parents[level], :, :] @ L[..., level, :, :]
+        return G
+
+    def rest_globals(self) -> np.ndarray:
+        """Global rest matrices (J, 4, 4) float64."""
+        return self.forward_kinematics()
+
+    def bones(self, leaf_fraction: float = 0.5) -> "Bones":
+        """Segment handles of the rest pose, formed by the module docstring's rules."""
+        return Bones.from_skeleton(self, leaf_fraction)
+
+
+@dataclass(frozen=True)
+class Bones:
+    """Line-segment handles driven by joints.
+
+    segments: (B, 2, 3) float64 rest (start, end); joints: (B,) int64 driving
+    joint; names: B labels ``"joint->target"``; rest_globals: (J, 4, 4) global
+    rest matrices of the skeleton they were made from.
+    """
+
+    segments: np.ndarray
+    joints: np.ndarray
+    names: tuple[str, ...]
+    rest_globals: np.ndarray
+
+    @classmethod
+    def from_skeleton(cls, skel: Skeleton, leaf_fraction: float = 0.5) -> "Bones":
+        G = skel.rest_globals()
+        pos = G[:, :3, 3]
+        tips = np.einsum("jab,jb->ja", G[:, :3, :3], skel.tips) + pos
+        extent = float(np.ptp(np.vstack([pos, tips[np.isfinite(tips[:, 0])]]), axis=0).max(initial=0.0))
+        eps = ZERO_LENGTH * max(extent, 1e-300)
+        children = [skel.children(j) for j in range(skel.num_joints)]
+
+        def targets(j: int, origin: np.ndarray) -> list[tuple[str, np.ndarray]]:
+            found = []
+            if np.isfinite(tips[j, 0]):
+                found.append((f"{skel.names[j]}_tip", tips[j]))
+            for c in children[j]:
+                if np.linalg.norm(pos[c] - origin) > eps:
+                    found.append((skel.names[c], pos[c]))
+                else:
+                    found.extend(targets(int(c), origin))
+            return found
+
+        segs, drivers, names = [], [], []
+        for j in np.flatnonzero(skel.deform):
+            seen = set()
+            for label, end in targets(int(j), pos[j]):
+                if np.linalg.norm(end - pos[j]) > eps and tuple(end) not in seen:
+                    seen.add(tuple(end))
+                    segs.append((pos[j], end))
+                    drivers.append(j)
+                    names.append(f"{skel.names[j]}->{label}")
+            if not seen:
+                a = skel.parents[j]
+                while a >= 0 and np.linalg.norm(pos[j] - pos[a]) <= eps:
+                    a = skel.parents[a]
+                if a >= 0:
+                    segs.append((pos[j], pos[j] + leaf_fraction * (pos[j] - pos[a])))
+                    drivers.append(j)
+                    names.append(f"{skel.names[j]}->(leaf)")
+        return cls(np.asarray(segs, dtype=np.float64).reshape(-1, 2, 3),
+                   np.asarray(drivers, dtype=np.int64), tuple(names), G)
+
+    def __len__(self) -> int:
+        return len(self.joints)
+
+    def pose(self, globals_: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posed segments (..., B, 2, 3) and rotations relative to rest (..., B, 3, 3).
+
+        globals_: (..., J, 4, 4) global joint matrices of the pose (from
+        :meth:`Skeleton.forward_kinematics`).
+        """
+        Gp = np.asarray(globals_, dtype=np.float64)[..., self.joints, :, :]
+        Gr = self.rest_globals[self.joints]
+        M = Gp @ np.linalg.inv(Gr)
+        ends = np.einsum("...bij,bkj->...bki", M[..., :3, :3], self.segments) + M[..., None, :3, 3]
+        R = polar_rotation(Gp[..., :3, :3]) @ np.swapaxes(polar_rotation(Gr[:, :3, :3]), -1, -2)
+        return ends, R
