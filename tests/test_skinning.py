@@ -98,6 +98,24 @@ def test_pose_frames_matches_pose(method):
     assert_close(d.pose(frames[3]), ref(rest, joints, weights, frames[3]))
 
 
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_padded_influences_and_buffer_fallback(method):
+    """K = 8 with only 2 real influences (the kernel stops early), and the
+    plain-buffer path used on devices without fine-grained SVM."""
+    rng = np.random.default_rng(12)
+    rest, joints, weights = make_rig(rng, 99, 7, 2, pad=False)
+    joints8 = np.concatenate([np.full((99, 6), -1), joints], axis=1)   # padding first
+    weights8 = np.concatenate([np.zeros((99, 6)), weights], axis=1)
+    ref = lbs_reference if method == "lbs" else dqs_reference
+    mats = rigid(rng, 7)
+    want = ref(rest, joints, weights, mats)
+    assert_close(Deformer(rest, joints8, weights8, method=method).pose(mats), want)
+    d = Deformer(rest, joints8, weights8, method=method)
+    d._svm = False
+    assert_close(d.pose(mats), want)
+    assert_close(d.pose_frames(np.stack([mats, mats]))[1], want)
+
+
 def test_lbs_scale_is_honoured_dqs_ignores_it():
     rng = np.random.default_rng(6)
     rest, joints, weights = make_rig(rng, 40, 3, 2)
