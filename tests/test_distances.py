@@ -396,3 +396,12 @@ def test_save_weight_map(tmp_path, sphere):
     w = dense_weights(distance_matrix(V, F, V[[0, 5]], None, method="graph"))[:, 0]
     out = save_weight_map(V, F, w, tmp_path / "w.png", "test")
     assert out.exists() and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_heat_falls_back_to_graph_on_a_rejected_mesh():
+    # zero-area (collinear) triangles: the cotangent Laplacian is undefined
+    V = np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]], float)
+    F = np.array([[0, 1, 2], [1, 2, 3]])
+    with pytest.warns(RuntimeWarning, match="graph"):
+        D = distance_matrix(V, F, [[0.0, 0.0, 0.0]], method="heat")
+    np.testing.assert_allclose(D[:, 0], [0, 1, 2, 3])
