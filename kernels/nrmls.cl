@@ -1,0 +1,133 @@
+/* Near-rigid MLS pose kernel (Jeong & Kim), relative-rotation blend.
+ *
+ * Reference: nrpose/blend.py (pose_reference), float64. Everything that
+ * depends only on the rest configuration is bound once (see nrpose/engine.py);
+ * a pose uploads one small float buffer of per-handle data.
+ *
+ * Each work-item poses 8 consecutive points with float8 lanes: on PoCL CPU
+ * explicit vectors were worth ~4x over scalar work-items (shared/notes/pocl.md).
+ * No fma()/mad() builtins: they are ~10x slower than a*b+c on PoCL.
+ *
+ * Layouts (Np = number of points padded to a multiple of 8; SoA rows of Np):
+ *   u      [3][Np]        v - p*
+ *   ref    [Np]  int      reference rotation index: segment s, or S for global;
+ *                         points are stored sorted by ref (stable), so the 8 lanes
+ *                         of a work-item nearly always share it (scalar loads
+ *                         instead of gathers)
+ *   row    [Np]  int      output row of each stored point (undoes the sort)
+ *   coef   [P+2S][Np]     q* = sum_r coef[r] * qpos[r]: point handles (w),
+ *                         then per segment (w(1-t), w t) on its posed ends
+ *   lever  [P+S][Np]      normalised levers (points, then segments)
+ *   phat   [P][3][Np]     p_i - p* of the point handles
+ *   pose   qpos [(P+2S)*3] | refs [(S+1)*9] row-major | table [(S+1)*S*3]
+ *          table[j][s] = log(R_ref_j^-1 R_s)
+ *   out    [N*3]          posed points, xyz interleaved, in the caller's order
+ */
+
+#define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
+                                (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+
+__kernel void nrmls_pose(const int np, const int P, const int S,
+                         __global const float *u, __global const int *ref, __global const int *row,
+                         __global const float *coef, __global const float *lever,
+                         __global const float *phat, __global const float *pose,
+                         __global float *out, const int per_item)
+{
+    const int R = P + 2 * S;
+    __global const float *qpos = pose;
+    __global const float *refs = pose + 3 * R;
+    __global const float *table = refs + 9 * (S + 1);
+    const int chunks = np / 8;
+    for (int g = get_global_id(0) * per_item; g < min(chunks, (int)(get_global_id(0) + 1) * per_item); ++g) {
+
+    /* q* = weighted posed centroid, linear in the posed handle positions */
+    float8 qx = 0.0f, qy = 0.0f, qz = 0.0f;
+    for (int r = 0; r < R; ++r) {
+        const float8 c = vload8(g, coef + r * np);
+        qx += c * qpos[3 * r];
+        qy += c * qpos[3 * r + 1];
+        qz += c * qpos[3 * r + 2];
+    }
+
+    /* reference rotation and blended rotation vector relative to it */
+    const int8 rf = vload8(g, ref);
+    const int uniform = all(rf == (int8)rf.s0);
+    float8 m00, m01, m02, m10, m11, m12, m20, m21, m22;
+    float8 rx = 0.0f, ry = 0.0f, rz = 0.0f;
+    if (uniform) {                       /* one reference for all 8 lanes */
+        __global const float *m = refs + 9 * rf.s0;
+        m00 = m[0]; m01 = m[1]; m02 = m[2]; m10 = m[3]; m11 = m[4]; m12 = m[5];
+        m20 = m[6]; m21 = m[7]; m22 = m[8];
+        __global const float *trow = table + 3 * S * rf.s0;
+        for (int s = 0; s < S; ++s) {
+            const float8 l = vload8(g, lever + (P + s) * np);
+            rx += l * trow[3 * s];
+            ry += l * trow[3 * s + 1];
+            rz += l * trow[3 * s + 2];
+        }
+    } else {                             /* lanes straddle two references: gather */
+        const int8 r9 = rf * 9;
+        m00 = GATHER8(refs, r9);     m01 = GATHER8(refs, r9 + 1); m02 = GATHER8(refs, r9 + 2);
+        m10 = GATHER8(refs, r9 + 3); m11 = GATHER8(refs, r9 + 4); m12 = GATHER8(refs, r9 + 5);
+        m20 = GATHER8(refs, r9 + 6); m21 = GATHER8(refs, r9 + 7); m22 = GATHER8(refs, r9 + 8);
+        const int8 trow = rf * (3 * S);
+        for (int s = 0; s < S; ++s) {
+            const float8 l = vload8(g, lever + (P + s) * np);
+            const int8 i = trow + 3 * s;
+            rx += l * GATHER8(table, i);
+            ry += l * GATHER8(table, i + 1);
+            rz += l * GATHER8(table, i + 2);
+        }
+    }
+    for (int p = 0; p < P; ++p) {
+        /* minimal rotation taking phat onto R_ref^-1 qhat */
+        const float8 hx = qpos[3 * p] - qx, hy = qpos[3 * p + 1] - qy, hz = qpos[3 * p + 2] - qz;
+        const float8 yx = m00 * hx + m10 * hy + m20 * hz;
+        const float8 yy = m01 * hx + m11 * hy + m21 * hz;
+        const float8 yz = m02 * hx + m12 * hy + m22 * hz;
+        const float8 px = vload8(g, phat + (3 * p) * np);
+        const float8 py = vload8(g, phat + (3 * p + 1) * np);
+        const float8 pz = vload8(g, phat + (3 * p + 2) * np);
+        const float8 cx = py * yz - pz * yy, cy = pz * yx - px * yz, cz = px * yy - py * yx;
+        const float8 sn = sqrt(cx * cx + cy * cy + cz * cz);
+        const float8 cs = px * yx + py * yy + pz * yz;
+        const float8 k = select(0.0f, atan2(sn, cs) / sn, sn > 0.0f);
+        const float8 l = vload8(g, lever + p * np) * k;
+        rx += l * cx;
+        ry += l * cy;
+        rz += l * cz;
+    }
+
+    /* w = exp(r) u, Rodrigues with a = sin(th)/th, b = (1-cos th)/th^2 written
+     * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
+     * sinc and cos are Taylor polynomials in x = h^2 (|r| <= pi, so h <= pi/2:
+     * truncation < 5e-8); no sqrt, no division, no transcendental call. */
+    const float8 ux = vload8(g, u), uy = vload8(g, u + np), uz = vload8(g, u + 2 * np);
+    const float8 x = 0.25f * (rx * rx + ry * ry + rz * rz);
+    const float8 sinc = 1.0f + x * (-1.0f / 6 + x * (1.0f / 120 + x * (-1.0f / 5040 + x * (1.0f / 362880
+                      + x * (-1.0f / 39916800 + x * (1.0f / 6227020800.0f))))));
+    const float8 ch = 1.0f + x * (-0.5f + x * (1.0f / 24 + x * (-1.0f / 720 + x * (1.0f / 40320
+                    + x * (-1.0f / 3628800 + x * (1.0f / 479001600 + x * (-1.0f / 87178291200.0f)))))));
+    const float8 a = sinc * ch;
+    const float8 b = 0.5f * sinc * sinc;
+    const float8 kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
+    const float8 jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
+    const float8 wx = ux + a * kx + b * jx;
+    const float8 wy = uy + a * ky + b * jy;
+    const float8 wz = uz + a * kz + b * jz;
+
+    /* v' = R_ref w + q* */
+    const float8 ox = m00 * wx + m01 * wy + m02 * wz + qx;
+    const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
+    const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
+    const int8 o = 3 * vload8(g, row);
+    out[o.s0] = ox.s0; out[o.s0 + 1] = oy.s0; out[o.s0 + 2] = oz.s0;
+    out[o.s1] = ox.s1; out[o.s1 + 1] = oy.s1; out[o.s1 + 2] = oz.s1;
+    out[o.s2] = ox.s2; out[o.s2 + 1] = oy.s2; out[o.s2 + 2] = oz.s2;
+    out[o.s3] = ox.s3; out[o.s3 + 1] = oy.s3; out[o.s3 + 2] = oz.s3;
+    out[o.s4] = ox.s4; out[o.s4 + 1] = oy.s4; out[o.s4 + 2] = oz.s4;
+    out[o.s5] = ox.s5; out[o.s5 + 1] = oy.s5; out[o.s5 + 2] = oz.s5;
+    out[o.s6] = ox.s6; out[o.s6 + 1] = oy.s6; out[o.s6 + 2] = oz.s6;
+    out[o.s7] = ox.s7; out[o.s7 + 1] = oy.s7; out[o.s7 + 2] = oz.s7;
+    }
+}

@@ -1,0 +1,241 @@
+"""The near-rigid MLS blend (Jeong & Kim), split into rest-only terms and a pose.
+
+For a point v and handles i (rest p_i, posed q_i), with normalised weights
+ŵ_i = w_i / Σ w_i, ``w_i = 1 / d_i(v)^(2α)``::
+
+    p* = Σ ŵ_i p_i          q* = Σ ŵ_i q_i          p̂_i = p_i − p*
+    R  = blend of the handles' rotations r_i with levers λ_i
+    v' = R (v − p*) + q*
+
+A segment handle acts as the point of the rest segment closest to v (parameter
+t), and as the point at the same t on the posed segment.
+
+Levers (``lever=``): the paper weighs each rotation by ``w_i |p̂_i|²``, the squared
+length of the vector whose direction change defines r_i. That is right for a
+point handle, but for a segment the rotation is the segment's own and p̂_i is
+the offset of its closest point from p*, which *vanishes for the bone nearest
+to v*: the nearest bone loses its say and distant bones take over the rotation
+(a cylinder bent 90° at a joint kept 26 % of its volume). The default rule,
+``"length"``, gives a segment the lever ``w_i ℓ_i²``: the squared length of the
+vector its rotation is measured on, the segment itself. It never vanishes and
+does not grow with distance from v, so the nearest bone dominates as its
+weight says. ``"paper"`` keeps the literal ``w_i |p̂_i|²`` for segments too.
+Point handles always use ``w_i |p̂_i|²``.
+
+Blends (``blend=``): ``"paper"`` averages rotation vectors, ``R = exp(Σ λ̃_i r_i)``,
+which is not equivariant: a global turn of the posed handles by a large angle
+does not commute with the deformation. ``"relative"`` (default) averages in the
+tangent space of a per-point reference rotation R_ref:
+``R = R_ref exp(Σ λ̃_i log(R_ref⁻¹ R_i))``. R_ref is the rotation of the handle
+with the largest lever when that is a segment. A point handle has no rotation
+of its own (only a direction pair), so points dominated by a point handle use
+the global rotation R_g, the least-squares rotation of all handle positions
+(rows: point handles, segment ends) from rest to pose. A point handle's relative
+rotation is the minimal rotation taking p̂_i onto the direction of
+``R_ref⁻¹ q̂_i``. Every term then turns with a global rotation G of the posed
+handles (R_ref → G R_ref, q* → G q*), so G commutes with the deformation. With
+R_ref = I it is exactly the paper's blend, which is how ``"paper"`` is run.
+
+Everything here is float64 numpy. :func:`rest_terms` is computed once per
+binding (the engine uploads it to the device); :func:`pose_reference` is the
+float64 reference of the device's pose kernel.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InputError
+from .handles import HandleSet, Pose, check_alpha
+from .rotation import Rotation, kabsch, minimal_rotvec, relative_rotvec_table
+
+BLENDS = ("relative", "paper")
+LEVERS = ("length", "paper")
+
+
+@dataclass(frozen=True)
+class RestTerms:
+    """Rest-only quantities of a binding, per point (N points, P point handles,
+    S segment handles, H = P + S; handle columns are points first).
+
+    weights: (N, H) normalised blend weights ŵ (rows sum to 1).
+    t:       (N, S) closest-point parameter on each rest segment, in [0, 1].
+    p_star:  (N, 3) weighted rest centroid p*.
+    u:       (N, 3) v − p*.
+    lever:   (N, H) normalised levers λ̃ (rows sum to 1, or all 0 when every
+             lever vanishes: then R = R_ref).
+    ref:     (N,) int, reference rotation: segment index in [0, S), or S for
+             the global rotation R_g.
+    phat:    (N, P, 3) p̂_i = p_i − p* of the point handles.
+    """
+
+    weights: np.ndarray
+    t: np.ndarray
+    p_star: np.ndarray
+    u: np.ndarray
+    lever: np.ndarray
+    ref: np.ndarray
+    phat: np.ndarray
+
+
+def check_points(points, what: str = "points") -> np.ndarray:
+    """(N, 3) finite float64 array with N ≥ 1, or InputError."""
+    try:
+        arr = np.asarray(points, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected an (N, 3) array of numbers") from None
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise InputError(f"{what}: expected shape (N, 3), got {arr.shape}")
+    if len(arr) == 0:
+        raise InputError(f"{what}: empty; nothing to deform")
+    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
+    if len(bad):
+        raise InputError(f"{what}: {len(bad)} point(s) have NaN or infinite coordinates "
+                         f"(first: index {int(bad[0])}); remove or repair them")
+    return arr
+
+
+def segment_parameters(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Closest-point parameters t (N, S) of points (N, 3) on segments (S, 2, 3), clamped to [0, 1]."""
+    a = segments[:, 0]
+    ab = segments[:, 1] - a
+    rel = points[:, None, :] - a[None]
+    t = np.einsum("nsk,sk->ns", rel, ab) / np.einsum("sk,sk->s", ab, ab)
+    return np.clip(t, 0.0, 1.0)
+
+
+def handle_points(handles: HandleSet, t: np.ndarray) -> np.ndarray:
+    """Per-point handle positions (N, H, 3): point handles, then segments at parameters t (N, S)."""
+    n = len(t)
+    pts = np.broadcast_to(handles.points[None], (n,) + handles.points.shape)
+    a = handles.segments[:, 0]
+    seg = a[None] + t[..., None] * (handles.segments[:, 1] - a)[None]
+    return np.concatenate([pts, seg], axis=1)
+
+
+def inverse_distance_weights(d: np.ndarray, alpha: float) -> np.ndarray:
+    """Normalised weights ŵ (N, H) from distances d (N, H) ≥ 0: ŵ ∝ 1 / d^(2α).
+
+    Computed as (d_min / d)^(2α) per row, so no weight overflows; a handle at
+    distance 0 takes the whole weight (shared equally among several such).
+    """
+    dmin = d.min(axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(dmin > 0, dmin / d, (d == 0).astype(np.float64))
+    w = ratio ** (2.0 * alpha)
+    return w / w.sum(axis=1, keepdims=True)
+
+
+def _check_matrix(m, shape, what: str) -> np.ndarray:
+    try:
+        m = np.asarray(m, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(f"{what}: expected a numeric matrix of shape {shape}") from None
+    if m.shape != shape:
+        raise InputError(f"{what}: expected shape {shape} (points × handles), got {m.shape}")
+    if not np.isfinite(m).all() or (m < 0).any():
+        raise InputError(f"{what}: entries must be finite and non-negative")
+    return m
+
+
+def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "length",
+               distances=None, weights=None) -> RestTerms:
+    """Rest-only terms of the blend for points (N, 3) and rest handles.
+
+    distances: optional (N, H) distances replacing the Euclidean ones (e.g.
+    geodesic). weights: optional (N, H) non-negative weights used as w_i
+    directly (e.g. authored skin weights); excludes ``distances``.
+    """
+    v = check_points(points)
+    alpha = check_alpha(alpha)
+    if lever not in LEVERS:
+        raise InputError(f"lever must be one of {LEVERS}, got {lever!r}")
+    if distances is not None and weights is not None:
+        raise InputError("give either distances or weights, not both")
+    n, P, S = len(v), len(rest.points), len(rest.segments)
+    H = P + S
+    t = segment_parameters(v, rest.segments)
+    p = handle_points(rest, t)
+    if weights is not None:
+        w = _check_matrix(weights, (n, H), "weights")
+        sums = w.sum(axis=1, keepdims=True)
+        if (sums <= 0).any():
+            raise InputError(f"weights: {int((sums <= 0).sum())} point(s) have no positive weight; "
+                             "every point needs at least one influencing handle")
+        w = w / sums
+    else:
+        d = (np.linalg.norm(v[:, None, :] - p, axis=2) if distances is None
+             else _check_matrix(distances, (n, H), "distances"))
+        w = inverse_distance_weights(d, alpha)
+    p_star = np.einsum("nh,nhk->nk", w, p)
+    phat = p - p_star[:, None, :]
+    lev = w * np.einsum("nhk,nhk->nh", phat, phat)
+    if lever == "length":
+        lengths2 = np.sum((rest.segments[:, 1] - rest.segments[:, 0]) ** 2, axis=1)
+        lev[:, P:] = w[:, P:] * lengths2[None]
+    total = lev.sum(axis=1, keepdims=True)
+    lev = np.where(total > 0, lev / np.where(total > 0, total, 1.0), 0.0)
+    dominant = np.where(total[:, 0] > 0, lev.argmax(axis=1), w.argmax(axis=1))
+    ref = np.where(dominant >= P, dominant - P, S).astype(np.int32)
+    return RestTerms(weights=w, t=t, p_star=p_star, u=v - p_star, lever=lev, ref=ref,
+                     phat=phat[:, :P].copy())
+
+
+def reference_rotations(rest: HandleSet, pose: Pose, blend: str) -> Rotation:
+    """The S + 1 reference rotations: each segment's, then the global one.
+
+    ``"paper"``: all identity (the paper blends absolute rotation vectors).
+    ``"relative"``: segment rotations, then R_g (Kabsch fit of all handle
+    positions, point handles and segment ends, rest → pose).
+    """
+    if blend not in BLENDS:
+        raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
+    S = len(rest.segments)
+    if blend == "paper":
+        return Rotation.identity(S + 1)
+    P0 = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
+    Q0 = np.concatenate([pose.handles.points, pose.handles.segments.reshape(-1, 3)])
+    mats = np.concatenate([pose.rotations, kabsch(P0, Q0)[None]])
+    return Rotation.from_matrix(mats)
+
+
+def rotation_table(rest: HandleSet, pose: Pose, blend: str) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pose rotation data for the kernel.
+
+    Returns (refs (S+1, 3, 3) reference rotation matrices, table (S+1, S, 3))
+    with table[j, i] = log(R_ref_j⁻¹ R_i), the rotation vector of segment i
+    relative to reference j.
+    """
+    refs = reference_rotations(rest, pose, blend)
+    S = len(rest.segments)
+    if blend == "paper":
+        logs = Rotation.from_matrix(pose.rotations).as_rotvec() if S else np.zeros((0, 3))
+        table = np.broadcast_to(logs[None], (S + 1, S, 3)).copy()
+    else:
+        table = relative_rotvec_table(refs.as_quat())[:, :S]
+    return refs.as_matrix(), table
+
+
+def pose_reference(terms: RestTerms, rest: HandleSet, pose: Pose, blend: str = "relative") -> np.ndarray:
+    """Float64 reference of the pose kernel: posed points (N, 3)."""
+    rest.same_layout(pose.handles, "posed handles")
+    P = len(rest.points)
+    q = handle_points(pose.handles, terms.t)
+    q_star = np.einsum("nh,nhk->nk", terms.weights, q)
+    refs, table = rotation_table(rest, pose, blend)
+    R_ref = refs[terms.ref]                                         # (N, 3, 3)
+    r = np.einsum("ns,nsk->nk", terms.lever[:, P:], table[terms.ref])
+    if P:
+        qhat = q[:, :P] - q_star[:, None, :]
+        local = np.einsum("nji,npj->npi", R_ref, qhat)              # R_ref⁻¹ q̂_i
+        r += np.einsum("np,npk->nk", terms.lever[:, :P], minimal_rotvec(terms.phat, local))
+    rot = Rotation.from_matrix(R_ref) * Rotation.from_rotvec(r)
+    return rot.apply(terms.u) + q_star
+
+
+def deform_reference(points, rest: HandleSet, pose: Pose, alpha: float = 1.0, blend: str = "relative",
+                     lever: str = "length", distances=None, weights=None) -> np.ndarray:
+    """One-shot float64 reference deformation: posed points (N, 3)."""
+    terms = rest_terms(points, rest, alpha, lever, distances, weights)
+    return pose_reference(terms, rest, pose, blend)

@@ -1,0 +1,110 @@
+"""Bind once, pose many: the near-rigid MLS deformer on OpenCL (or the numpy reference).
+
+    deformer = Deformer(points, rest_handles, alpha=1.0)        # bind: rest-only work
+    posed = deformer.pose(pose)                                   # per frame: (N, 3)
+
+Binding computes :class:`nrpose.blend.RestTerms` in float64 on the host and
+uploads them once (float32) to the device; the kernel objects and buffers
+live as long as the deformer. A pose uploads one buffer of per-handle data
+(posed handle positions, the S+1 reference rotations and the table of
+relative rotation vectors, ~(P + 2S)·3 + (S+1)·(9 + 3S) floats) and runs one
+kernel.
+
+``backend="numpy"`` runs :func:`nrpose.blend.pose_reference` instead (float64);
+nothing ever falls back to it silently.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import device
+from .blend import BLENDS, RestTerms, pose_reference, rest_terms, rotation_table
+from .errors import InputError
+from .handles import HandleSet, Pose
+
+BACKENDS = ("opencl", "numpy")
+LANES = 8  # points per work-item (float8)
+
+
+class Deformer:
+    """A point set bound to rest handles.
+
+    points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
+    blend: "relative" (default, equivariant) or "paper"; lever: "length"
+    (default) or "paper" (see :mod:`nrpose.blend`); distances / weights:
+    optional (N, H) matrices replacing Euclidean distances / giving the w_i.
+    """
+
+    def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
+                 lever: str = "length", distances=None, weights=None, backend: str = "opencl"):
+        if backend not in BACKENDS:
+            raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        if blend not in BLENDS:
+            raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
+        self.rest = rest
+        self.blend = blend
+        self.backend = backend
+        self.terms: RestTerms = rest_terms(points, rest, alpha, lever, distances, weights)
+        self.n = len(self.terms.u)
+        if backend == "opencl":
+            self._bind_device()
+
+    # -- device ---------------------------------------------------------------
+    def _bind_device(self) -> None:
+        import pyopencl as cl
+
+        ctx, self._queue = device.context()
+        T = self.terms
+        P, S = len(self.rest.points), len(self.rest.segments)
+        n, npad = self.n, -(-self.n // LANES) * LANES
+        self._npad = npad
+
+        def soa(rows: np.ndarray) -> np.ndarray:  # (rows, N) -> (rows, Npad) float32
+            out = np.zeros((rows.shape[0], npad), np.float32)
+            out[:, :n] = rows
+            return out
+
+        # store points sorted by reference rotation so that a work-item's lanes
+        # share it; `row` sends each stored point back to its caller's row
+        order = np.argsort(T.ref, kind="stable")
+        w, t = T.weights[order], T.t[order]
+        coef = np.concatenate([w[:, :P].T, np.stack([w[:, P:] * (1 - t), w[:, P:] * t], 2).reshape(n, 2 * S).T])
+        ref = np.full(npad, S, np.int32)
+        ref[:n] = T.ref[order]
+        row = np.arange(npad, dtype=np.int32)
+        row[:n] = order
+        arrays = {
+            "u": soa(T.u[order].T), "ref": ref, "row": row, "coef": soa(coef), "lever": soa(T.lever[order].T),
+            "phat": soa(T.phat[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else np.zeros(1, np.float32),
+        }
+        mf = cl.mem_flags
+        self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
+                      for k, a in arrays.items()}
+        self._pose_floats = 3 * (P + 2 * S) + 9 * (S + 1) + 3 * (S + 1) * S
+        self._bufs["pose"] = cl.Buffer(ctx, mf.READ_ONLY, 4 * self._pose_floats)
+        self._bufs["out"] = cl.Buffer(ctx, mf.WRITE_ONLY, 4 * 3 * npad)
+        self._kernel = cl.Kernel(device.program("nrmls.cl"), "nrmls_pose")
+        b = self._bufs
+        self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), b["u"], b["ref"], b["row"], b["coef"],
+                              b["lever"], b["phat"], b["pose"], b["out"], np.int32(1))
+
+    def pose_buffer(self, pose: Pose) -> np.ndarray:
+        """The per-pose upload (float32): posed positions, reference rotations, relative table."""
+        h = pose.handles
+        qpos = np.concatenate([h.points.ravel(), h.segments.ravel()])
+        refs, table = rotation_table(self.rest, pose, self.blend)
+        return np.concatenate([qpos, refs.ravel(), table.ravel()]).astype(np.float32)
+
+    def pose(self, pose: Pose) -> np.ndarray:
+        """Posed points (N, 3): float32 on OpenCL, float64 on numpy."""
+        self.rest.same_layout(pose.handles, "posed handles")
+        if self.backend == "numpy":
+            return pose_reference(self.terms, self.rest, pose, self.blend)
+        import pyopencl as cl
+
+        q = self._queue
+        cl.enqueue_copy(q, self._bufs["pose"], self.pose_buffer(pose), is_blocking=False)
+        cl.enqueue_nd_range_kernel(q, self._kernel, (self._npad // LANES,), None)
+        out = np.empty((self._npad, 3), np.float32)
+        cl.enqueue_copy(q, out, self._bufs["out"], is_blocking=True)
+        return out[: self.n]

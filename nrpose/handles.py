@@ -1,0 +1,202 @@
+"""Handles: control points and line segments, at rest and posed.
+
+A :class:`HandleSet` is one configuration of positions: ``points`` (P, 3) and
+``segments`` (S, 2, 3) (start, end), float64, in the units of the geometry.
+A :class:`Pose` adds what only a posed configuration has: the rotation of each
+segment, (S, 3, 3), column-vector convention, which must carry the rest
+direction onto the posed one. Handle order is points first, then segments,
+everywhere (weights, distance matrices, kernels).
+
+The handle file (``HANDLES.json``)::
+
+    {"alpha": 1.0,
+     "points":   [{"rest": [x, y, z], "pose": [x, y, z]}],
+     "segments": [{"rest": [[x,y,z],[x,y,z]], "pose": [[x,y,z],[x,y,z]],
+                   "rotation": [[...],[...],[...]],   # optional, 3x3
+                   "twist": 0.5}]}                     # optional, radians
+
+A segment without ``rotation`` turns by the minimal rotation between its rest
+and posed directions, followed by ``twist`` radians about its posed direction.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import HandleError
+from .rotation import Rotation, minimal_rotvec
+
+#: largest accepted angle between R·(rest direction) and the posed direction
+DIRECTION_TOLERANCE = 1e-3  # radians
+
+
+def _array(value, shape_tail: tuple[int, ...], what: str) -> np.ndarray:
+    """Float64 array of shape (n, *shape_tail), finite; raise HandleError otherwise."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise HandleError(f"{what}: expected numbers of shape (n, {', '.join(map(str, shape_tail))})") from None
+    if arr.size == 0:
+        arr = arr.reshape((0,) + shape_tail)
+    if arr.ndim != len(shape_tail) + 1 or arr.shape[1:] != shape_tail:
+        raise HandleError(f"{what}: expected shape (n, {', '.join(map(str, shape_tail))}), got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise HandleError(f"{what}: contains NaN or infinite values; give finite coordinates")
+    return arr
+
+
+@dataclass(frozen=True)
+class HandleSet:
+    """Positions of handles in one configuration.
+
+    points: (P, 3) float64; segments: (S, 2, 3) float64 (start, end).
+    """
+
+    points: np.ndarray
+    segments: np.ndarray
+
+    @classmethod
+    def make(cls, points=(), segments=(), what: str = "handles") -> "HandleSet":
+        pts = _array(points, (3,), f"{what} points")
+        segs = _array(segments, (2, 3), f"{what} segments")
+        if len(pts) + len(segs) == 0:
+            raise HandleError(f"{what}: no handles; give at least one point or segment")
+        lengths = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
+        scale = max(float(np.abs(np.concatenate([pts.ravel(), segs.ravel()])).max(initial=0.0)), 1.0)
+        short = np.flatnonzero(lengths <= 1e-9 * scale)
+        if len(short):
+            raise HandleError(f"{what}: segment {int(short[0])} has zero length; "
+                              "use a point handle for it or move its end")
+        return cls(pts, segs)
+
+    @property
+    def count(self) -> int:
+        return len(self.points) + len(self.segments)
+
+    def same_layout(self, other: "HandleSet", what: str) -> None:
+        if (len(self.points), len(self.segments)) != (len(other.points), len(other.segments)):
+            raise HandleError(f"{what}: {len(other.points)} points and {len(other.segments)} segments "
+                              f"given, the binding has {len(self.points)} and {len(self.segments)}")
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A posed handle set with each segment's rotation.
+
+    handles: posed positions; rotations: (S, 3, 3) float64, rotation of each
+    segment from rest to pose (column vectors), twist included.
+    """
+
+    handles: HandleSet
+    rotations: np.ndarray
+
+    @classmethod
+    def make(cls, rest: HandleSet, points=(), segments=(), rotations=None, twists=None) -> "Pose":
+        """Build and validate a pose against ``rest``.
+
+        rotations: optional (S, 3, 3), or a list with None for segments that
+        take the minimal rotation; twists: optional (S,) radians about the
+        posed direction, only for segments without an explicit rotation.
+        """
+        posed = HandleSet.make(points, segments, what="posed handles")
+        rest.same_layout(posed, "posed handles")
+        s = len(rest.segments)
+        d_rest = rest.segments[:, 1] - rest.segments[:, 0]
+        d_pose = posed.segments[:, 1] - posed.segments[:, 0]
+        minimal = Rotation.from_rotvec(minimal_rotvec(d_rest, d_pose)) if s else None
+        twist = np.zeros(s) if twists is None else _array([[t] for t in twists], (1,), "twists")[:, 0]
+        if len(twist) != s:
+            raise HandleError(f"twists: {len(twist)} values for {s} segments")
+        mats = np.empty((s, 3, 3))
+        for i in range(s):
+            given = None if rotations is None else rotations[i]
+            if given is not None:
+                if twist[i] != 0.0:
+                    raise HandleError(f"segment {i}: give either 'rotation' or 'twist', not both")
+                mats[i] = _rotation_matrix(given, i)
+            else:
+                axis = d_pose[i] / np.linalg.norm(d_pose[i])
+                mats[i] = (Rotation.from_rotvec(axis * twist[i]) * minimal[i]).as_matrix()
+        if s:
+            carried = np.einsum("sij,sj->si", mats, d_rest)
+            off = np.linalg.norm(minimal_rotvec(carried, d_pose), axis=1)
+            bad = np.flatnonzero(off > DIRECTION_TOLERANCE)
+            if len(bad):
+                i = int(bad[0])
+                raise HandleError(f"segment {i}: its rotation turns the rest direction "
+                                  f"{math.degrees(off[i]):.3g}° away from the posed direction; "
+                                  "give the bone's full rotation or omit 'rotation'")
+        return cls(posed, mats)
+
+
+def _rotation_matrix(value, i: int) -> np.ndarray:
+    """Validate a user rotation matrix (3x3, orthonormal, det +1) and re-orthonormalise it."""
+    try:
+        m = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        m = None
+    if m is None or m.shape != (3, 3) or not np.isfinite(m).all():
+        raise HandleError(f"segment {i} rotation: expected a finite 3x3 matrix")
+    if not np.allclose(m.T @ m, np.eye(3), atol=1e-4) or np.linalg.det(m) <= 0:
+        raise HandleError(f"segment {i} rotation: not a rotation matrix (orthonormal, det +1)")
+    return Rotation.from_matrix(m).as_matrix()
+
+
+def load_handles(path: str | Path) -> tuple[HandleSet, Pose, float | None]:
+    """Read a handle file; return (rest, pose, alpha or None if the file has none)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise HandleError(f"{path}: handle file not found") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise HandleError(f"{path}: malformed JSON ({exc})") from None
+    return parse_handles(doc, str(path))
+
+
+def parse_handles(doc, where: str = "handles") -> tuple[HandleSet, Pose, float | None]:
+    """Parse a handle document (the JSON structure above)."""
+    if not isinstance(doc, dict):
+        raise HandleError(f"{where}: expected a JSON object with 'points' and/or 'segments'")
+    unknown = set(doc) - {"alpha", "points", "segments"}
+    if unknown:
+        raise HandleError(f"{where}: unknown key(s) {sorted(unknown)}; expected alpha, points, segments")
+    alpha = doc.get("alpha")
+    if alpha is not None:
+        alpha = check_alpha(alpha)
+    points = _entries(doc, "points", where, {"rest", "pose"})
+    segments = _entries(doc, "segments", where, {"rest", "pose", "rotation", "twist"})
+    rest = HandleSet.make([p["rest"] for p in points], [s["rest"] for s in segments], what=f"{where}: rest")
+    rotations = [s.get("rotation") for s in segments]
+    twists = [s.get("twist", 0.0) for s in segments]
+    pose = Pose.make(rest, [p["pose"] for p in points], [s["pose"] for s in segments],
+                     rotations=rotations, twists=twists)
+    return rest, pose, alpha
+
+
+def _entries(doc: dict, key: str, where: str, allowed: set[str]) -> list[dict]:
+    items = doc.get(key, [])
+    if not isinstance(items, list):
+        raise HandleError(f"{where}: '{key}' must be a list")
+    for n, item in enumerate(items):
+        if not isinstance(item, dict) or not {"rest", "pose"} <= set(item):
+            raise HandleError(f"{where}: {key}[{n}] needs 'rest' and 'pose'")
+        extra = set(item) - allowed
+        if extra:
+            raise HandleError(f"{where}: {key}[{n}] has unknown key(s) {sorted(extra)}")
+    return items
+
+
+def check_alpha(alpha) -> float:
+    """Validate the weight exponent α (> 0, finite)."""
+    try:
+        a = float(alpha)
+    except (TypeError, ValueError):
+        raise HandleError(f"alpha must be a number, got {alpha!r}") from None
+    if not (math.isfinite(a) and a > 0):
+        raise HandleError(f"alpha must be positive and finite, got {alpha!r}")
+    return a
