@@ -57,7 +57,7 @@ __all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation"]
 ZERO_LENGTH = 1e-9
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LocalPose:
     """Local joint transforms for a batch of frames.
 
@@ -103,7 +103,7 @@ def _match_hint(name: str, names) -> str:
     return f"known joints: {shown}{', ...' if len(names) > 12 else ''}"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Skeleton:
     """Joint hierarchy with rest local transforms (see the module docstring).
 
@@ -210,7 +210,7 @@ class Skeleton:
         return Bones.from_skeleton(self, leaf_fraction)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Bones:
     """Line-segment handles driven by joints.
 
