@@ -192,9 +192,11 @@ class Skeleton:
     def forward_kinematics(self, pose: LocalPose | None = None) -> np.ndarray:
         """Global matrices (..., J, 4, 4) float64 of ``pose`` (rest pose if None)."""
         pose = self.rest_pose if pose is None else pose
+        shapes = [np.shape(a)[-2:] for a in (pose.translation, pose.rotation, pose.scale)]
+        if shapes != [(self.num_joints, 3), (self.num_joints, 4), (self.num_joints, 3)]:
+            raise InputError(f"pose arrays end in shapes {shapes}; this skeleton needs "
+                             f"({self.num_joints}, 3), ({self.num_joints}, 4), ({self.num_joints}, 3)")
         L = self.pre @ local_matrices(pose.translation, pose.rotation, pose.scale)
-        if L.shape[-3] != self.num_joints:
-            raise InputError(f"pose has {L.shape[-3]} joints, skeleton has {self.num_joints}")
         G = np.empty_like(L)
         G[..., self._levels[0], :, :] = L[..., self._levels[0], :, :]
         for level in self._levels[1:]:

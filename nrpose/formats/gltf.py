@@ -228,9 +228,8 @@ class _Nodes:
             raise FileFormatError(f"{path}: the node hierarchy contains a cycle")
         self.order = order
         trs = [_trs(path, i, node) for i, node in enumerate(gltf.nodes)]
-        self.translation, self.rotation, self.scale = (np.array([x[k] for x in trs]).reshape(n, -1)
-                                                      for k in range(3))
-        self.local = local_matrices(self.translation, self.rotation, self.scale) if n else np.zeros((0, 4, 4))
+        self.translation, self.rotation, self.scale = (np.array([x[k] for x in trs]) for k in range(3))
+        self.local = local_matrices(self.translation, self.rotation, self.scale)
         self.globals = self.local.copy()
         for i in order:
             if self.parents[i] >= 0:
@@ -434,8 +433,8 @@ def load_gltf(path: str | Path) -> Character:
     path = Path(path)
     gltf, buffers = _read_document(path)
     acc = _Accessors(path, gltf, buffers)
-    nodes = _Nodes(path, gltf)
     binds = _skin_binds(path, gltf, acc)
+    nodes = _Nodes(path, gltf)
     skeleton, node_to_joint, inverse_bind = _skeleton(gltf, nodes, binds)
     meshes = _meshes(path, gltf, nodes, acc, binds, node_to_joint)
     clips = _clips(path, gltf, acc, node_to_joint, skeleton)

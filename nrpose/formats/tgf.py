@@ -60,15 +60,15 @@ def read_tgf(path: str | Path) -> Skeleton:
     """Skeleton with one joint per TGF bone (see the module docstring)."""
     path = Path(path)
     joint_lines, bone_lines = _tgf_sections(path)
-    try:
-        C = np.array([[float(v) for v in f[1:4]] for _, f in joint_lines], dtype=np.float64)
-    except ValueError:
-        raise FileFormatError(f"{path}: joint lines must read 'index x y z'") from None
-    for number, fields in joint_lines:
-        if len(fields) < 4:
-            raise FileFormatError(f"{path}:{number}: joint line needs 'index x y z', got {' '.join(fields)!r}")
-    if not np.isfinite(C).all():
-        raise FileFormatError(f"{path}: joint coordinates contain NaN or infinity")
+    C = np.empty((len(joint_lines), 3))
+    for row, (number, fields) in enumerate(joint_lines):
+        try:
+            C[row] = [float(v) for v in fields[1:4]]
+        except ValueError:
+            raise FileFormatError(f"{path}:{number}: joint line needs 'index x y z', "
+                                  f"got {' '.join(fields)!r}") from None
+        if not np.isfinite(C[row]).all():
+            raise FileFormatError(f"{path}:{number}: joint coordinates contain NaN or infinity")
     edges = []
     for number, fields in bone_lines:
         try:
