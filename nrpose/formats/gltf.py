@@ -306,7 +306,9 @@ def _triangles(path: Path, what: str, mode: int, idx: np.ndarray) -> np.ndarray:
         return idx.reshape(-1, 3)
     if mode not in (5, 6):
         raise FileFormatError(f"{path}: {what}: primitive mode {mode} (points/lines) is not a surface")
-    k = np.arange(max(len(idx) - 2, 0))
+    if len(idx) < 3:
+        raise FileFormatError(f"{path}: {what}: a strip or fan needs at least 3 indices")
+    k = np.arange(len(idx) - 2)
     if mode == 5:
         tri = np.stack([idx[k], idx[k + 1 + k % 2], idx[k + 2 - k % 2]], axis=1)
     else:
