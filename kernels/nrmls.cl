@@ -19,7 +19,10 @@
  *                         then per segment (w(1-t), w t) on its posed ends
  *   lever  [P+S][Np]      normalised levers (points, then segments)
  *   phat   [P][3][Np]     p_i - p* of the point handles
- *   pose   qpos [(P+2S)*3] | refs [(S+1)*9] row-major | table [(S+1)*S*3]
+ *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
+ *          rotations of the segments and the global rotation R_g, row-major
+ *   derived (written by nrmls_prepare from `rots`, once per pose)
+ *          refs [(S+1)*9] row-major | table [(S+1)*S*3],
  *          table[j][s] = log(R_ref_j^-1 R_s)
  *   out    [N*3]          posed points, xyz interleaved, in the caller's order
  */
@@ -27,16 +30,75 @@
 #define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
                                 (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
 
+/* Unit quaternion (x, y, z, w) of a row-major rotation matrix (Shepperd). */
+static float4 quat_of(__global const float *m)
+{
+    const float tr = m[0] + m[4] + m[8];
+    float4 q;
+    if (tr > 0.0f) {
+        const float s = 2.0f * sqrt(tr + 1.0f);
+        q = (float4)((m[7] - m[5]) / s, (m[2] - m[6]) / s, (m[3] - m[1]) / s, 0.25f * s);
+    } else if (m[0] > m[4] && m[0] > m[8]) {
+        const float s = 2.0f * sqrt(1.0f + m[0] - m[4] - m[8]);
+        q = (float4)(0.25f * s, (m[1] + m[3]) / s, (m[2] + m[6]) / s, (m[7] - m[5]) / s);
+    } else if (m[4] > m[8]) {
+        const float s = 2.0f * sqrt(1.0f + m[4] - m[0] - m[8]);
+        q = (float4)((m[1] + m[3]) / s, 0.25f * s, (m[5] + m[7]) / s, (m[2] - m[6]) / s);
+    } else {
+        const float s = 2.0f * sqrt(1.0f + m[8] - m[0] - m[4]);
+        q = (float4)((m[2] + m[6]) / s, (m[5] + m[7]) / s, 0.25f * s, (m[3] - m[1]) / s);
+    }
+    return normalize(q);
+}
+
+/* Rotation vector of a unit quaternion, angle in [0, pi]. */
+static float3 quat_log(float4 q)
+{
+    if (q.w < 0.0f) q = -q;
+    const float s = length(q.xyz);
+    const float k = s > 1e-12f ? 2.0f * atan2(s, q.w) / s : 2.0f / q.w;
+    return k * q.xyz;
+}
+
+/* Per-pose rotation data, one work-item per (reference j, column i) for
+ * j in [0, S], i in [0, S]: column S copies reference j's matrix into refs
+ * (identity for the paper blend), the others write table[j][i]. The relative
+ * table is exactly antisymmetric: T[j][i] = -T[i][j] (agreeing blends at pi). */
+__kernel void nrmls_prepare(const int P, const int S, const int paper, __global const float *pose,
+                            __global float *derived)
+{
+    __global const float *pose_rots = pose + 3 * (P + 2 * S);
+    const int j = get_global_id(0) / (S + 1), i = get_global_id(0) % (S + 1);
+    __global float *refs = derived;
+    __global float *table = derived + 9 * (S + 1);
+    if (i == S) {
+        for (int k = 0; k < 9; ++k)
+            refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : pose_rots[9 * j + k];
+        return;
+    }
+    float3 r = (float3)(0.0f);
+    if (paper) {
+        r = quat_log(quat_of(pose_rots + 9 * i));
+    } else if (i != j) {
+        const int a = min(i, j), b = max(i, j);
+        const float4 qa = quat_of(pose_rots + 9 * a), qb = quat_of(pose_rots + 9 * b);
+        const float4 rel = (float4)(qa.w * qb.xyz - qb.w * qa.xyz - cross(qa.xyz, qb.xyz), dot(qa, qb));
+        r = (j < i ? 1.0f : -1.0f) * quat_log(rel);
+    }
+    vstore3(r, j * S + i, table);
+}
+
 __kernel void nrmls_pose(const int np, const int P, const int S,
                          __global const float *u, __global const int *ref, __global const int *row,
                          __global const float *coef, __global const float *lever,
                          __global const float *phat, __global const float *pose,
+                         __global const float *derived,
                          __global float *out, const int per_item)
 {
     const int R = P + 2 * S;
     __global const float *qpos = pose;
-    __global const float *refs = pose + 3 * R;
-    __global const float *table = refs + 9 * (S + 1);
+    __global const float *refs = derived;
+    __global const float *table = derived + 9 * (S + 1);
     const int chunks = np / 8;
     for (int g = get_global_id(0) * per_item; g < min(chunks, (int)(get_global_id(0) + 1) * per_item); ++g) {
 

@@ -194,10 +194,16 @@ def reference_rotations(rest: HandleSet, pose: Pose, blend: str) -> Rotation:
     S = len(rest.segments)
     if blend == "paper":
         return Rotation.identity(S + 1)
+    mats = np.concatenate([pose.rotations, global_rotation(rest, pose)[None]])
+    return Rotation.from_matrix(mats)
+
+
+def global_rotation(rest: HandleSet, pose: Pose) -> np.ndarray:
+    """R_g (3, 3): least-squares rotation of all handle positions (point handles
+    and segment ends, unweighted) from rest to pose; see :func:`nrpose.rotation.kabsch`."""
     P0 = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
     Q0 = np.concatenate([pose.handles.points, pose.handles.segments.reshape(-1, 3)])
-    mats = np.concatenate([pose.rotations, kabsch(P0, Q0)[None]])
-    return Rotation.from_matrix(mats)
+    return kabsch(P0, Q0)
 
 
 def rotation_table(rest: HandleSet, pose: Pose, blend: str) -> tuple[np.ndarray, np.ndarray]:

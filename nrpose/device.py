@@ -11,6 +11,8 @@ import functools
 import os
 from importlib import resources
 
+import numpy as np
+
 from .errors import DeviceError
 
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
@@ -83,3 +85,50 @@ def program(name: str, options: tuple[str, ...] = ()):
         return cl.Program(ctx, kernel_source(name)).build(options=list(options))
     except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
         raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+
+
+def fine_grain_svm() -> bool:
+    """True when the device shares fine-grained SVM buffers with the host (PoCL CPU does)."""
+    cl = _cl()
+    ctx, _ = context()
+    try:
+        return bool(ctx.devices[0].svm_capabilities & cl.device_svm_capabilities.FINE_GRAIN_BUFFER)
+    except (cl.Error, AttributeError):  # OpenCL 1.x device
+        return False
+
+
+class HostArray:
+    """A float32 array that the host writes or reads and a kernel uses as an argument.
+
+    On devices with fine-grained SVM the host array *is* the device memory:
+    no copies, a pose is only kernel enqueues and a ``finish``. Elsewhere a
+    device buffer shadows it and :meth:`upload` / :meth:`download` copy.
+
+    size: number of float32 elements. ``host``: the (size,) numpy view;
+    ``arg``: what to pass to ``Kernel.set_arg``.
+    """
+
+    def __init__(self, size: int):
+        cl = _cl()
+        ctx, self._queue = context()
+        self.svm = fine_grain_svm()
+        size = max(int(size), 1)
+        if self.svm:
+            flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER
+            self.host = cl.svm_empty(ctx, flags, (size,), np.float32)
+            self.arg = cl.SVM(self.host)
+        else:
+            self.host = np.zeros(size, np.float32)
+            self.arg = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.host.nbytes)
+
+    def upload(self) -> None:
+        """Make host writes visible to kernels enqueued next (no-op with SVM)."""
+        if not self.svm:
+            _cl().enqueue_copy(self._queue, self.arg, self.host, is_blocking=False)
+
+    def download(self) -> None:
+        """Wait for the queue and make kernel writes visible in ``host``."""
+        if self.svm:
+            self._queue.finish()
+        else:
+            _cl().enqueue_copy(self._queue, self.host, self.arg, is_blocking=True)

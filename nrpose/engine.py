@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import device
-from .blend import BLENDS, RestTerms, pose_reference, rest_terms, rotation_table
+from .blend import BLENDS, RestTerms, global_rotation, pose_reference, rest_terms
 from .errors import InputError
 from .handles import HandleSet, Pose
 
@@ -54,7 +54,7 @@ class Deformer:
         import pyopencl as cl
 
         ctx, self._queue = device.context()
-        T = self.terms
+        T, blend = self.terms, self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
         n, npad = self.n, -(-self.n // LANES) * LANES
         self._npad = npad
@@ -80,20 +80,20 @@ class Deformer:
         mf = cl.mem_flags
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                       for k, a in arrays.items()}
-        self._pose_floats = 3 * (P + 2 * S) + 9 * (S + 1) + 3 * (S + 1) * S
-        self._bufs["pose"] = cl.Buffer(ctx, mf.READ_ONLY, 4 * self._pose_floats)
-        self._bufs["out"] = cl.Buffer(ctx, mf.WRITE_ONLY, 4 * 3 * npad)
-        self._kernel = cl.Kernel(device.program("nrmls.cl"), "nrmls_pose")
+        self._bufs["derived"] = cl.Buffer(ctx, mf.READ_WRITE, 4 * (9 * (S + 1) + 3 * (S + 1) * S))
+        self._npos = 3 * (P + 2 * S)
+        self._pose = device.HostArray(self._npos + 9 * (S + 1))
+        self._pose.host[self._npos + 9 * S:] = np.eye(3).ravel()   # R_g until a pose needs it
+        self._needs_global = blend == "relative" and bool((T.ref == S).any())
+        self._out = device.HostArray(3 * npad)
+        prg = device.program("nrmls.cl")
+        self._prepare = cl.Kernel(prg, "nrmls_prepare")
+        self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), self._pose.arg,
+                               self._bufs["derived"])
+        self._kernel = cl.Kernel(prg, "nrmls_pose")
         b = self._bufs
         self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), b["u"], b["ref"], b["row"], b["coef"],
-                              b["lever"], b["phat"], b["pose"], b["out"], np.int32(1))
-
-    def pose_buffer(self, pose: Pose) -> np.ndarray:
-        """The per-pose upload (float32): posed positions, reference rotations, relative table."""
-        h = pose.handles
-        qpos = np.concatenate([h.points.ravel(), h.segments.ravel()])
-        refs, table = rotation_table(self.rest, pose, self.blend)
-        return np.concatenate([qpos, refs.ravel(), table.ravel()]).astype(np.float32)
+                              b["lever"], b["phat"], self._pose.arg, b["derived"], self._out.arg, np.int32(1))
 
     def pose(self, pose: Pose) -> np.ndarray:
         """Posed points (N, 3): float32 on OpenCL, float64 on numpy."""
@@ -102,9 +102,16 @@ class Deformer:
             return pose_reference(self.terms, self.rest, pose, self.blend)
         import pyopencl as cl
 
+        h, host, k = pose.handles, self._pose.host, self._npos
+        host[: 3 * len(h.points)] = h.points.ravel()
+        host[3 * len(h.points): k] = h.segments.ravel()
+        host[k: k + pose.rotations.size] = pose.rotations.ravel()
+        if self._needs_global:
+            host[k + pose.rotations.size:] = global_rotation(self.rest, pose).ravel()
+        self._pose.upload()
+        S = len(self.rest.segments)
         q = self._queue
-        cl.enqueue_copy(q, self._bufs["pose"], self.pose_buffer(pose), is_blocking=False)
+        cl.enqueue_nd_range_kernel(q, self._prepare, ((S + 1) * (S + 1),), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, (self._npad // LANES,), None)
-        out = np.empty((self._npad, 3), np.float32)
-        cl.enqueue_copy(q, out, self._bufs["out"], is_blocking=True)
-        return out[: self.n]
+        self._out.download()
+        return self._out.host[: 3 * self.n].reshape(self.n, 3).copy()

@@ -107,21 +107,20 @@ class Pose:
         s = len(rest.segments)
         d_rest = rest.segments[:, 1] - rest.segments[:, 0]
         d_pose = posed.segments[:, 1] - posed.segments[:, 0]
-        minimal = Rotation.from_rotvec(minimal_rotvec(d_rest, d_pose)) if s else None
         twist = np.zeros(s) if twists is None else _array([[t] for t in twists], (1,), "twists")[:, 0]
         if len(twist) != s:
             raise HandleError(f"twists: {len(twist)} values for {s} segments")
-        mats = np.empty((s, 3, 3))
-        for i in range(s):
-            given = None if rotations is None else rotations[i]
-            if given is not None:
-                if twist[i] != 0.0:
-                    raise HandleError(f"segment {i}: give either 'rotation' or 'twist', not both")
-                mats[i] = _rotation_matrix(given, i)
-            else:
-                axis = d_pose[i] / np.linalg.norm(d_pose[i])
-                mats[i] = (Rotation.from_rotvec(axis * twist[i]) * minimal[i]).as_matrix()
-        if s:
+        given = _given_rotations(rotations, s)
+        both = np.flatnonzero(given & (twist != 0.0))
+        if len(both):
+            raise HandleError(f"segment {int(both[0])}: give either 'rotation' or 'twist', not both")
+        axis = d_pose / np.linalg.norm(d_pose, axis=1, keepdims=True)
+        minimal = Rotation.from_rotvec(minimal_rotvec(d_rest, d_pose)) if s else None
+        mats = (Rotation.from_rotvec(axis * twist[:, None]) * minimal).as_matrix() if s else np.zeros((0, 3, 3))
+        if given.any():
+            idx = np.flatnonzero(given)
+            mats[idx] = _rotation_matrices([rotations[i] for i in idx], idx)
+        if given.any():
             carried = np.einsum("sij,sj->si", mats, d_rest)
             off = np.linalg.norm(minimal_rotvec(carried, d_pose), axis=1)
             bad = np.flatnonzero(off > DIRECTION_TOLERANCE)
@@ -133,16 +132,28 @@ class Pose:
         return cls(posed, mats)
 
 
-def _rotation_matrix(value, i: int) -> np.ndarray:
-    """Validate a user rotation matrix (3x3, orthonormal, det +1) and re-orthonormalise it."""
+def _given_rotations(rotations, s: int) -> np.ndarray:
+    """(S,) bool: which segments come with an explicit rotation."""
+    if rotations is None:
+        return np.zeros(s, bool)
+    if len(rotations) != s:
+        raise HandleError(f"rotations: {len(rotations)} given for {s} segments")
+    return np.array([r is not None for r in rotations], bool)
+
+
+def _rotation_matrices(values, idx: np.ndarray) -> np.ndarray:
+    """Validate user rotation matrices (3x3, orthonormal, det +1) of segments ``idx``; re-orthonormalise."""
     try:
-        m = np.asarray(value, dtype=np.float64)
+        m = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError):
         m = None
-    if m is None or m.shape != (3, 3) or not np.isfinite(m).all():
-        raise HandleError(f"segment {i} rotation: expected a finite 3x3 matrix")
-    if not np.allclose(m.T @ m, np.eye(3), atol=1e-4) or np.linalg.det(m) <= 0:
-        raise HandleError(f"segment {i} rotation: not a rotation matrix (orthonormal, det +1)")
+    if m is None or m.shape != (len(idx), 3, 3) or not np.isfinite(m).all():
+        bad = next((int(i) for i, v in zip(idx, values) if np.shape(v) != (3, 3)), int(idx[0]))
+        raise HandleError(f"segment {bad} rotation: expected a finite 3x3 matrix")
+    err = np.abs(np.einsum("sji,sjk->sik", m, m) - np.eye(3)).max(axis=(1, 2))
+    bad = np.flatnonzero((err > 1e-4) | (np.linalg.det(m) <= 0))
+    if len(bad):
+        raise HandleError(f"segment {int(idx[bad[0]])} rotation: not a rotation matrix (orthonormal, det +1)")
     return Rotation.from_matrix(m).as_matrix()
 
 

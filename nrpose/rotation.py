@@ -73,16 +73,26 @@ def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
 def relative_rotvec_table(quats: np.ndarray) -> np.ndarray:
     """Table T[j, i] = log(R_j⁻¹ R_i) as rotation vectors, shape (M, M, 3) float64.
 
-    quats: (M, 4) (x, y, z, w). The table is made exactly antisymmetric
-    (T[i, j] = -T[j, i]) so that at an angle of exactly π, where the log is
-    ambiguous, the blends seen from either handle agree.
+    quats: (M, 4) unit quaternions (x, y, z, w). Plain numpy quaternion
+    algebra (this runs once per pose for every pair: scipy's per-object
+    overhead would dominate). Angles are taken in [0, π]; the table is made
+    exactly antisymmetric (T[i, j] = -T[j, i]) so that at an angle of exactly
+    π, where the log is ambiguous, the blends seen from either handle agree.
     """
-    R = Rotation.from_quat(np.asarray(quats, dtype=np.float64))
-    m = len(R)
+    q = np.asarray(quats, dtype=np.float64)
+    m = len(q)
     jj, ii = np.triu_indices(m, k=1)
     T = np.zeros((m, m, 3))
     if len(jj):
-        upper = (R[jj].inv() * R[ii]).as_rotvec()
+        a, b = q[jj], q[ii]                       # conj(a) ⊗ b
+        w = np.sum(a * b, axis=1)
+        v = a[:, 3:] * b[:, :3] - b[:, 3:] * a[:, :3] - np.cross(a[:, :3], b[:, :3])
+        sign = np.where(w < 0, -1.0, 1.0)         # shortest rotation
+        w, v = w * sign, v * sign[:, None]
+        s = np.linalg.norm(v, axis=1)
+        angle = 2.0 * np.arctan2(s, w)
+        scale = np.where(s > 1e-12, angle / np.where(s > 1e-12, s, 1.0), 2.0 / np.maximum(w, 1e-300))
+        upper = v * scale[:, None]
         T[jj, ii] = upper
         T[ii, jj] = -upper
     return T
