@@ -49,6 +49,7 @@ import numpy as np
 from .errors import InputError
 from .handles import HandleSet, Pose, check_alpha
 from .rotation import Rotation, kabsch, minimal_rotvec, relative_rotvec_table
+from .weights import dense_weights
 
 BLENDS = ("relative", "paper")
 LEVERS = ("length", "paper")
@@ -114,19 +115,6 @@ def handle_points(handles: HandleSet, t: np.ndarray) -> np.ndarray:
     return np.concatenate([pts, seg], axis=1)
 
 
-def inverse_distance_weights(d: np.ndarray, alpha: float) -> np.ndarray:
-    """Normalised weights ŵ (N, H) from distances d (N, H) ≥ 0: ŵ ∝ 1 / d^(2α).
-
-    Computed as (d_min / d)^(2α) per row, so no weight overflows; a handle at
-    distance 0 takes the whole weight (shared equally among several such).
-    """
-    dmin = d.min(axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(dmin > 0, dmin / d, (d == 0).astype(np.float64))
-    w = ratio ** (2.0 * alpha)
-    return w / w.sum(axis=1, keepdims=True)
-
-
 def _check_matrix(m, shape, what: str) -> np.ndarray:
     try:
         m = np.asarray(m, dtype=np.float64)
@@ -167,7 +155,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "length
     else:
         d = (np.linalg.norm(v[:, None, :] - p, axis=2) if distances is None
              else _check_matrix(distances, (n, H), "distances"))
-        w = inverse_distance_weights(d, alpha)
+        w = dense_weights(d, alpha)
     p_star = np.einsum("nh,nhk->nk", w, p)
     phat = p - p_star[:, None, :]
     lev = w * np.einsum("nhk,nhk->nh", phat, phat)

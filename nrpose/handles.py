@@ -211,3 +211,13 @@ def check_alpha(alpha) -> float:
     if not (math.isfinite(a) and a > 0):
         raise HandleError(f"alpha must be positive and finite, got {alpha!r}")
     return a
+
+
+def handles_document(rest: HandleSet, pose: Pose, alpha: float | None = None) -> dict:
+    """The handle-file structure (inverse of :func:`parse_handles`), rotations explicit."""
+    doc: dict = {} if alpha is None else {"alpha": float(alpha)}
+    doc["points"] = [{"rest": r.tolist(), "pose": p.tolist()}
+                     for r, p in zip(rest.points, pose.handles.points)]
+    doc["segments"] = [{"rest": r.tolist(), "pose": p.tolist(), "rotation": m.tolist()}
+                       for r, p, m in zip(rest.segments, pose.handles.segments, pose.rotations)]
+    return doc

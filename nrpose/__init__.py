@@ -1,0 +1,16 @@
+"""nrpose: nearly rigid MLS deformation (Jeong & Kim) and skeletal posing on OpenCL.
+
+Data flow: load → bind (rest-only precompute) → pose (per-frame handle data)
+→ deform (kernel) → write. Conventions: :mod:`nrpose.rotation`.
+
+    from nrpose import Deformer, HandleSet, Pose
+    rest = HandleSet.make(segments=[[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]])
+    deformer = Deformer(points, rest, alpha=1.0)          # bind once
+    posed = deformer.pose(Pose.make(rest, segments=posed_segments, rotations=rotations))
+"""
+from .engine import Deformer
+from .errors import DeviceError, FileFormatError, HandleError, InputError, NrposeError
+from .handles import HandleSet, Pose, load_handles
+
+__all__ = ["Deformer", "HandleSet", "Pose", "load_handles", "NrposeError", "InputError",
+           "HandleError", "FileFormatError", "DeviceError"]

@@ -1,0 +1,269 @@
+"""The core engine: PoCL kernel against the float64 reference, and the blend's properties."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from nrpose import Deformer, HandleError, HandleSet, InputError, Pose
+from nrpose.blend import deform_reference, rest_terms
+from nrpose.rigs import cylinder
+from nrpose.rotation import Rotation
+
+TOL = 1e-4  # of the bounding-box diagonal, kernel vs reference
+
+
+def diag(points: np.ndarray) -> float:
+    return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+
+
+def random_rest(rng, n_points: int, n_segments: int) -> HandleSet:
+    pts = rng.uniform(-1, 1, (n_points, 3))
+    a = rng.uniform(-1, 1, (n_segments, 3))
+    d = rng.normal(size=(n_segments, 3))
+    d *= rng.uniform(0.3, 1.0, (n_segments, 1)) / np.linalg.norm(d, axis=1, keepdims=True)
+    return HandleSet.make(pts, np.stack([a, a + d], axis=1))
+
+
+def random_pose(rng, rest: HandleSet, max_angle: float = np.radians(120), stretch: bool = False) -> Pose:
+    """Handles moved by noise; each segment turned by a random rotation up to max_angle."""
+    s = len(rest.segments)
+    axes = Rotation.random(s, random_state=rng).as_rotvec() if s else np.zeros((0, 3))
+    axes = axes / np.maximum(np.linalg.norm(axes, axis=1, keepdims=True), 1e-12)
+    rots = Rotation.from_rotvec(axes * rng.uniform(0, max_angle, (s, 1)))
+    start = rest.segments[:, 0] + rng.normal(scale=0.3, size=(s, 3))
+    scale = rng.uniform(0.8, 1.25, (s, 1)) if stretch else 1.0
+    end = start + scale * rots.apply(rest.segments[:, 1] - rest.segments[:, 0]) if s else start
+    pts = rest.points + rng.normal(scale=0.3, size=rest.points.shape)
+    return Pose.make(rest, pts, np.stack([start, end], axis=1), rotations=rots.as_matrix() if s else None)
+
+
+def moved(rest: HandleSet, rot: Rotation, shift=np.zeros(3)) -> Pose:
+    """Every handle moved by one rigid motion x -> rot x + shift."""
+    segs = rot.apply(rest.segments.reshape(-1, 3)).reshape(-1, 2, 3) + shift
+    mats = np.repeat(rot.as_matrix()[None], len(rest.segments), axis=0)
+    return Pose.make(rest, rot.apply(rest.points) + shift if len(rest.points) else (), segs, rotations=mats)
+
+
+def turned(pose: Pose, rest: HandleSet, rot: Rotation) -> Pose:
+    """The posed handles turned as a whole by rot about the origin."""
+    h = pose.handles
+    segs = rot.apply(h.segments.reshape(-1, 3)).reshape(-1, 2, 3)
+    mats = np.einsum("ij,sjk->sik", rot.as_matrix(), pose.rotations)
+    return Pose.make(rest, rot.apply(h.points) if len(h.points) else (), segs, rotations=mats)
+
+
+def both(points, rest, **kw):
+    return Deformer(points, rest, **kw), Deformer(points, rest, backend="numpy", **kw)
+
+
+# --------------------------------------------------------------------------- kernel vs reference
+CONFIGS = [(4, 0), (0, 4), (3, 3), (1, 0), (0, 1), (2, 7)]
+
+
+@pytest.mark.parametrize("n_pts,n_segs", CONFIGS)
+@pytest.mark.parametrize("alpha", [0.5, 1.0, 2.0])
+@pytest.mark.parametrize("blend", ["relative", "paper"])
+def test_kernel_matches_reference_random(n_pts, n_segs, alpha, blend):
+    rng = np.random.default_rng(100 * n_pts + 10 * n_segs + int(4 * alpha))
+    rest = random_rest(rng, n_pts, n_segs)
+    points = rng.uniform(-1.5, 1.5, (1001, 3))  # not a multiple of 8
+    dev, ref = both(points, rest, alpha=alpha, blend=blend)
+    for _ in range(3):  # bind once, pose many: buffers and kernels are reused
+        pose = random_pose(rng, rest, stretch=True)
+        out, expect = dev.pose(pose), ref.pose(pose)
+        assert out.shape == (1001, 3) and np.isfinite(out).all()
+        assert np.abs(out - expect).max() <= TOL * diag(points)
+
+
+@pytest.mark.parametrize("lever", ["length", "paper"])
+def test_kernel_matches_reference_levers(lever):
+    rng = np.random.default_rng(7)
+    rest = random_rest(rng, 2, 5)
+    points = rng.uniform(-1, 1, (300, 3))
+    dev, ref = both(points, rest, lever=lever)
+    pose = random_pose(rng, rest, max_angle=np.radians(170))
+    assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
+
+
+def test_adversarial_nearly_coincident_handles_and_points_on_handles():
+    rng = np.random.default_rng(3)
+    base = random_rest(rng, 2, 3)
+    pts = np.concatenate([base.points, base.points[:1] + 1e-7])            # two points 1e-7 apart
+    segs = np.concatenate([base.segments, base.segments[:1] + 1e-7])       # near-duplicate segment
+    rest = HandleSet.make(pts, segs)
+    t = rng.uniform(0, 1, (5, 1))
+    on_segments = rest.segments[0, 0] + t * (rest.segments[0, 1] - rest.segments[0, 0])
+    points = np.concatenate([rng.uniform(-1, 1, (200, 3)), rest.points, rest.segments[:, 0],
+                             rest.segments[:, 1], on_segments, np.full((3, 3), 50.0)])
+    for alpha in (0.5, 1.0, 2.0):
+        dev, ref = both(points, rest, alpha=alpha)
+        pose = random_pose(rng, rest, max_angle=np.radians(90))
+        out, expect = dev.pose(pose), ref.pose(pose)
+        assert np.isfinite(out).all()
+        assert np.abs(out - expect).max() <= TOL * diag(points)
+
+
+# --------------------------------------------------------------------------- properties
+@pytest.fixture(scope="module")
+def mixed():
+    rng = np.random.default_rng(11)
+    rest = random_rest(rng, 3, 4)
+    return rest, rng.uniform(-1.2, 1.2, (777, 3))
+
+
+@pytest.mark.parametrize("blend", ["relative", "paper"])
+def test_identity_pose_is_identity(mixed, blend):
+    rest, points = mixed
+    out = Deformer(points, rest, blend=blend).pose(Pose.make(rest, rest.points, rest.segments))
+    assert np.abs(out - points).max() <= 1e-5 * diag(points)
+
+
+@pytest.mark.parametrize("blend", ["relative", "paper"])
+def test_pure_translation(mixed, blend):
+    rest, points = mixed
+    shift = np.array([0.3, -2.0, 5.0])
+    out = Deformer(points, rest, blend=blend).pose(moved(rest, Rotation.identity(), shift))
+    assert np.abs(out - (points + shift)).max() <= 1e-5 * diag(points + shift)
+
+
+@pytest.mark.parametrize("angle", [30.0, 120.0, 179.0])
+def test_rigid_motion_of_all_segments(angle):
+    rng = np.random.default_rng(5)
+    rest = random_rest(rng, 0, 5)
+    points = rng.uniform(-1, 1, (500, 3))
+    rot, shift = Rotation.from_rotvec(np.radians(angle) * np.array([0.36, 0.48, 0.8])), np.array([1.0, 2, 3])
+    expect = rot.apply(points) + shift
+    for blend in ("relative", "paper"):
+        out = Deformer(points, rest, blend=blend).pose(moved(rest, rot, shift))
+        assert np.abs(out - expect).max() <= 1e-5 * diag(points)
+
+
+def test_rigid_motion_with_point_handles_relative_blend(mixed):
+    """The relative blend reproduces a rigid motion of point handles too (the paper's does not)."""
+    rest, points = mixed
+    rot, shift = Rotation.from_rotvec([2.0, -1.0, 0.5]), np.array([0.0, 1.0, -1.0])
+    expect = rot.apply(points) + shift
+    out = Deformer(points, rest).pose(moved(rest, rot, shift))
+    assert np.abs(out - expect).max() <= 1e-5 * diag(points)
+    paper = Deformer(points, rest, blend="paper").pose(moved(rest, rot, shift))
+    assert np.abs(paper - expect).max() > 1e-2 * diag(points)
+
+
+def test_points_on_handles_land_on_posed_handles():
+    rng = np.random.default_rng(9)
+    rest = random_rest(rng, 3, 3)
+    t = np.array([0.0, 0.25, 0.5, 1.0])
+    on_seg = [a + tt * (b - a) for a, b in rest.segments for tt in t]
+    points = np.concatenate([rest.points, on_seg])
+    pose = random_pose(rng, rest, stretch=True)
+    expect = np.concatenate([pose.handles.points,
+                             [a + tt * (b - a) for a, b in pose.handles.segments for tt in t]])
+    for alpha in (0.5, 1.0, 2.0):
+        out = Deformer(points, rest, alpha=alpha).pose(pose)
+        assert np.abs(out - expect).max() <= 1e-5 * diag(expect)
+
+
+@pytest.mark.parametrize("angle", [90.0, 179.9])
+def test_global_turn_commutes_with_deformation(mixed, angle):
+    rest, points = mixed
+    rng = np.random.default_rng(1)
+    pose = random_pose(rng, rest, max_angle=np.radians(150))
+    G = Rotation.from_rotvec(np.radians(angle) * np.array([0.0, 0.6, 0.8]))
+    dev = Deformer(points, rest)
+    size = diag(points)
+    assert np.abs(dev.pose(turned(pose, rest, G)) - G.apply(dev.pose(pose))).max() <= 1e-5 * size
+    # the paper's blend is not equivariant: the defect the default blend removes
+    paper = Deformer(points, rest, blend="paper", backend="numpy")
+    assert np.abs(paper.pose(turned(pose, rest, G)) - G.apply(paper.pose(pose))).max() > 1e-3 * size
+
+
+def test_supplied_distances_and_weights():
+    rng = np.random.default_rng(2)
+    rest = random_rest(rng, 2, 2)
+    points = rng.uniform(-1, 1, (200, 3))
+    pose = random_pose(rng, rest)
+    terms = rest_terms(points, rest)
+    euclid = np.linalg.norm(points[:, None] - np.concatenate(
+        [np.broadcast_to(rest.points, (200, 2, 3)),
+         rest.segments[None, :, 0] + terms.t[..., None] * (rest.segments[None, :, 1] - rest.segments[None, :, 0])],
+        axis=1), axis=2)
+    base = Deformer(points, rest).pose(pose)
+    assert np.abs(Deformer(points, rest, distances=euclid).pose(pose) - base).max() <= 1e-5
+    custom = euclid * rng.uniform(1, 3, euclid.shape)
+    out = Deformer(points, rest, distances=custom).pose(pose)
+    assert np.abs(out - deform_reference(points, rest, pose, distances=custom)).max() <= TOL * diag(points)
+    assert np.abs(out - base).max() > 1e-3  # the distances are actually used
+    w = rng.uniform(0, 1, euclid.shape)
+    out = Deformer(points, rest, weights=w).pose(pose)
+    assert np.abs(out - deform_reference(points, rest, pose, weights=w)).max() <= TOL * diag(points)
+
+
+# --------------------------------------------------------------------------- quality
+def _cylinder(pose, alpha, lever="length"):
+    V, F = cylinder.cylinder_mesh()
+    out = Deformer(V, cylinder.rest_handles(), alpha=alpha, lever=lever).pose(pose)
+    return V, F, out.astype(np.float64)
+
+
+def test_twist_180_keeps_volume():
+    V, F, out = _cylinder(cylinder.twist_pose(180), alpha=1.0)
+    assert cylinder.mesh_volume(out, F) >= 0.99 * cylinder.mesh_volume(V, F)
+
+
+def test_bend_90_keeps_volume_and_far_points_rigid():
+    pose = cylinder.bend_pose(90)
+    V, F, out = _cylinder(pose, alpha=2.0)
+    assert cylinder.mesh_volume(out, F) >= 0.97 * cylinder.mesh_volume(V, F)
+    joint, R = cylinder.BONES[1, 0], pose.rotations[1]
+    far2, far1 = V[:, 0] >= 1.5, V[:, 0] <= 0.5   # beyond half a bone length from the joint
+    assert np.abs(out[far2] - ((V[far2] - joint) @ R.T + joint)).max() <= 0.01
+    assert np.abs(out[far1] - V[far1]).max() <= 0.01
+    # the literal lever w|p̂|² collapses the same bend: the defect the default removes
+    V, F, literal = _cylinder(pose, alpha=2.0, lever="paper")
+    assert cylinder.mesh_volume(literal, F) < 0.5 * cylinder.mesh_volume(V, F)
+
+
+# --------------------------------------------------------------------------- bad input
+def test_bad_points_raise_typed_errors():
+    rest = HandleSet.make(segments=[[[0, 0, 0], [1, 0, 0]]])
+    with pytest.raises(InputError, match="NaN or infinite"):
+        Deformer([[0, 0, 0], [np.nan, 0, 0]], rest)
+    with pytest.raises(InputError, match="NaN or infinite"):
+        Deformer([[0, 0, np.inf]], rest)
+    with pytest.raises(InputError, match="shape"):
+        Deformer(np.zeros((4, 2)), rest)
+    with pytest.raises(InputError, match="empty"):
+        Deformer(np.zeros((0, 3)), rest)
+    with pytest.raises(InputError, match="distances"):
+        Deformer(np.zeros((3, 3)), rest, distances=np.full((3, 1), -1.0))
+    with pytest.raises(InputError, match="shape"):
+        Deformer(np.zeros((3, 3)), rest, weights=np.ones((3, 2)))
+    with pytest.raises(InputError, match="no positive weight"):
+        Deformer(np.zeros((3, 3)), rest, weights=np.zeros((3, 1)))
+    with pytest.raises(InputError, match="alpha"):
+        Deformer(np.zeros((3, 3)), rest, alpha=-1)
+    with pytest.raises(InputError, match="backend"):
+        Deformer(np.zeros((3, 3)), rest, backend="cuda")
+
+
+def test_bad_handles_raise_typed_errors():
+    with pytest.raises(HandleError, match="no handles"):
+        HandleSet.make()
+    with pytest.raises(HandleError, match="zero length"):
+        HandleSet.make(segments=[[[1, 1, 1], [1, 1, 1]]])
+    with pytest.raises(HandleError, match="NaN"):
+        HandleSet.make(points=[[0, np.nan, 0]])
+    with pytest.raises(HandleError, match="shape"):
+        HandleSet.make(points=[[0, 0]])
+    rest = HandleSet.make(points=[[0, 0, 0]], segments=[[[0, 0, 0], [1, 0, 0]]])
+    with pytest.raises(HandleError, match="posed handles"):
+        Pose.make(rest, [[0, 0, 0]], [])
+    with pytest.raises(HandleError, match="away from the posed direction"):
+        Pose.make(rest, [[0, 0, 0]], [[[0, 0, 0], [0, 1, 0]]], rotations=[np.eye(3)])
+    with pytest.raises(HandleError, match="not a rotation"):
+        Pose.make(rest, [[0, 0, 0]], [[[0, 0, 0], [1, 0, 0]]], rotations=[2 * np.eye(3)])
+    with pytest.raises(HandleError, match="either"):
+        Pose.make(rest, [[0, 0, 0]], [[[0, 0, 0], [1, 0, 0]]], rotations=[np.eye(3)], twists=[1.0])
+    dev = Deformer(np.zeros((2, 3)), rest)
+    with pytest.raises(HandleError, match="binding has"):
+        dev.pose(Pose.make(HandleSet.make(points=[[0, 0, 0]]), [[0, 0, 0]]))
