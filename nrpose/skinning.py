@@ -287,13 +287,12 @@ class Deformer:
         self._kernel.set_arg(7, np.int32(g))
         self._local = LOCAL_SIZE
         self._global0 = -(-g // LOCAL_SIZE) * LOCAL_SIZE
-        try:
-            caps = ctx.devices[0].svm_capabilities
-            self._svm = bool(caps & cl.device_svm_capabilities.FINE_GRAIN_BUFFER)
-        except (cl.Error, AttributeError):  # pragma: no cover - OpenCL 1.x device
-            self._svm = False
-        self._in = self._in_buf = None           # per-pose parameters (host view, buffer)
-        self._out = self._out_buf = None         # posed vertices (host view, buffer)
+        # Per-pose parameters and posed vertices: device.HostArray (fine-grained
+        # SVM when the device has it). Setting ``_svm = False`` before the first
+        # pose forces the copying buffer path (tests use it on PoCL).
+        self._svm = device.fine_grain_svm()
+        self._in: device.HostArray | None = None     # per-pose parameters
+        self._out: device.HostArray | None = None    # posed vertices
         self._joints_bound = -1
 
     # -- per pose -------------------------------------------------------------
@@ -312,44 +311,34 @@ class Deformer:
             return mats[:, :, :3, :].reshape(mats.shape[0], mats.shape[1], 12)
         return dual_quaternions(mats)
 
-    def _alloc(self, n_floats: int, arg: int, which: str) -> None:
-        """(Re)allocate the host-visible float32 array `which` with >= n_floats, bind to arg."""
-        cl = self._cl
+    def _array(self, which: str, n_floats: int, arg: int) -> device.HostArray:
+        """HostArray `which` with >= n_floats elements, bound to kernel argument `arg`.
+
+        HostArrays have a fixed size: a larger batch allocates a larger one
+        (and rebinds it); smaller batches reuse the current one.
+        """
         cur = getattr(self, which)
-        if cur is not None and cur.size >= n_floats:
-            return
-        if self._svm:
-            flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER
-            ary = cl.svm_empty(self._ctx, flags, (n_floats,), np.float32)
-            self._kernel.set_arg(arg, cl.SVM(ary))
-        else:
-            ary = np.empty(n_floats, np.float32)
-            buf = cl.Buffer(self._ctx, cl.mem_flags.READ_WRITE, ary.nbytes)
-            self._kernel.set_arg(arg, buf)
-            setattr(self, which + "_buf", buf)
-        setattr(self, which, ary)
+        if cur is None or cur.host.size < n_floats:
+            cur = device.HostArray(n_floats) if self._svm else _BufferArray(n_floats)
+            self._kernel.set_arg(arg, cur.arg)
+            setattr(self, which, cur)
+        return cur
 
     def _run(self, params: np.ndarray) -> np.ndarray:
         """params (F, J, W) -> posed (F, N, 3) float64: one launch (SVM) or write+launch+read."""
-        cl = self._cl
         f, j, width = params.shape
         npad = self.n_blocks * LANES
-        self._alloc(f * j * width, 3, "_in")
-        self._alloc(f * npad * 3, 4, "_out")
+        arr_in = self._array("_in", f * j * width, 3)
+        arr_out = self._array("_out", f * npad * 3, 4)
         if j != self._joints_bound:
             self._kernel.set_arg(6, np.int32(j))
             self._joints_bound = j
-        host_in = self._in[: f * j * width].reshape(params.shape)
-        host_in[...] = params                                        # float64 -> float32
-        q = self._queue
-        if not self._svm:
-            cl.enqueue_copy(q, self._in_buf, host_in, is_blocking=False)
-        cl.enqueue_nd_range_kernel(q, self._kernel, (self._global0, f), (self._local, 1))
-        if self._svm:
-            q.finish()
-        else:
-            cl.enqueue_copy(q, self._out[: f * npad * 3], self._out_buf, is_blocking=True)
-        out = self._out[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
+        arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
+        arr_in.upload()
+        self._cl.enqueue_nd_range_kernel(self._queue, self._kernel, (self._global0, f),
+                                         (self._local, 1))
+        arr_out.download()
+        out = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
         return out.astype(np.float64)
 
     def pose_dual_quaternions(self, dq) -> np.ndarray:
@@ -358,6 +347,21 @@ class Deformer:
             raise InputError("pose_dual_quaternions needs a deformer built with method='dqs'")
         dq = _check_dq(dq, self.max_joint)
         return self._run(dq[None])[0]
+
+
+class _BufferArray(device.HostArray):
+    """A :class:`device.HostArray` forced onto the copying buffer path.
+
+    What HostArray does on devices without fine-grained SVM; used when a
+    deformer's ``_svm`` is switched off on an SVM device (tests).
+    """
+
+    def __init__(self, size: int):
+        cl = device._cl()
+        ctx, self._queue = device.context()
+        self.svm = False
+        self.host = np.zeros(max(int(size), 1), np.float32)
+        self.arg = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.host.nbytes)
 
 
 class LbsDeformer(Deformer):
