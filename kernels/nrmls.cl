@@ -15,9 +15,12 @@
  *                         of a work-item nearly always share it (scalar loads
  *                         instead of gathers)
  *   row    [Np]  int      output row of each stored point (undoes the sort)
- *   coef   [P+2S][Np]     q* = sum_r coef[r] * qpos[r]: point handles (w),
- *                         then per segment (w(1-t), w t) on its posed ends
- *   lever  [P+S][Np]      normalised levers (points, then segments)
+ *   K                     segment slots per point: S (dense) or k (built with
+ *                         -DSPARSE: the k most influential segments of each point)
+ *   slot   [K][Np]  int   (SPARSE only) segment held by each slot
+ *   coef   [P+2K][Np]     q* coefficients: point handles (w), then per segment slot
+ *                         (w(1-t), w t) on the segment's posed ends
+ *   lever  [P+K][Np]      normalised levers (points, then segment slots)
  *   phat   [P][3][Np]     p_i - p* of the point handles
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
  *          rotations of the segments and the global rotation R_g, row-major
@@ -60,85 +63,104 @@ static float3 quat_log(float4 q)
     return k * q.xyz;
 }
 
-/* Per-pose rotation data, one work-item per (reference j, column i) for
- * j in [0, S], i in [0, S]: column S copies reference j's matrix into refs
- * (identity for the paper blend), the others write table[j][i]. The relative
- * table is exactly antisymmetric: T[j][i] = -T[i][j] (agreeing blends at pi). */
-__kernel void nrmls_prepare(const int P, const int S, const int paper, __global const float *pose,
+/* Per-pose rotation data. Work-item g < npairs writes table[j][i] for the
+ * g-th (j, i) pair that some point uses (listed at bind):
+ * log(R_j^-1 R_i), or log(R_i) for the paper blend. Work-items npairs + j,
+ * j in [0, S], write refs[j]: the reference's matrix (identity for the paper
+ * blend). The relative table is exactly antisymmetric, T[j][i] = -T[i][j],
+ * so that blends seen from either handle agree even at an angle of exactly pi. */
+__kernel void nrmls_prepare(const int P, const int S, const int paper, const int npairs,
+                            __global const int *pairs, __global const float *pose,
                             __global float *derived)
 {
-    __global const float *pose_rots = pose + 3 * (P + 2 * S);
-    const int j = get_global_id(0) / (S + 1), i = get_global_id(0) % (S + 1);
+    const int g = get_global_id(0);
+    __global const float *rots = pose + 3 * (P + 2 * S);
     __global float *refs = derived;
     __global float *table = derived + 9 * (S + 1);
-    if (i == S) {
-        for (int k = 0; k < 9; ++k)
-            refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : pose_rots[9 * j + k];
+    if (g >= npairs) {
+        const int j = g - npairs;
+        if (j <= S)
+            for (int k = 0; k < 9; ++k)
+                refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : rots[9 * j + k];
         return;
     }
+    const int j = pairs[2 * g], i = pairs[2 * g + 1];
     float3 r = (float3)(0.0f);
     if (paper) {
-        r = quat_log(quat_of(pose_rots + 9 * i));
+        r = quat_log(quat_of(rots + 9 * i));
     } else if (i != j) {
         const int a = min(i, j), b = max(i, j);
-        const float4 qa = quat_of(pose_rots + 9 * a), qb = quat_of(pose_rots + 9 * b);
+        const float4 qa = quat_of(rots + 9 * a), qb = quat_of(rots + 9 * b);
         const float4 rel = (float4)(qa.w * qb.xyz - qb.w * qa.xyz - cross(qa.xyz, qb.xyz), dot(qa, qb));
         r = (j < i ? 1.0f : -1.0f) * quat_log(rel);
     }
     vstore3(r, j * S + i, table);
 }
 
-__kernel void nrmls_pose(const int np, const int P, const int S,
+__kernel void nrmls_pose(const int np, const int P, const int S, const int K,
                          __global const float *u, __global const int *ref, __global const int *row,
-                         __global const float *coef, __global const float *lever,
-                         __global const float *phat, __global const float *pose,
-                         __global const float *derived,
+                         __global const int *slot, __global const float *coef,
+                         __global const float *lever, __global const float *phat,
+                         __global const float *pose, __global const float *derived,
                          __global float *out, const int per_item)
 {
-    const int R = P + 2 * S;
     __global const float *qpos = pose;
     __global const float *refs = derived;
     __global const float *table = derived + 9 * (S + 1);
     const int chunks = np / 8;
     for (int g = get_global_id(0) * per_item; g < min(chunks, (int)(get_global_id(0) + 1) * per_item); ++g) {
 
-    /* q* = weighted posed centroid, linear in the posed handle positions */
-    float8 qx = 0.0f, qy = 0.0f, qz = 0.0f;
-    for (int r = 0; r < R; ++r) {
-        const float8 c = vload8(g, coef + r * np);
-        qx += c * qpos[3 * r];
-        qy += c * qpos[3 * r + 1];
-        qz += c * qpos[3 * r + 2];
-    }
-
-    /* reference rotation and blended rotation vector relative to it */
+    /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered */
     const int8 rf = vload8(g, ref);
     const int uniform = all(rf == (int8)rf.s0);
     float8 m00, m01, m02, m10, m11, m12, m20, m21, m22;
-    float8 rx = 0.0f, ry = 0.0f, rz = 0.0f;
-    if (uniform) {                       /* one reference for all 8 lanes */
+    if (uniform) {
         __global const float *m = refs + 9 * rf.s0;
         m00 = m[0]; m01 = m[1]; m02 = m[2]; m10 = m[3]; m11 = m[4]; m12 = m[5];
         m20 = m[6]; m21 = m[7]; m22 = m[8];
-        __global const float *trow = table + 3 * S * rf.s0;
-        for (int s = 0; s < S; ++s) {
-            const float8 l = vload8(g, lever + (P + s) * np);
-            rx += l * trow[3 * s];
-            ry += l * trow[3 * s + 1];
-            rz += l * trow[3 * s + 2];
-        }
-    } else {                             /* lanes straddle two references: gather */
+    } else {
         const int8 r9 = rf * 9;
         m00 = GATHER8(refs, r9);     m01 = GATHER8(refs, r9 + 1); m02 = GATHER8(refs, r9 + 2);
         m10 = GATHER8(refs, r9 + 3); m11 = GATHER8(refs, r9 + 4); m12 = GATHER8(refs, r9 + 5);
         m20 = GATHER8(refs, r9 + 6); m21 = GATHER8(refs, r9 + 7); m22 = GATHER8(refs, r9 + 8);
-        const int8 trow = rf * (3 * S);
-        for (int s = 0; s < S; ++s) {
-            const float8 l = vload8(g, lever + (P + s) * np);
-            const int8 i = trow + 3 * s;
-            rx += l * GATHER8(table, i);
-            ry += l * GATHER8(table, i + 1);
-            rz += l * GATHER8(table, i + 2);
+    }
+
+    /* q* (weighted posed centroid, linear in the posed handle positions) and the
+     * blended rotation vector relative to the reference */
+    float8 qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
+    for (int p = 0; p < P; ++p) {
+        const float8 c = vload8(g, coef + p * np);
+        qx += c * qpos[3 * p];
+        qy += c * qpos[3 * p + 1];
+        qz += c * qpos[3 * p + 2];
+    }
+    for (int k = 0; k < K; ++k) {
+        /* segment slot k: dense, slot k is segment k; SPARSE, slot[k] names it per point */
+#ifdef SPARSE
+        const int8 h = vload8(g, slot + k * np);
+#else
+        const int8 h = (int8)k;
+#endif
+        const float8 ca = vload8(g, coef + (P + 2 * k) * np);
+        const float8 cb = vload8(g, coef + (P + 2 * k + 1) * np);
+        const float8 l = vload8(g, lever + (P + k) * np);
+        if (uniform && all(h == (int8)h.s0)) {
+            __global const float *e = qpos + 3 * (P + 2 * h.s0);
+            __global const float *t = table + 3 * (S * rf.s0 + h.s0);
+            qx += ca * e[0] + cb * e[3];
+            qy += ca * e[1] + cb * e[4];
+            qz += ca * e[2] + cb * e[5];
+            rx += l * t[0];
+            ry += l * t[1];
+            rz += l * t[2];
+        } else {
+            const int8 e = 3 * (P + 2 * h), t = 3 * (S * rf + h);
+            qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
+            qy += ca * GATHER8(qpos, e + 1) + cb * GATHER8(qpos, e + 4);
+            qz += ca * GATHER8(qpos, e + 2) + cb * GATHER8(qpos, e + 5);
+            rx += l * GATHER8(table, t);
+            ry += l * GATHER8(table, t + 1);
+            rz += l * GATHER8(table, t + 2);
         }
     }
     for (int p = 0; p < P; ++p) {

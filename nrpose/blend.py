@@ -49,7 +49,7 @@ import numpy as np
 from .errors import InputError
 from .handles import HandleSet, Pose, check_alpha
 from .rotation import Rotation, kabsch, minimal_rotvec, relative_rotvec_table
-from .weights import dense_weights
+from .weights import dense_weights, keep_top_k
 
 BLENDS = ("relative", "paper")
 LEVERS = ("length", "paper")
@@ -128,12 +128,13 @@ def _check_matrix(m, shape, what: str) -> np.ndarray:
 
 
 def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "length",
-               distances=None, weights=None) -> RestTerms:
+               distances=None, weights=None, k: int | None = None) -> RestTerms:
     """Rest-only terms of the blend for points (N, 3) and rest handles.
 
     distances: optional (N, H) distances replacing the Euclidean ones (e.g.
     geodesic). weights: optional (N, H) non-negative weights used as w_i
-    directly (e.g. authored skin weights); excludes ``distances``.
+    directly (e.g. authored skin weights); excludes ``distances``. k: keep
+    only the k most influential handles of each point (None: all).
     """
     v = check_points(points)
     alpha = check_alpha(alpha)
@@ -156,6 +157,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "length
         d = (np.linalg.norm(v[:, None, :] - p, axis=2) if distances is None
              else _check_matrix(distances, (n, H), "distances"))
         w = dense_weights(d, alpha)
+    w = keep_top_k(w, k)
     p_star = np.einsum("nh,nhk->nk", w, p)
     phat = p - p_star[:, None, :]
     lev = w * np.einsum("nhk,nhk->nh", phat, phat)
@@ -229,7 +231,7 @@ def pose_reference(terms: RestTerms, rest: HandleSet, pose: Pose, blend: str = "
 
 
 def deform_reference(points, rest: HandleSet, pose: Pose, alpha: float = 1.0, blend: str = "relative",
-                     lever: str = "length", distances=None, weights=None) -> np.ndarray:
+                     lever: str = "length", distances=None, weights=None, k: int | None = None) -> np.ndarray:
     """One-shot float64 reference deformation: posed points (N, 3)."""
-    terms = rest_terms(points, rest, alpha, lever, distances, weights)
+    terms = rest_terms(points, rest, alpha, lever, distances, weights, k)
     return pose_reference(terms, rest, pose, blend)

@@ -26,17 +26,26 @@ BACKENDS = ("opencl", "numpy")
 LANES = 8  # points per work-item (float8)
 
 
+def k_slots(k: int | None, S: int) -> int | None:
+    """Segment slots per point for top-k sparsity, or None when dense (k None or ≥ S)."""
+    return None if k is None or k >= S else int(k)
+
+
 class Deformer:
     """A point set bound to rest handles.
 
     points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
     blend: "relative" (default, equivariant) or "paper"; lever: "length"
     (default) or "paper" (see :mod:`nrpose.blend`); distances / weights:
-    optional (N, H) matrices replacing Euclidean distances / giving the w_i.
+    optional (N, H) matrices replacing Euclidean distances / giving the w_i;
+    k: keep the k most influential handles of each point (None: all, dense).
+    With k < S the kernel stores, per point, k segment slots (which segment,
+    its coefficients) instead of all S segments.
     """
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
-                 lever: str = "length", distances=None, weights=None, backend: str = "opencl"):
+                 lever: str = "length", distances=None, weights=None, k: int | None = None,
+                 backend: str = "opencl"):
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         if blend not in BLENDS:
@@ -44,7 +53,8 @@ class Deformer:
         self.rest = rest
         self.blend = blend
         self.backend = backend
-        self.terms: RestTerms = rest_terms(points, rest, alpha, lever, distances, weights)
+        self.k = k
+        self.terms: RestTerms = rest_terms(points, rest, alpha, lever, distances, weights, k)
         self.n = len(self.terms.u)
         if backend == "opencl":
             self._bind_device()
@@ -64,20 +74,37 @@ class Deformer:
             out[:, :n] = rows
             return out
 
-        # store points sorted by reference rotation so that a work-item's lanes
-        # share it; `row` sends each stored point back to its caller's row
-        order = np.argsort(T.ref, kind="stable")
-        w, t = T.weights[order], T.t[order]
-        coef = np.concatenate([w[:, :P].T, np.stack([w[:, P:] * (1 - t), w[:, P:] * t], 2).reshape(n, 2 * S).T])
+        w, t = T.weights, T.t
+        ws = w[:, P:]
+        K = S if k_slots(self.k, S) is None else k_slots(self.k, S)
+        if K < S:   # the K heaviest segments of each point, listed by segment index
+            slots = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
+        else:
+            slots = np.broadcast_to(np.arange(S), (n, S))
+        take = lambda a: np.take_along_axis(a, slots, axis=1)  # noqa: E731
+        # store points sorted by reference rotation (then slots) so that a
+        # work-item's 8 lanes share them; `row` sends each back to its caller's row
+        order = np.lexsort(tuple(slots.T[::-1]) + (T.ref,)) if K < S else np.argsort(T.ref, kind="stable")
+        wk, tk = take(ws)[order], take(t)[order]
+        coef = np.concatenate([w[order, :P].T, np.stack([wk * (1 - tk), wk * tk], 2).reshape(n, 2 * K).T])
+        lever = np.concatenate([T.lever[order, :P].T, take(T.lever[:, P:])[order].T])
         ref = np.full(npad, S, np.int32)
         ref[:n] = T.ref[order]
         row = np.arange(npad, dtype=np.int32)
         row[:n] = order
+        slot = np.zeros((K, npad), np.int32)
+        slot[:, :n] = slots[order].T
         arrays = {
-            "u": soa(T.u[order].T), "ref": ref, "row": row, "coef": soa(coef), "lever": soa(T.lever[order].T),
+            "u": soa(T.u[order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
+            "coef": soa(coef), "lever": soa(lever),
             "phat": soa(T.phat[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else np.zeros(1, np.float32),
         }
+        self.slots = K
         mf = cl.mem_flags
+        # the (reference, segment) pairs of the rotation table that some point uses
+        used = np.unique(T.ref[:, None].astype(np.int64) * (S + 1) + slots, axis=None) if S else np.zeros(0, np.int64)
+        arrays["pairs"] = np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32) if S else np.zeros(2, np.int32)
+        self._npairs = len(used)
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                       for k, a in arrays.items()}
         self._bufs["derived"] = cl.Buffer(ctx, mf.READ_WRITE, 4 * (9 * (S + 1) + 3 * (S + 1) * S))
@@ -86,14 +113,15 @@ class Deformer:
         self._pose.host[self._npos + 9 * S:] = np.eye(3).ravel()   # R_g until a pose needs it
         self._needs_global = blend == "relative" and bool((T.ref == S).any())
         self._out = device.HostArray(3 * npad)
-        prg = device.program("nrmls.cl")
+        prg = device.program("nrmls.cl", ("-DSPARSE",) if K < S else ())
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
-        self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), self._pose.arg,
-                               self._bufs["derived"])
+        self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),
+                               self._bufs["pairs"], self._pose.arg, self._bufs["derived"])
         self._kernel = cl.Kernel(prg, "nrmls_pose")
         b = self._bufs
-        self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), b["u"], b["ref"], b["row"], b["coef"],
-                              b["lever"], b["phat"], self._pose.arg, b["derived"], self._out.arg, np.int32(1))
+        self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
+                              b["slot"], b["coef"], b["lever"], b["phat"], self._pose.arg, b["derived"],
+                              self._out.arg, np.int32(1))
 
     def pose(self, pose: Pose) -> np.ndarray:
         """Posed points (N, 3): float32 on OpenCL, float64 on numpy."""
@@ -111,7 +139,7 @@ class Deformer:
         self._pose.upload()
         S = len(self.rest.segments)
         q = self._queue
-        cl.enqueue_nd_range_kernel(q, self._prepare, ((S + 1) * (S + 1),), None)
+        cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1,), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, (self._npad // LANES,), None)
         self._out.download()
         return self._out.host[: 3 * self.n].reshape(self.n, 3).copy()

@@ -83,6 +83,19 @@ def sparse_weights(D, k: int = 4, alpha: float = 1.0) -> tuple[np.ndarray, np.nd
     return order.astype(np.int32), W
 
 
+def keep_top_k(W: np.ndarray, k: int | None) -> np.ndarray:
+    """Dense weights (N, H) keeping only the k largest of each row (ties: lower
+    handle index), renormalised to sum 1; ``k=None`` or k ≥ H returns W as is."""
+    if k is None or k >= W.shape[1]:
+        return W
+    if isinstance(k, bool) or int(k) != k or k < 1:
+        raise InputError(f"k must be a positive integer, got {k!r}")
+    drop = np.argsort(-W, axis=1, kind="stable")[:, int(k):]
+    W = W.copy()
+    np.put_along_axis(W, drop, 0.0, axis=1)
+    return W / W.sum(axis=1, keepdims=True)
+
+
 def densify(indices, weights, n_handles: int) -> np.ndarray:
     """Scatter sparse (N, k) weights back into a dense (N, H) matrix."""
     idx = np.asarray(indices)

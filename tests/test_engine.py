@@ -267,3 +267,26 @@ def test_bad_handles_raise_typed_errors():
     dev = Deformer(np.zeros((2, 3)), rest)
     with pytest.raises(HandleError, match="binding has"):
         dev.pose(Pose.make(HandleSet.make(points=[[0, 0, 0]]), [[0, 0, 0]]))
+
+
+@pytest.mark.parametrize("k", [1, 2, 4])
+def test_sparse_top_k_matches_reference(k):
+    """k segment slots per point: kernel against the reference with the same top-k weights."""
+    rng = np.random.default_rng(20 + k)
+    rest = random_rest(rng, 2, 9)
+    points = rng.uniform(-1.2, 1.2, (1500, 3))
+    dev, ref = both(points, rest, k=k, alpha=1.0)
+    assert dev.slots == k
+    assert (np.count_nonzero(dev.terms.weights, axis=1) <= k).all()
+    for _ in range(2):
+        pose = random_pose(rng, rest)
+        assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
+
+
+def test_sparse_with_k_at_least_handles_is_dense(mixed):
+    rest, points = mixed
+    pose = random_pose(np.random.default_rng(4), rest)
+    dense = Deformer(points, rest).pose(pose)
+    assert np.array_equal(Deformer(points, rest, k=rest.count).pose(pose), dense)
+    with pytest.raises(InputError, match="positive integer"):
+        Deformer(points, rest, k=0)
