@@ -131,7 +131,10 @@ class Mesh:
     joints: (N, K) int64 skeleton joint indices and weights: (N, K) float64
     (rows summing to 1), or None when the file has no skin weights;
     rigid_joint: the joint a rigidly attached mesh follows (its joints/weights
-    are then that joint with weight 1), else None.
+    are then that joint with weight 1), else None;
+    bind_vertices: (N, 3) float64 the skinned mesh's own POSITION data (glTF
+    bind space, transformed by ``G_j @ inverse_bind_j`` in the glTF skinning
+    formula), else None.
     """
 
     name: str
@@ -140,6 +143,7 @@ class Mesh:
     joints: np.ndarray | None = None
     weights: np.ndarray | None = None
     rigid_joint: int | None = None
+    bind_vertices: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -394,7 +394,7 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
             blended = np.einsum("nk,nkab->nab", weights, bind[local])
             W = np.einsum("nab,nb->na", blended, Vh)[:, :3]
             joints = node_to_joint[np.asarray(skin.joints)][local]
-            meshes.append(Mesh(name, W, F, joints, weights, None))
+            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64)))
     return meshes
 
 

@@ -1,0 +1,237 @@
+"""Characters posed on the device: bind once, then frames from joint rotations.
+
+    poser = CharacterPoser(character, method="nrmls", weights="authored")
+    frames = poser.pose(local_pose)           # LocalPose (J, ...) or (F, J, ...)
+    frames.positions                          # (F, V, 3) float32, world space
+
+Vertices of all the character's meshes are concatenated in file order
+(``mesh_offsets`` tells where each mesh starts). Methods:
+
+* ``nrmls``: the engine's near-rigid blend (:mod:`nrpose.blend`) with the
+  skeleton's bones (:meth:`nrpose.skeleton.Skeleton.bones`) as segment
+  handles carrying their full rotation. With ``weights="authored"`` a
+  vertex's weight on joint j becomes weight on j's bones, shared between
+  them by inverse squared distance (a joint's bones all move with its
+  rigid transform, so any split keeps that motion exact); a weighted joint
+  that drives no bone hands its weight to its nearest ancestor that does.
+* ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.skinning`).
+  With authored weights a glTF mesh is skinned from its own bind-space
+  POSITION data with ``G_j @ inverse_bind_j``: the glTF specification's
+  formula.
+
+Weights: ``authored`` (the file's skin weights), ``euclidean`` (distance to
+the bone segments, ``1/d^(2α)``), or a topological distance over the surface
+(``heat``, ``exact``, ``graph``: :func:`nrpose.distances.distance_matrix`,
+cached on disk by :mod:`nrpose.bindcache`). For lbs/dqs the distance weights
+keep each vertex's 4 nearest bones, summed per driving joint.
+
+Meshes attached rigidly to a joint follow that joint's transform exactly,
+whatever the method.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .character import Character
+from .engine import Deformer
+from .errors import InputError
+from .handles import HandleSet, Pose
+from .skeleton import LocalPose
+from .weights import dense_weights, keep_top_k
+
+METHODS = ("nrmls", "lbs", "dqs")
+WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
+SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
+SKELETON_K = 8        # segment slots per vertex for nrmls on skeletons with more bones
+
+
+@dataclass(frozen=True)
+class Frames:
+    """Posed frames: positions (F, V, 3) float32, faces (M, 3) int64 (indices
+    into the concatenated vertices), mesh_names, mesh_offsets (len(meshes),)
+    int64, and per-frame pose times in milliseconds (F,)."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    mesh_names: tuple[str, ...]
+    mesh_offsets: np.ndarray
+    frame_ms: np.ndarray
+
+
+class CharacterPoser:
+    """A character bound for posing. See the module docstring for the options.
+
+    k: segment slots per vertex for nrmls (default: all bones up to 8, else 8).
+    """
+
+    def __init__(self, character: Character, method: str = "nrmls", weights: str = "authored",
+                 alpha: float = 1.0, k: int | None = None, backend: str = "opencl"):
+        if method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {method!r}")
+        if weights not in WEIGHTS:
+            raise InputError(f"weights must be one of {WEIGHTS}, got {weights!r}")
+        if not character.meshes:
+            raise InputError("the character has no mesh to pose (a skeleton-only file); "
+                             "give a mesh and pass the skeleton with --skeleton")
+        t0 = time.perf_counter()
+        self.character, self.method = character, method
+        skel = character.skeleton
+        meshes = character.meshes
+        sizes = np.array([len(m.vertices) for m in meshes])
+        self.mesh_offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+        self.mesh_names = tuple(m.name for m in meshes)
+        self.faces = np.concatenate([m.faces + o for m, o in zip(meshes, self.mesh_offsets)]).astype(np.int64)
+        self.n = int(sizes.sum())
+        rigid = np.concatenate([np.full(len(m.vertices), -1 if m.rigid_joint is None else m.rigid_joint)
+                                for m in meshes])
+        self._rigid_idx = np.flatnonzero(rigid >= 0)
+        self._rigid_joint = rigid[self._rigid_idx]
+        self._deform_idx = np.flatnonzero(rigid < 0)
+        self._rest_world = np.concatenate([m.vertices for m in meshes])
+        self._rest_inv = np.linalg.inv(skel.rest_globals())
+        self.bones = skel.bones()
+        deform_meshes = [m for m in meshes if m.rigid_joint is None]
+        self._deformer = None
+        if deform_meshes:
+            V = self._rest_world[self._deform_idx]
+            faces = _submesh_faces(self.faces, self._deform_idx, self.n)
+            if weights == "authored":
+                joint_w = _authored_joint_weights(deform_meshes, skel.num_joints)
+            else:
+                D = _bone_distances(V, faces, self.bones.segments, weights)
+            if method == "nrmls":
+                rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
+                kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
+                if weights == "authored":
+                    W = _joint_to_bone_weights(joint_w, V, self.bones, skel.parents)
+                    self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend)
+                else:
+                    self._deformer = Deformer(V, rest, alpha=alpha, distances=D, k=kk, backend=backend)
+            else:
+                from . import skinning
+                if weights == "authored":
+                    self._bind_space = all(m.bind_vertices is not None for m in deform_meshes)
+                    src = (np.concatenate([m.bind_vertices for m in deform_meshes]) if self._bind_space else V)
+                else:
+                    bone_w = keep_top_k(dense_weights(D, alpha), SKIN_INFLUENCES)
+                    joint_w = np.zeros((len(V), skel.num_joints))
+                    np.add.at(joint_w.T, self.bones.joints, bone_w.T)
+                    self._bind_space, src = False, V
+                joints, wts = _compact(joint_w)
+                cls = skinning.LbsDeformer if method == "lbs" else skinning.DqsDeformer
+                self._deformer = cls(src, joints, wts) if backend == "opencl" else None
+                self._skin_ref = (src, joints, wts)
+        self._backend = backend
+        self.bind_ms = 1e3 * (time.perf_counter() - t0)
+
+    # ------------------------------------------------------------------ posing
+    def pose(self, local: LocalPose, progress=None) -> Frames:
+        """Posed frames for a local pose (J, ...) or a batch (F, J, ...).
+
+        progress: optional callable(done, total) called after each frame.
+        """
+        skel, ch = self.character.skeleton, self.character
+        G = skel.forward_kinematics(local)
+        if G.ndim == 3:
+            G = G[None]
+        F = len(G)
+        out = np.empty((F, self.n, 3), np.float32)
+        frame_ms = np.empty(F)
+        skin_rest = G @ self._rest_inv                                    # (F, J, 4, 4)
+        # per-frame handle data for all frames at once (vectorised host work)
+        if self.method == "nrmls":
+            segs, rots = self.bones.pose(G)
+            empty = np.zeros((0, 3))
+        else:
+            mats = G @ ch.inverse_bind if self._bind_space else skin_rest
+        for f in range(F):
+            t0 = time.perf_counter()
+            if self._rigid_idx.size:
+                M = skin_rest[f][self._rigid_joint]
+                V = self._rest_world[self._rigid_idx]
+                out[f, self._rigid_idx] = np.einsum("nij,nj->ni", M[:, :3, :3], V) + M[:, :3, 3]
+            if self._deform_idx.size:
+                if self.method == "nrmls":
+                    # FK output is consistent by construction: no Pose.make validation
+                    out[f, self._deform_idx] = self._deformer.pose(Pose(HandleSet(empty, segs[f]), rots[f]))
+                elif self._deformer is not None:
+                    out[f, self._deform_idx] = self._deformer.pose(mats[f])
+                else:
+                    from . import skinning
+                    ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
+                    out[f, self._deform_idx] = ref(*self._skin_ref, mats[f])
+            frame_ms[f] = 1e3 * (time.perf_counter() - t0)
+            if progress:
+                progress(f + 1, F)
+        return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
+
+
+# ---------------------------------------------------------------------- helpers
+def _submesh_faces(faces: np.ndarray, keep: np.ndarray, n: int) -> np.ndarray:
+    """Faces among the vertices ``keep`` (renumbered), dropping faces that leave them."""
+    new = np.full(n, -1)
+    new[keep] = np.arange(len(keep))
+    f = new[faces]
+    return f[(f >= 0).all(axis=1)]
+
+
+def _authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
+    """Dense (V, J) joint weights of the skinned meshes, rows summing to 1."""
+    missing = [m.name for m in meshes if m.joints is None or m.weights is None]
+    if missing:
+        raise InputError(f"mesh {missing[0]!r} has no skin weights; use --weights euclidean "
+                         "(or heat, exact, graph)")
+    rows = []
+    for m in meshes:
+        W = np.zeros((len(m.vertices), n_joints))
+        np.add.at(W, (np.repeat(np.arange(len(m.vertices)), m.joints.shape[1]), m.joints.ravel()),
+                  m.weights.ravel())
+        rows.append(W)
+    W = np.concatenate(rows)
+    return W / W.sum(axis=1, keepdims=True)
+
+
+def _joint_to_bone_weights(joint_w: np.ndarray, V: np.ndarray, bones, parents: np.ndarray) -> np.ndarray:
+    """(V, B) bone weights from (V, J) joint weights (see the module docstring)."""
+    from .distances import point_segment_distances
+
+    owner = np.arange(joint_w.shape[1])
+    driven = np.zeros(joint_w.shape[1], bool)
+    driven[bones.joints] = True
+    for j in range(len(owner)):                      # parents come first: resolve in order
+        if not driven[j]:
+            p = parents[j]
+            owner[j] = owner[p] if p >= 0 else -1
+    lost = (owner < 0) & (joint_w.sum(axis=0) > 0)
+    if lost.any():
+        raise InputError(f"joint {int(np.flatnonzero(lost)[0])} carries skin weight but neither it nor "
+                         "an ancestor drives a bone")
+    jw = np.zeros_like(joint_w)
+    np.add.at(jw.T, owner[owner >= 0], joint_w.T[owner >= 0])
+    d2 = point_segment_distances(V, bones.segments)[0] ** 2
+    share = 1.0 / np.maximum(d2, 1e-12)
+    per_joint = np.zeros((len(V), jw.shape[1]))
+    np.add.at(per_joint.T, bones.joints, share.T)
+    return jw[:, bones.joints] * share / per_joint[:, bones.joints]
+
+
+def _compact(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (V, J) weights → (joints (V, K), weights (V, K)), K = most non-zeros in a row."""
+    K = max(int(np.count_nonzero(W, axis=1).max()), 1)
+    joints = np.argsort(-W, axis=1, kind="stable")[:, :K]
+    return joints, np.take_along_axis(W, joints, axis=1)
+
+
+def _bone_distances(V: np.ndarray, faces: np.ndarray, segments: np.ndarray, method: str) -> np.ndarray:
+    """(V, B) distances from vertices to bones: Euclidean, or over the surface (cached)."""
+    from . import distances
+
+    if method == "euclidean":
+        return distances.point_segment_distances(V, segments)[0]
+    from .bindcache import binding_key_parts, cached
+
+    parts = binding_key_parts(V, faces, np.zeros((0, 3)), segments, {"distances": method})
+    return cached(parts, lambda: {"D": distances.distance_matrix(V, faces, None, segments, method=method)})["D"]
