@@ -89,6 +89,124 @@ def cmd_demo(args) -> None:
     print(f"wrote {out / 'box_before.png'}, {out / 'box_after.png'} and box_*.ply in {out}")
 
 
+def parse_frames(spec: str, fps: float) -> np.ndarray:
+    """``A:B[:STEP]`` frame numbers (inclusive) at ``fps`` → times in seconds."""
+    parts = spec.split(":")
+    try:
+        nums = [int(p) for p in parts]
+    except ValueError:
+        nums = []
+    if len(nums) not in (2, 3) or nums[0] < 0 or nums[1] < nums[0] or (len(nums) == 3 and nums[2] < 1):
+        raise NrposeError(f"--frames {spec!r}: expected A:B or A:B:STEP with 0 <= A <= B and STEP >= 1")
+    if not (np.isfinite(fps) and fps > 0):
+        raise NrposeError(f"--fps {fps}: expected a positive number")
+    step = nums[2] if len(nums) == 3 else 1
+    return np.arange(nums[0], nums[1] + 1, step) / fps
+
+
+def _progress(done: int, total: int) -> None:
+    if total > 1 and sys.stderr.isatty():
+        width = 30
+        fill = width * done // total
+        print(f"\r[{'#' * fill}{'.' * (width - fill)}] {done}/{total} frames", end="", file=sys.stderr)
+        if done == total:
+            print(file=sys.stderr)
+
+
+def cmd_pose(args) -> None:
+    from .character import load_character, load_pose
+    from .posing import CharacterPoser
+
+    character = load_character(args.character, args.skeleton)
+    skel = character.skeleton
+    if args.rest:
+        local, times = skel.rest_pose, np.zeros(1)
+    elif args.pose:
+        local, times = load_pose(args.pose, skel), np.zeros(1)
+    else:
+        if args.clip:
+            clip = character.clip(args.clip)
+        else:
+            motion = load_character(args.motion)
+            clip = _motion_clip(motion, skel, args.motion)
+        if args.time and args.frames:
+            raise NrposeError("give either --time or --frames, not both")
+        times = (np.asarray(args.time, dtype=np.float64) if args.time
+                 else parse_frames(args.frames, args.fps) if args.frames
+                 else np.arange(0.0, clip.duration + 1e-9, 1.0 / args.fps))
+        local = clip.sample(times)
+    poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
+                           backend=args.backend)
+    frames = poser.pose(local, progress=_progress)
+    if not np.isfinite(frames.positions).all():
+        raise NrposeError("posing produced non-finite coordinates; please report this input")
+    _write_frames(args.output, frames, times, args.format, character)
+    if args.png:
+        from .sheet import save_contact_sheet
+        save_contact_sheet(args.png, frames.positions, frames.faces, times,
+                           title=f"{Path(args.character).name}: {args.method}, {args.weights} weights")
+    ms = frames.frame_ms
+    print(f"{args.output}: {len(ms)} frame(s) × {poser.n} vertices, {args.method} ({args.weights} weights) on "
+          f"{args.backend}: bind {poser.bind_ms:.0f} ms; per frame median {np.median(ms):.3f} ms, "
+          f"min {ms.min():.3f}, max {ms.max():.3f}; {1e3 / np.median(ms):.0f} frames/s")
+
+
+def _motion_clip(motion, skel, path):
+    """The motion file's clip, on a character whose skeleton has the motion's joint names."""
+    from .character import Clip, Track
+
+    missing = [n for n in motion.skeleton.names if n not in skel.names]
+    if missing:
+        raise NrposeError(f"{path}: joint {missing[0]!r} (and {len(missing) - 1} more) not in the character's "
+                          "skeleton; --motion drives the skeleton it was recorded on "
+                          "(retarget other rigs first)")
+    clip = motion.clips[0]
+    index = [skel.index(n) for n in motion.skeleton.names]
+    tracks = tuple(Track(index[t.joint], t.path, t.times, t.values, t.interpolation) for t in clip.tracks)
+    return Clip(clip.name, clip.duration, skel.rest_pose, tracks)
+
+
+def _write_frames(out: str, frames, times: np.ndarray, fmt: str, character) -> None:
+    from .meshio import atomic_path, write_geometry
+
+    path = Path(out)
+    if path.suffix.lower() == ".npz":
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, positions=frames.positions, faces=frames.faces, times=times,
+                         mesh_names=np.array(frames.mesh_names), mesh_offsets=frames.mesh_offsets)
+    elif path.suffix.lower() == ".glb":
+        from .gltf_export import write_animated_glb
+        write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets)
+    elif path.suffix == "":
+        path.mkdir(parents=True, exist_ok=True)
+        for f, pos in enumerate(frames.positions):
+            write_geometry(path / f"frame_{f:04d}.{fmt}", pos, frames.faces)
+    else:
+        raise NrposeError(f"{out}: output must end in .npz or .glb, or be a directory")
+
+
+def cmd_info(args) -> None:
+    from .character import load_character
+
+    ch = load_character(args.character, args.skeleton)
+    skel = ch.skeleton
+    print(f"{args.character}")
+    print(f"meshes: {len(ch.meshes)}")
+    for m in ch.meshes:
+        kind = (f"rigid on {skel.names[m.rigid_joint]!r}" if m.rigid_joint is not None
+                else f"skinned, {m.joints.shape[1]} influences" if m.joints is not None else "no skin weights")
+        print(f"  {m.name}: {len(m.vertices)} vertices, {len(m.faces)} faces, {kind}")
+    print(f"joints: {skel.num_joints} ({len(skel.bones())} bones)")
+    depth = np.zeros(skel.num_joints, int)
+    for j, p in enumerate(skel.parents):
+        depth[j] = depth[p] + 1 if p >= 0 else 0
+        print(f"  {'  ' * depth[j]}{skel.names[j]}")
+    print(f"clips: {len(ch.clips)}")
+    for c in ch.clips:
+        print(f"  {c.name}: {c.duration:.3f} s")
+
+
 def deformer_device() -> str:
     from . import device
     info = device.describe()
@@ -109,6 +227,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--png", help="write a before/after preview PNG")
     p.set_defaults(func=cmd_deform)
+
+    from .posing import METHODS, WEIGHTS
+
+    p = sub.add_parser("pose", help="pose a character (glTF, mesh + TGF/BVH skeleton) from clips, motion or poses")
+    p.add_argument("character", help=".glb/.gltf, or a mesh (OBJ, OFF, PLY, STL, .mesh) with --skeleton")
+    p.add_argument("--skeleton", help="skeleton for a mesh character (.tgf or .bvh)")
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--clip", help="animation clip of the character, by name")
+    src.add_argument("--motion", help="BVH motion recorded on the character's skeleton")
+    src.add_argument("--pose", help="pose file (JSON local rotations/translations, or libigl DMAT)")
+    src.add_argument("--rest", action="store_true", help="the rest pose")
+    p.add_argument("--time", type=float, nargs="+", help="clip times in seconds")
+    p.add_argument("--frames", help="frame range A:B[:STEP] at --fps")
+    p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
+    p.add_argument("--method", choices=METHODS, default="nrmls", help="posing method (default nrmls)")
+    p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
+    p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
+    p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
+    p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
+    p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")
+    p.add_argument("--png", help="write a contact sheet PNG")
+    p.set_defaults(func=cmd_pose)
+
+    p = sub.add_parser("info", help="meshes, joints and clips of a character")
+    p.add_argument("character")
+    p.add_argument("--skeleton")
+    p.set_defaults(func=cmd_info)
 
     p = sub.add_parser("demo", help="the paper's Figure 3 box on PoCL, with PNGs and timings")
     p.add_argument("--out", default="out", help="output directory (default: out)")

@@ -1,0 +1,129 @@
+"""Characters posed with nrmls, lbs and dqs: glTF skinning formula, references, rigid parts."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+
+from nrpose.character import Character, Mesh, load_character
+from nrpose.posing import CharacterPoser
+from nrpose.skeleton import LocalPose, Skeleton
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
+
+COMPONENT = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+
+def read_accessor(gltf: pygltflib.GLTF2, blob: bytes, index: int) -> np.ndarray:
+    """Plain accessor read (tightly packed or strided views; no sparse) for the test's own formula."""
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    dtype, width = np.dtype(COMPONENT[acc.componentType]), WIDTH[acc.type]
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    stride = view.byteStride or dtype.itemsize * width
+    rows = [np.frombuffer(blob, dtype, width, start + i * stride) for i in range(acc.count)]
+    out = np.array(rows, dtype=np.float64)
+    if acc.normalized and dtype.kind == "u":
+        out /= np.iinfo(dtype).max
+    return out
+
+
+def gltf_skinning(path: Path, joint_globals_by_name: dict[str, np.ndarray]) -> np.ndarray:
+    """The glTF 2.0 skinning formula, v' = Σ_i w_i (G_{j_i} · IBM_{j_i}) v, for every skinned primitive."""
+    gltf = pygltflib.GLTF2().load(str(path))
+    blob = gltf.binary_blob()
+    out = []
+    for node in gltf.nodes:
+        if node.mesh is None or node.skin is None:
+            continue
+        skin = gltf.skins[node.skin]
+        ibm = read_accessor(gltf, blob, skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+        joint_mats = np.array([joint_globals_by_name[gltf.nodes[j].name] for j in skin.joints]) @ ibm
+        for prim in gltf.meshes[node.mesh].primitives:
+            V = read_accessor(gltf, blob, prim.attributes.POSITION)
+            J = read_accessor(gltf, blob, prim.attributes.JOINTS_0).astype(int)
+            W = read_accessor(gltf, blob, prim.attributes.WEIGHTS_0)
+            M = np.einsum("nk,nkab->nab", W / W.sum(axis=1, keepdims=True), joint_mats[J])
+            out.append(np.einsum("nab,nb->na", M, np.c_[V, np.ones(len(V))])[:, :3])
+    return np.concatenate(out)
+
+
+@needs_data
+@pytest.mark.parametrize("name", ["Fox", "Mannequin"])
+def test_lbs_authored_reproduces_gltf_formula(name):
+    path = DATA / "gltf" / f"{name}.glb"
+    ch = load_character(path)
+    clip = ch.clips[-1]
+    times = np.linspace(0.0, clip.duration, 4)
+    frames = CharacterPoser(ch, method="lbs", weights="authored").pose(clip.sample(times))
+    G = ch.skeleton.forward_kinematics(clip.sample(times))
+    size = np.ptp(frames.positions[0], axis=0).max()
+    for f in range(len(times)):
+        expect = gltf_skinning(path, dict(zip(ch.skeleton.names, G[f])))
+        assert np.abs(frames.positions[f] - expect).max() <= 1e-5 * size
+
+
+@needs_data
+@pytest.mark.parametrize("method", ["nrmls", "lbs", "dqs"])
+@pytest.mark.parametrize("weights", ["authored", "euclidean"])
+def test_methods_match_their_references_and_rest_is_identity(method, weights):
+    ch = load_character(DATA / "gltf" / "Fox.glb")
+    clip = ch.clip("Run")
+    local = clip.sample(np.array([0.1, 0.5]))
+    dev = CharacterPoser(ch, method=method, weights=weights)
+    ref = CharacterPoser(ch, method=method, weights=weights, backend="numpy")
+    rest = np.concatenate([m.vertices for m in ch.meshes])
+    size = np.ptp(rest, axis=0).max()
+    assert np.abs(dev.pose(ch.skeleton.rest_pose).positions[0] - rest).max() <= 1e-5 * size
+    out, expect = dev.pose(local).positions, ref.pose(local).positions
+    assert np.isfinite(out).all()
+    assert np.abs(out - expect).max() <= 1e-4 * size
+    assert np.abs(out[0] - rest).max() > 1e-2 * size     # the clip does move the fox
+
+
+def two_bone_character() -> Character:
+    """A chain root → elbow → tip along +x, a skinned bar around it and a rigid box on the elbow."""
+    skel = Skeleton(("root", "elbow", "tip"), np.array([-1, 0, 1]),
+                    np.array([[0.0, 0, 0], [1.0, 0, 0], [1.0, 0, 0]]),
+                    np.tile([0.0, 0, 0, 1], (3, 1)), np.ones((3, 3)))
+    x = np.linspace(0.05, 1.95, 20)
+    bar = np.concatenate([np.c_[x, np.full(20, dy), np.full(20, dz)] for dy in (-0.1, 0.1) for dz in (-0.1, 0.1)])
+    w_elbow = np.clip((bar[:, 0] - 0.8) / 0.4, 0, 1)
+    joints = np.tile([0, 1], (len(bar), 1))
+    weights = np.c_[1 - w_elbow, w_elbow]
+    box = np.array([[1.5, 0.3, 0.0], [1.6, 0.3, 0.0], [1.5, 0.4, 0.0], [1.5, 0.3, 0.1]])
+    meshes = (Mesh("bar", bar, np.zeros((0, 3), np.int64), joints, weights),
+              Mesh("box", box, np.array([[0, 1, 2], [0, 1, 3]]), np.ones((4, 1), np.int64), np.ones((4, 1)), 1))
+    return Character(skel, meshes)
+
+
+@pytest.mark.parametrize("method", ["nrmls", "lbs", "dqs"])
+def test_mesh_parented_to_a_joint_moves_rigidly(method):
+    ch = two_bone_character()
+    rot = np.array([0.0, 0.0, np.sin(np.pi / 6), np.cos(np.pi / 6)])     # 60° about z at the elbow
+    pose = LocalPose(ch.skeleton.translation, np.array([[0, 0, 0, 1.0], rot, [0, 0, 0, 1.0]]),
+                     ch.skeleton.scale)
+    frames = CharacterPoser(ch, method=method).pose(pose)
+    box_rest = ch.meshes[1].vertices
+    box = frames.positions[0, frames.mesh_offsets[1]:]
+    c, s = np.cos(np.pi / 3), np.sin(np.pi / 3)
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    expect = (box_rest - [1.0, 0, 0]) @ R.T + [1.0, 0, 0]
+    assert np.abs(box - expect).max() <= 1e-5
+    assert list(frames.mesh_names) == ["bar", "box"] and list(frames.mesh_offsets) == [0, 80]
+
+
+def test_skeleton_only_character_is_an_error():
+    from nrpose.errors import InputError
+
+    ch = two_bone_character()
+    with pytest.raises(InputError, match="no mesh"):
+        CharacterPoser(Character(ch.skeleton))
+    bare = Character(ch.skeleton, (Mesh("m", ch.meshes[0].vertices, np.zeros((0, 3), np.int64)),))
+    with pytest.raises(InputError, match="no skin weights"):
+        CharacterPoser(bare, weights="authored")
+    assert CharacterPoser(bare, weights="euclidean").pose(ch.skeleton.rest_pose).positions.shape == (1, 80, 3)
