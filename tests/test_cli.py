@@ -1,0 +1,160 @@
+"""The command line: deform, pose, info, demo; one-line errors with exit status 2, no partial output."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nrpose import Deformer
+from nrpose.cli import main
+from nrpose.handles import handles_document
+from nrpose.meshio import read_geometry, write_geometry
+from nrpose.rigs import box, cylinder
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
+
+
+def run(args, capsys):
+    code = main([str(a) for a in args])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.fixture()
+def cylinder_case(tmp_path):
+    V, F = cylinder.cylinder_mesh(rings=21, sectors=12)
+    mesh = tmp_path / "cyl.obj"
+    write_geometry(mesh, V, F)
+    pose = cylinder.bend_pose(60)
+    handles = tmp_path / "handles.json"
+    handles.write_text(json.dumps(handles_document(cylinder.rest_handles(), pose, alpha=2.0)))
+    return mesh, handles, V, F, pose
+
+
+@pytest.mark.parametrize("backend", ["opencl", "numpy"])
+def test_deform_writes_mesh_matching_the_api(cylinder_case, tmp_path, capsys, backend):
+    mesh, handles, V, F, pose = cylinder_case
+    out = tmp_path / "out.ply"
+    code, stdout, _ = run(["deform", mesh, "-H", handles, "-o", out, "--backend", backend, "--png",
+                           tmp_path / "p.png"], capsys)
+    assert code == 0 and "pose" in stdout
+    g = read_geometry(out)
+    expect = Deformer(V, cylinder.rest_handles(), alpha=2.0, backend=backend).pose(pose)
+    assert np.array_equal(g.faces, F)
+    assert np.abs(g.vertices - expect).max() <= 1e-5
+    assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_deform_point_cloud_and_alpha_override(tmp_path, capsys):
+    pts = box.box_points()
+    src = tmp_path / "box.xyz"
+    write_geometry(src, pts)
+    pose = box.chain_pose(90, 45)
+    handles = tmp_path / "h.json"
+    handles.write_text(json.dumps(handles_document(box.rest_handles(), pose, alpha=1.0)))
+    out = tmp_path / "posed.xyz"
+    code, _, _ = run(["deform", src, "-H", handles, "-o", out, "--alpha", "2", "--blend", "paper"], capsys)
+    assert code == 0
+    expect = Deformer(pts, box.rest_handles(), alpha=2.0, blend="paper").pose(pose)
+    assert np.abs(read_geometry(out).vertices - expect).max() <= 1e-4
+
+
+BAD_HANDLES = {
+    "malformed": "{not json",
+    "no handles": json.dumps({"points": [], "segments": []}),
+    "nan": '{"points": [{"rest": [0, 0, NaN], "pose": [0, 0, 0]}]}',
+    "zero length": json.dumps({"segments": [{"rest": [[0, 0, 0], [0, 0, 0]], "pose": [[0, 0, 0], [1, 0, 0]]}]}),
+    "shape": json.dumps({"points": [{"rest": [0, 0], "pose": [0, 0, 0]}]}),
+    "bad rotation": json.dumps({"segments": [{"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [0, 1, 0]],
+                                              "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_HANDLES))
+def test_deform_bad_handles_exit_2_one_line_no_output(cylinder_case, tmp_path, capsys, case):
+    mesh = cylinder_case[0]
+    handles = tmp_path / "bad.json"
+    handles.write_text(BAD_HANDLES[case])
+    out = tmp_path / "out.obj"
+    code, _, err = run(["deform", mesh, "-H", handles, "-o", out], capsys)
+    assert code == 2
+    assert err.count("\n") == 1 and err.startswith("nrpose")
+    assert not out.exists() and list(tmp_path.iterdir()) == sorted(tmp_path.iterdir()) and \
+        {p.name for p in tmp_path.iterdir()} == {"cyl.obj", "handles.json", "bad.json"}
+
+
+def test_deform_bad_inputs_exit_2(cylinder_case, tmp_path, capsys):
+    mesh, handles = cylinder_case[:2]
+    empty = tmp_path / "empty.xyz"
+    empty.write_text("")
+    nan = tmp_path / "nan.xyz"
+    nan.write_text("0 0 0\nnan 1 1\n")
+    for args in (["deform", empty, "-H", handles, "-o", tmp_path / "o.obj"],
+                 ["deform", nan, "-H", handles, "-o", tmp_path / "o.obj"],
+                 ["deform", tmp_path / "missing.obj", "-H", handles, "-o", tmp_path / "o.obj"],
+                 ["deform", mesh, "-H", handles, "-o", tmp_path / "o.obj", "--alpha", "-1"],
+                 ["deform", mesh, "-H", handles, "-o", tmp_path / "o.obj", "--blend", "nope"],
+                 ["deform", mesh, "-o", tmp_path / "o.obj"]):
+        code, _, err = run(args, capsys)
+        assert code == 2 and err.count("\n") == 1, (args, err)
+        assert not (tmp_path / "o.obj").exists()
+
+
+def test_console_script_runs_as_module(cylinder_case, tmp_path):
+    mesh, handles = cylinder_case[:2]
+    res = subprocess.run([sys.executable, "-m", "nrpose", "deform", str(mesh), "-H", str(handles), "-o",
+                          str(tmp_path / "x.obj"), "--alpha", "0"], capture_output=True, text=True)
+    assert res.returncode == 2 and "alpha" in res.stderr and "Traceback" not in res.stderr
+
+
+@needs_data
+def test_pose_clip_to_npz_and_directory(tmp_path, capsys):
+    fox = DATA / "gltf" / "Fox.glb"
+    code, stdout, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24",
+                           "-o", tmp_path / "walk.npz"], capsys)
+    assert code == 0 and "per frame" in stdout
+    z = np.load(tmp_path / "walk.npz")
+    assert z["positions"].shape == (4, 1728, 3) and z["positions"].dtype == np.float32
+    assert np.allclose(z["times"], [0, 2 / 24, 4 / 24, 6 / 24])
+    assert list(z["mesh_offsets"]) == [0] and z["faces"].shape[1] == 3
+    code, _, _ = run(["pose", fox, "--clip", "Run", "--time", "0.1", "0.2", "--method", "dqs",
+                      "-o", tmp_path / "frames", "--format", "obj"], capsys)
+    assert code == 0 and sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_0000.obj",
+                                                                                      "frame_0001.obj"]
+
+
+@needs_data
+def test_pose_errors_exit_2_nothing_written(tmp_path, capsys):
+    fox = DATA / "gltf" / "Fox.glb"
+    bad = tmp_path / "pose.json"
+    bad.write_text(json.dumps({"rotations": {"b_Hipp_01": [0, 0, 0, 1]}}))
+    truncated = tmp_path / "fox.glb"
+    truncated.write_bytes(fox.read_bytes()[:5000])
+    cases = [(["pose", fox, "--clip", "Run", "--time", "99", "-o", tmp_path / "o.npz"], "outside"),
+             (["pose", fox, "--clip", "Jump", "-o", tmp_path / "o.npz"], "Survey"),
+             (["pose", fox, "--pose", bad, "-o", tmp_path / "o.npz"], "b_Hip_01"),
+             (["pose", truncated, "--rest", "-o", tmp_path / "o.npz"], "fox.glb"),
+             (["pose", fox, "--clip", "Run", "--frames", "5:2", "-o", tmp_path / "o.npz"], "frames")]
+    for args, needle in cases:
+        code, _, err = run(args, capsys)
+        assert code == 2 and err.count("\n") == 1 and needle in err, (args, err)
+        assert not (tmp_path / "o.npz").exists()
+
+
+@needs_data
+def test_info_lists_meshes_joints_clips(capsys):
+    code, stdout, _ = run(["info", DATA / "gltf" / "Fox.glb"], capsys)
+    assert code == 0
+    assert "1728 vertices" in stdout and "joints: 24" in stdout and "Run:" in stdout
+
+
+def test_demo_writes_pngs_and_prints_timing(tmp_path, capsys):
+    code, stdout, _ = run(["demo", "--out", tmp_path, "--repeat", "3"], capsys)
+    assert code == 0 and "pose" in stdout and "numpy reference" in stdout
+    for name in ("box_before.png", "box_after.png", "box_twist.ply"):
+        assert (tmp_path / name).stat().st_size > 0
