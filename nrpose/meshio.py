@@ -45,7 +45,8 @@ Why not pymeshlab / libigl for reading (measured, pymeshlab 2025.7.post1,
 libigl 2.6.3): on clean files pymeshlab keeps OBJ/PLY/OFF vertex order (and
 merges STL corners in first-appearance order), but it silently **deletes
 vertices with NaN/inf coordinates and renumbers the rest** (OBJ, PLY, OFF),
-silently drops OBJ faces whose index is out of range, and **aborts the
+silently drops OBJ faces whose index is out of range and faces with a
+repeated vertex index (all formats), and **aborts the
 process** (heap corruption, SIGABRT at exit) after loading an OFF file with an
 out-of-range face index. ``igl.read_triangle_mesh`` aborts (double free) on a
 PLY whose vertex properties have mixed types (e.g. the point-cloud PLYs
@@ -413,6 +414,16 @@ def _read_off(data: bytes):
         raise _Bad(f"truncated: header announces {nv} vertices and {nf} faces, the file has "
                    f"{len(lines) - pos} data lines")
     vlines = lines[pos:pos + nv]
+    if nv and all(len(t) == 3 for t in vlines):              # plain 'x y z' lines
+        V = _floats(vlines, "vertex")
+        flines = lines[pos + nv:pos + nv + nf]
+        if all(len(t) == 4 and t[0] == "3" for t in flines):  # plain triangles
+            try:
+                F = np.array(flines, dtype=np.int64).reshape(-1, 4)[:, 1:]
+            except ValueError:
+                F = None
+            if F is not None:
+                return V, F
     short = [i for i, t in enumerate(vlines) if len(t) < 3]
     if short:
         raise _Bad(f"vertex {short[0]} has fewer than 3 coordinates")
@@ -717,13 +728,19 @@ def _read_stl(data: bytes):
         raise _Bad(f"{int(bad.sum())} facet corners have NaN or infinite coordinates (first: "
                    f"facet {first // 3}); fix or remove them")
     corners = corners + 0.0                                   # -0.0 -> 0.0
-    _, first, inverse = np.unique(corners, axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")                  # unique rows by first appearance
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    V = corners[first[order]]
-    F = rank[inverse.reshape(-1)].reshape(-1, 3)
-    return V, F
+    # Merge equal rows: a stable lexicographic sort puts equal corners next to
+    # each other, the first of each run being the earliest in the file.
+    order = np.lexsort(corners.T[::-1])
+    srt = corners[order]
+    starts = np.ones(len(srt), bool)
+    starts[1:] = np.any(srt[1:] != srt[:-1], axis=1)
+    group = np.empty(len(srt), np.int64)
+    group[order] = np.cumsum(starts) - 1                      # corner -> group
+    first = order[starts]                                     # group -> earliest corner
+    by_first = np.argsort(first, kind="stable")               # groups in first-appearance order
+    rank = np.empty_like(by_first)
+    rank[by_first] = np.arange(len(by_first))
+    return corners[first[by_first]], rank[group].reshape(-1, 3)
 
 
 def _write_stl(fh, V, F):
