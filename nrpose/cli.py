@@ -44,8 +44,13 @@ def cmd_deform(args) -> None:
     rest, pose, file_alpha = load_handles(args.handles)
     alpha = check_alpha(args.alpha) if args.alpha is not None else (file_alpha or 1.0)
     t0 = time.perf_counter()
+    distances = None
+    if args.weights != "euclidean":
+        from .posing import surface_distances
+        distances = surface_distances(geometry.vertices, geometry.faces if len(geometry.faces) else None,
+                                      rest.points, rest.segments, args.weights)
     deformer = Deformer(geometry.vertices, rest, alpha=alpha, blend=args.blend, lever=args.lever,
-                        backend=args.backend)
+                        distances=distances, backend=args.backend)
     bind_ms = 1e3 * (time.perf_counter() - t0)
     pose_ms, posed = _median_ms(lambda: deformer.pose(pose), 1)
     if not np.isfinite(posed).all():  # never expected: the blend is total; guard the contract
@@ -225,6 +230,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--blend", choices=BLENDS, default="relative", help="rotation blend (default: relative)")
     p.add_argument("--lever", choices=LEVERS, default="length", help="segment lever rule (default: length)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
+    p.add_argument("--weights", choices=("euclidean", "heat", "exact", "graph", "knn"), default="euclidean",
+                   help="distances for the weights: euclidean (default) or over the surface (heat, exact, graph; "
+                        "knn for point clouds)")
     p.add_argument("--png", help="write a before/after preview PNG")
     p.set_defaults(func=cmd_deform)
 

@@ -231,7 +231,14 @@ def _bone_distances(V: np.ndarray, faces: np.ndarray, segments: np.ndarray, meth
 
     if method == "euclidean":
         return distances.point_segment_distances(V, segments)[0]
+    return surface_distances(V, faces, np.zeros((0, 3)), segments, method)
+
+
+def surface_distances(V: np.ndarray, faces, points: np.ndarray, segments: np.ndarray, method: str) -> np.ndarray:
+    """(V, P + S) handle distances over the surface (or a kNN graph of a point cloud),
+    :func:`nrpose.distances.distance_matrix`, cached on disk by content (:mod:`nrpose.bindcache`)."""
+    from . import distances
     from .bindcache import binding_key_parts, cached
 
-    parts = binding_key_parts(V, faces, np.zeros((0, 3)), segments, {"distances": method})
-    return cached(parts, lambda: {"D": distances.distance_matrix(V, faces, None, segments, method=method)})["D"]
+    parts = binding_key_parts(V, faces, points, segments, {"distances": method})
+    return cached(parts, lambda: {"D": distances.distance_matrix(V, faces, points, segments, method=method)})["D"]
