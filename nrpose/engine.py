@@ -123,11 +123,18 @@ class Deformer:
                               b["slot"], b["coef"], b["lever"], b["phat"], self._pose.arg, b["derived"],
                               self._out.arg, np.int32(1))
 
-    def pose(self, pose: Pose) -> np.ndarray:
-        """Posed points (N, 3): float32 on OpenCL, float64 on numpy."""
+    def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
+        """Posed points (N, 3): float32 on OpenCL, float64 on numpy.
+
+        out: optional (N, 3) array to write the result into (and return).
+        """
         self.rest.same_layout(pose.handles, "posed handles")
         if self.backend == "numpy":
-            return pose_reference(self.terms, self.rest, pose, self.blend)
+            result = pose_reference(self.terms, self.rest, pose, self.blend)
+            if out is None:
+                return result
+            out[...] = result
+            return out
         import pyopencl as cl
 
         h, host, k = pose.handles, self._pose.host, self._npos
@@ -142,4 +149,8 @@ class Deformer:
         cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1,), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, (self._npad // LANES,), None)
         self._out.download()
-        return self._out.host[: 3 * self.n].reshape(self.n, 3).copy()
+        result = self._out.host[: 3 * self.n].reshape(self.n, 3)
+        if out is None:
+            return result.copy()
+        out[...] = result
+        return out

@@ -154,15 +154,19 @@ class CharacterPoser:
                 V = self._rest_world[self._rigid_idx]
                 out[f, self._rigid_idx] = np.einsum("nij,nj->ni", M[:, :3, :3], V) + M[:, :3, 3]
             if self._deform_idx.size:
+                whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
+                dst = out[f] if whole else np.empty((len(self._deform_idx), 3), np.float32)
                 if self.method == "nrmls":
                     # FK output is consistent by construction: no Pose.make validation
-                    out[f, self._deform_idx] = self._deformer.pose(Pose(HandleSet(empty, segs[f]), rots[f]))
+                    self._deformer.pose(Pose(HandleSet(empty, segs[f]), rots[f]), out=dst)
                 elif self._deformer is not None:
-                    out[f, self._deform_idx] = self._deformer.pose(mats[f])
+                    dst[...] = self._deformer.pose(mats[f])
                 else:
                     from . import skinning
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
-                    out[f, self._deform_idx] = ref(*self._skin_ref, mats[f])
+                    dst[...] = ref(*self._skin_ref, mats[f])
+                if not whole:
+                    out[f, self._deform_idx] = dst
             frame_ms[f] = 1e3 * (time.perf_counter() - t0)
             if progress:
                 progress(f + 1, F)
