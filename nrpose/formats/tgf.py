@@ -149,7 +149,8 @@ def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
 def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh: vertices (N, 3) float64 and faces (M, 3) int64.
 
-    OBJ/OFF/PLY/STL through ``igl.read_triangle_mesh``. A tetrahedral Medit
+    OBJ/OFF/PLY/STL through :func:`nrpose.meshio.read_geometry` (order-preserving;
+    ``igl.read_triangle_mesh`` can abort the interpreter on some PLYs). A tetrahedral Medit
     ``.mesh`` gives its boundary triangles (``igl.boundary_facets``, oriented
     like the tets) and only the vertices they use, in file order; other
     formats keep every vertex (so per-vertex data such as DMAT weights align).
@@ -168,7 +169,8 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             if len(T):
                 F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
         else:
-            V, F = igl.read_triangle_mesh(str(path))
+            from ..meshio import read_geometry
+            V, F = read_geometry(path)
     except RuntimeError as exc:
         raise FileFormatError(f"{path}: cannot read mesh ({exc})") from None
     V = np.asarray(V, dtype=np.float64)
