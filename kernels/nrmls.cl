@@ -20,7 +20,12 @@
  *   slot   [K][Np]  int   (SPARSE only) segment held by each slot
  *   coef   [P+2K][Np]     q* coefficients: point handles (w), then per segment slot
  *                         (w(1-t), w t) on the segment's posed ends
- *   lever  [P+K][Np]      normalised levers (points, then segment slots)
+ *   lever  [P+K][Np]      normalised levers (points, then segment slots); built with
+ *                         -DLENGTH_LEVER (the default lever rule) they are not
+ *                         stored but derived: w_p |phat_p|^2 for a point handle,
+ *                         w_s len2[s] for a segment (w_s = w(1-t) + w t), then
+ *                         normalised per point: 1/(P+K) fewer loads per point
+ *   len2   [S]            squared rest lengths of the segments (LENGTH_LEVER)
  *   phat   [P][3][Np]     p_i - p* of the point handles
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
  *          rotations of the segments and the global rotation R_g, row-major
@@ -100,7 +105,8 @@ __kernel void nrmls_prepare(const int P, const int S, const int paper, const int
 __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
                          __global const float *u, __global const int *ref, __global const int *row,
                          __global const int *slot, __global const float *coef,
-                         __global const float *lever, __global const float *phat,
+                         __global const float *lever, __global const float *len2,
+                         __global const float *phat,
                          __global const float *pose, __global const float *derived,
                          __global float *out, const int per_item)
 {
@@ -128,6 +134,9 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     /* q* (weighted posed centroid, linear in the posed handle positions) and the
      * blended rotation vector relative to the reference */
     float8 qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
+#ifdef LENGTH_LEVER
+    float8 lsum = 0.0f;                  /* normaliser of the derived levers */
+#endif
     for (int p = 0; p < P; ++p) {
         const float8 c = vload8(g, coef + p * np);
         qx += c * qpos[3 * p];
@@ -143,8 +152,13 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
 #endif
         const float8 ca = vload8(g, coef + (P + 2 * k) * np);
         const float8 cb = vload8(g, coef + (P + 2 * k + 1) * np);
-        const float8 l = vload8(g, lever + (P + k) * np);
         if (uniform && all(h == (int8)h.s0)) {
+#ifdef LENGTH_LEVER
+            const float8 l = (ca + cb) * len2[h.s0];
+            lsum += l;
+#else
+            const float8 l = vload8(g, lever + (P + k) * np);
+#endif
             __global const float *e = qpos + 3 * (P + 2 * h.s0);
             __global const float *t = table + 3 * (S * rf.s0 + h.s0);
             qx += ca * e[0] + cb * e[3];
@@ -154,6 +168,12 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
             ry += l * t[1];
             rz += l * t[2];
         } else {
+#ifdef LENGTH_LEVER
+            const float8 l = (ca + cb) * GATHER8(len2, h);
+            lsum += l;
+#else
+            const float8 l = vload8(g, lever + (P + k) * np);
+#endif
             const int8 e = 3 * (P + 2 * h), t = 3 * (S * rf + h);
             qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
             qy += ca * GATHER8(qpos, e + 1) + cb * GATHER8(qpos, e + 4);
@@ -176,11 +196,23 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         const float8 sn = sqrt(cx * cx + cy * cy + cz * cz);
         const float8 cs = px * yx + py * yy + pz * yz;
         const float8 k = select(0.0f, atan2(sn, cs) / sn, sn > 0.0f);
+#ifdef LENGTH_LEVER
+        const float8 lp = vload8(g, coef + p * np) * (px * px + py * py + pz * pz);
+        lsum += lp;
+        const float8 l = lp * k;
+#else
         const float8 l = vload8(g, lever + p * np) * k;
+#endif
         rx += l * cx;
         ry += l * cy;
         rz += l * cz;
     }
+#ifdef LENGTH_LEVER
+    const float8 inv = select((float8)0.0f, 1.0f / lsum, lsum > 0.0f);
+    rx *= inv;
+    ry *= inv;
+    rz *= inv;
+#endif
 
     /* w = exp(r) u, Rodrigues with a = sin(th)/th, b = (1-cos th)/th^2 written
      * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
