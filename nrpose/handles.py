@@ -114,13 +114,17 @@ class Pose:
         both = np.flatnonzero(given & (twist != 0.0))
         if len(both):
             raise HandleError(f"segment {int(both[0])}: give either 'rotation' or 'twist', not both")
-        axis = d_pose / np.linalg.norm(d_pose, axis=1, keepdims=True)
-        minimal = Rotation.from_rotvec(minimal_rotvec(d_rest, d_pose)) if s else None
-        mats = (Rotation.from_rotvec(axis * twist[:, None]) * minimal).as_matrix() if s else np.zeros((0, 3, 3))
+        mats = np.empty((s, 3, 3))
+        free = ~given
+        if free.any():
+            minimal = Rotation.from_rotvec(minimal_rotvec(d_rest[free], d_pose[free]))
+            if (twist[free] != 0).any():
+                axis = d_pose[free] / np.linalg.norm(d_pose[free], axis=1, keepdims=True)
+                minimal = Rotation.from_rotvec(axis * twist[free, None]) * minimal
+            mats[free] = minimal.as_matrix()
         if given.any():
             idx = np.flatnonzero(given)
             mats[idx] = _rotation_matrices([rotations[i] for i in idx], idx)
-        if given.any():
             carried = np.einsum("sij,sj->si", mats, d_rest)
             off = np.linalg.norm(minimal_rotvec(carried, d_pose), axis=1)
             bad = np.flatnonzero(off > DIRECTION_TOLERANCE)
