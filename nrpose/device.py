@@ -104,14 +104,15 @@ class HostArray:
     no copies, a pose is only kernel enqueues and a ``finish``. Elsewhere a
     device buffer shadows it and :meth:`upload` / :meth:`download` copy.
 
-    size: number of float32 elements. ``host``: the (size,) numpy view;
-    ``arg``: what to pass to ``Kernel.set_arg``.
+    size: number of float32 elements; svm: force (True) or refuse (False)
+    shared memory, default: whatever the device offers. ``host``: the
+    (size,) numpy view; ``arg``: what to pass to ``Kernel.set_arg``.
     """
 
-    def __init__(self, size: int):
+    def __init__(self, size: int, svm: bool | None = None):
         cl = _cl()
         ctx, self._queue = context()
-        self.svm = fine_grain_svm()
+        self.svm = fine_grain_svm() if svm is None else svm
         size = max(int(size), 1)
         if self.svm:
             flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER

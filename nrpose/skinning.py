@@ -319,7 +319,7 @@ class Deformer:
         """
         cur = getattr(self, which)
         if cur is None or cur.host.size < n_floats:
-            cur = device.HostArray(n_floats) if self._svm else _BufferArray(n_floats)
+            cur = device.HostArray(n_floats, svm=self._svm)
             self._kernel.set_arg(arg, cur.arg)
             setattr(self, which, cur)
         return cur
@@ -347,21 +347,6 @@ class Deformer:
             raise InputError("pose_dual_quaternions needs a deformer built with method='dqs'")
         dq = _check_dq(dq, self.max_joint)
         return self._run(dq[None])[0]
-
-
-class _BufferArray(device.HostArray):
-    """A :class:`device.HostArray` forced onto the copying buffer path.
-
-    What HostArray does on devices without fine-grained SVM; used when a
-    deformer's ``_svm`` is switched off on an SVM device (tests).
-    """
-
-    def __init__(self, size: int):
-        cl = device._cl()
-        ctx, self._queue = device.context()
-        self.svm = False
-        self.host = np.zeros(max(int(size), 1), np.float32)
-        self.arg = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.host.nbytes)
 
 
 class LbsDeformer(Deformer):
