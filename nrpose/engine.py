@@ -129,6 +129,9 @@ class Deformer:
         self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
                               b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], self._pose.arg, b["derived"],
                               self._out.arg, np.int32(PER_ITEM))
+        # PoCL compiles a kernel's work-group function at its first launch
+        # (~0.5 s): pay that at bind, not in the first frame
+        self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
         """Posed points (N, 3): float32 on OpenCL, float64 on numpy.

@@ -154,7 +154,9 @@ def test_info_lists_meshes_joints_clips(capsys):
 
 
 def test_demo_writes_pngs_and_prints_timing(tmp_path, capsys):
-    code, stdout, _ = run(["demo", "--out", tmp_path, "--repeat", "3"], capsys)
-    assert code == 0 and "pose" in stdout and "numpy reference" in stdout
-    for name in ("box_before.png", "box_after.png", "box_twist.ply"):
+    code, stdout, _ = run(["demo", "--out", tmp_path, "--repeat", "3", "--frames", "4"], capsys)
+    assert code == 0 and "pose" in stdout and "numpy reference" in stdout and "per frame" in stdout
+    z = np.load(tmp_path / "walk.npz")
+    assert z["positions"].shape[0] == 4 and np.isfinite(z["positions"]).all()
+    for name in ("box_before.png", "box_after.png", "box_twist.ply", "walk.png", "walk.glb"):
         assert (tmp_path / name).stat().st_size > 0
