@@ -27,11 +27,6 @@ LANES = 8      # points per float8 chunk
 PER_ITEM = 4   # chunks per work-item: fewer, longer work-items measured ~15 % faster on PoCL
 
 
-def k_slots(k: int | None, S: int) -> int | None:
-    """Segment slots per point for top-k sparsity, or None when dense (k None or ≥ S)."""
-    return None if k is None or k >= S else int(k)
-
-
 class Deformer:
     """A point set bound to rest handles.
 
@@ -68,49 +63,11 @@ class Deformer:
         ctx, self._queue = device.context()
         T, blend = self.terms, self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
-        n, npad = self.n, -(-self.n // LANES) * LANES
-        self._npad = npad
-
-        def soa(rows: np.ndarray) -> np.ndarray:  # (rows, N) -> (rows, Npad) float32
-            out = np.zeros((rows.shape[0], npad), np.float32)
-            out[:, :n] = rows
-            return out
-
-        w, t = T.weights, T.t
-        ws = w[:, P:]
-        K = S if k_slots(self.k, S) is None else k_slots(self.k, S)
-        if K < S:   # the K heaviest segments of each point, listed by segment index
-            slots = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
-        else:
-            slots = np.broadcast_to(np.arange(S), (n, S))
-        take = lambda a: np.take_along_axis(a, slots, axis=1)  # noqa: E731
-        # store points sorted by reference rotation (then slots) so that a
-        # work-item's 8 lanes share them; `row` sends each back to its caller's row
-        order = np.lexsort(tuple(slots.T[::-1]) + (T.ref,)) if K < S else np.argsort(T.ref, kind="stable")
-        wk, tk = take(ws)[order], take(t)[order]
-        coef = np.concatenate([w[order, :P].T, np.stack([wk * (1 - tk), wk * tk], 2).reshape(n, 2 * K).T])
-        lever = np.concatenate([T.lever[order, :P].T, take(T.lever[:, P:])[order].T])
-        ref = np.full(npad, S, np.int32)
-        ref[:n] = T.ref[order]
-        row = np.arange(npad, dtype=np.int32)
-        row[:n] = order
-        slot = np.zeros((K, npad), np.int32)
-        slot[:, :n] = slots[order].T
-        arrays = {
-            "u": soa(T.u[order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
-            "coef": soa(coef),
-            # the default lever rule is derived in the kernel from coef and len2
-            "lever": soa(lever) if self.lever != "length" else np.zeros(1, np.float32),
-            "len2": np.sum((self.rest.segments[:, 1] - self.rest.segments[:, 0]) ** 2, axis=1).astype(np.float32)
-            if S else np.zeros(1, np.float32),
-            "phat": soa(T.phat[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else np.zeros(1, np.float32),
-        }
-        self.slots = K
+        arrays, K = device_layout(T, self.rest, self.k, self.lever)
+        npad = len(arrays["ref"])
+        self._npad, self.slots = npad, K
+        self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         mf = cl.mem_flags
-        # the (reference, segment) pairs of the rotation table that some point uses
-        used = np.unique(T.ref[:, None].astype(np.int64) * (S + 1) + slots, axis=None) if S else np.zeros(0, np.int64)
-        arrays["pairs"] = np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32) if S else np.zeros(2, np.int32)
-        self._npairs = len(used)
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                       for k, a in arrays.items()}
         self._bufs["derived"] = cl.Buffer(ctx, mf.READ_WRITE, 4 * (9 * (S + 1) + 3 * (S + 1) * S))
@@ -164,3 +121,53 @@ class Deformer:
             return result.copy()
         out[...] = result
         return out
+
+
+def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> tuple[dict, int]:
+    """The bound arrays of kernels/nrmls.cl (its header states the layouts) and the
+    number K of segment slots per point (S when dense, k < S with top-k sparsity).
+
+    Points are stored sorted by reference rotation, then by their slots, so
+    that a work-item's 8 lanes share them; ``row`` sends each back to the
+    caller's row. Returns float32/int32 arrays padded to a multiple of 8 points.
+    """
+    n, P, S = len(T.u), T.phat.shape[1], T.t.shape[1]
+    npad = -(-n // LANES) * LANES
+
+    def soa(rows: np.ndarray) -> np.ndarray:  # (rows, N) -> (rows, Npad) float32
+        out = np.zeros((rows.shape[0], npad), np.float32)
+        out[:, :n] = rows
+        return out
+
+    w, t, ws = T.weights, T.t, T.weights[:, P:]
+    K = S if k is None or k >= S else int(k)
+    if K < S:   # the K heaviest segments of each point, listed by segment index
+        slots = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
+        order = np.lexsort(tuple(slots.T[::-1]) + (T.ref,))
+    else:
+        slots = np.broadcast_to(np.arange(S), (n, S))
+        order = np.argsort(T.ref, kind="stable")
+    take = lambda a: np.take_along_axis(a, slots, axis=1)[order]  # noqa: E731
+    wk, tk = take(ws), take(t)
+    coef = np.concatenate([w[order, :P].T, np.stack([wk * (1 - tk), wk * tk], 2).reshape(n, 2 * K).T])
+    ref = np.full(npad, S, np.int32)
+    ref[:n] = T.ref[order]
+    row = np.arange(npad, dtype=np.int32)
+    row[:n] = order
+    slot = np.zeros((K, npad), np.int32)
+    slot[:, :n] = slots[order].T
+    # the (reference, segment) pairs of the rotation table that some point uses
+    used = np.unique(T.ref[:, None].astype(np.int64) * (S + 1) + slots) if S else np.zeros(0, np.int64)
+    none = np.zeros(1, np.float32)
+    arrays = {
+        "u": soa(T.u[order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
+        "coef": soa(coef),
+        # the default lever rule is derived in the kernel from coef and len2
+        "lever": none if lever == "length" else soa(np.concatenate([T.lever[order, :P].T,
+                                                                     take(T.lever[:, P:]).T])),
+        "len2": np.sum((rest.segments[:, 1] - rest.segments[:, 0]) ** 2, axis=1).astype(np.float32) if S else none,
+        "phat": soa(T.phat[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
+        "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
+                  else np.zeros(2, np.int32)),
+    }
+    return arrays, K
