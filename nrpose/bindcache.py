@@ -37,7 +37,7 @@ from .errors import InputError
 __all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status",
            "binding_key_parts"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2  # 2: surface distances weld coincident vertices (old files are stale)
 _META = "__nrpose_cache_key__"
 
 

@@ -73,6 +73,20 @@ segment), and the exact quantity we approximate is::
   a large t blurs a region's front). m = 1 (libigl's and
   Crane et al.'s default) is kept: ``heat_t_factor``.
 
+Coincident vertices are welded first
+------------------------------------
+Real assets split vertices along UV seams and hard edges (a glTF vertex
+carries one normal and one texture coordinate): the Fox sample is a
+triangle soup (1,728 vertices, 576 components, 290 distinct positions), the
+Mannequin is cut into 61 pieces (15,882 vertices, 14,442 positions).
+Over such a mesh no surface path crosses a seam, and every piece would get
+its distances from the "air bridge" below, i.e. nearly Euclidean ones. All
+surface methods (and ``knn``) therefore merge vertices with *bit-identical*
+positions (after ``+ 0.0``, so ``-0.0 == 0.0``), drop the faces that become
+degenerate, solve on the welded mesh, and give every input vertex the row of
+its welded vertex (``weld=False`` turns this off). The Fox and the Mannequin
+are then one connected surface each.
+
 Every method ends with ``D = max(D, Euclidean)`` (a surface path can never be
 shorter than the straight line), and negative heat values are clipped to 0.
 
@@ -109,6 +123,7 @@ __all__ = [
     "handle_sources",
     "point_segment_distances",
     "mesh_components",
+    "weld_vertices",
 ]
 
 METHODS = ("heat", "exact", "graph", "knn", "euclidean")
@@ -262,6 +277,20 @@ def mesh_components(n_vertices: int, faces: np.ndarray | None) -> np.ndarray:
     return connected_components(A, directed=False)[1].astype(np.int64)
 
 
+def weld_vertices(V: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct positions ``W`` (M, 3), in order of first occurrence, and
+    ``inv`` (N,) int64 with ``V == W[inv]`` (bit-identical after ``+ 0.0``)."""
+    V = np.ascontiguousarray(np.asarray(V, dtype=np.float64) + 0.0)
+    _, first, inv = np.unique(V, axis=0, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    if len(first) == len(V):
+        return V, np.arange(len(V), dtype=np.int64)
+    order = np.argsort(first, kind="stable")       # unique rows -> first-occurrence order
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return V[first[order]], rank[inv].astype(np.int64)
+
+
 # ----------------------------------------------------------------------------
 # sources
 # ----------------------------------------------------------------------------
@@ -309,17 +338,24 @@ def handle_sources(V, F, point_handles, segment_handles, *, visibility: bool = T
         vis = _visible(V, F, surf_idx, Cn)
     else:
         vis = np.ones(len(surf_idx), bool)
+    sel_of = [surf_idx[(nearest == s) & vis] for s in range(len(S))]
+    hidden = [s for s in range(len(S)) if len(sel_of[s]) == 0]
+    if hidden and F is not None and visibility:
+        # nearest vertex that sees the bone, else the nearest vertex; one
+        # winding-number evaluation for all hidden bones (its set-up dominates)
+        orders = [surf_idx[np.argsort(Es[surf_idx, s], kind="stable")][:256] for s in hidden]
+        Cs = np.concatenate([point_segment_distances(V[o], S[s:s + 1])[2] for s, o in zip(hidden, orders)])
+        v_all = _visible(V, F, np.concatenate(orders), Cs)
+        at = 0
+        for s, order in zip(hidden, orders):
+            v = v_all[at:at + len(order)]
+            at += len(order)
+            sel_of[s] = order[[int(np.argmax(v))]] if v.any() else order[:1]
+    else:
+        for s in hidden:
+            sel_of[s] = surf_idx[[int(np.argmin(Es[surf_idx, s]))]]
     for s in range(len(S)):
-        sel = surf_idx[(nearest == s) & vis]
-        if len(sel) == 0:
-            if F is not None and visibility:
-                # nearest vertex that sees this bone, else the nearest vertex
-                order = surf_idx[np.argsort(Es[surf_idx, s], kind="stable")]
-                Cs = point_segment_distances(V[order[:256]], S[s:s + 1])[2]
-                v = _visible(V, F, order[:256], Cs)
-                sel = order[[int(np.argmax(v))]] if v.any() else order[:1]
-            else:
-                sel = surf_idx[[int(np.argmin(Es[surf_idx, s]))]]
+        sel = sel_of[s]
         out.append((sel.astype(np.int64), Es[sel, s].copy()))
     return out
 
@@ -437,7 +473,10 @@ def _graph_component(Vc, Fc, jobs):
 # unreachable vertices
 # ----------------------------------------------------------------------------
 def _bridge_unreached(V: np.ndarray, D: np.ndarray) -> None:
-    """In place: D[v, h] = min over the K nearest reached u of D[u, h] + |u - v|."""
+    """In place: D[v, h] = min over the K nearest reached u of D[u, h] + |u - v|.
+
+    Handles with the same unreached set share one k-d tree and one query
+    (run on all cores: per-query results do not depend on the split)."""
     bad = ~np.isfinite(D)
     if not bad.any():
         return
@@ -449,11 +488,11 @@ def _bridge_unreached(V: np.ndarray, D: np.ndarray) -> None:
         reached = np.flatnonzero(~miss)
         qi = np.flatnonzero(miss)
         k = min(_BRIDGE_K, len(reached))
-        dist, nb = cKDTree(V[reached]).query(V[qi], k=k)
+        dist, nb = cKDTree(V[reached]).query(V[qi], k=k, workers=-1)
         dist = dist.reshape(len(qi), k)
         nb = reached[nb.reshape(len(qi), k)]
-        for h in hs:
-            D[qi, h] = np.min(D[nb, h] + dist, axis=1)
+        Dh = np.ascontiguousarray(D[:, hs])               # (N, g): row gathers stay local
+        D[np.ix_(qi, hs)] = np.min(Dh[nb] + dist[:, :, None], axis=1)
 
 
 # ----------------------------------------------------------------------------
@@ -469,6 +508,7 @@ def distance_matrix(
     *,
     heat_t_factor: float = 1.0,
     visibility: bool = True,
+    weld: bool = True,
 ) -> np.ndarray:
     """Distance from every vertex to every handle, ``(N, P+S)`` float64.
 
@@ -477,7 +517,8 @@ def distance_matrix(
     then segments. ``method`` None picks ``'heat'`` for a mesh and ``'knn'``
     for a point cloud. ``k_neighbours`` is the kNN graph's k. Result is
     finite, ``>= 0`` and ``>=`` the Euclidean distance. See the module
-    docstring for the source, offset and unreachable-vertex rules.
+    docstring for the source, offset and unreachable-vertex rules; ``weld``
+    merges coincident vertices first (see "Coincident vertices are welded").
     """
     V, F, P, S = _validate(vertices, faces, point_handles, segment_handles)
     if method is None:
@@ -490,6 +531,20 @@ def distance_matrix(
         raise InputError(f"k_neighbours must be a positive integer, got {k_neighbours!r}")
     if not (np.isfinite(heat_t_factor) and heat_t_factor > 0):
         raise InputError(f"heat_t_factor must be > 0, got {heat_t_factor!r}")
+
+    if weld and method != "euclidean":
+        Vw, inv = weld_vertices(V)
+        if len(Vw) < len(V):
+            Fw = None
+            if F is not None:
+                Fw = inv[F]
+                Fw = Fw[(Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 0] != Fw[:, 2])]
+                if len(Fw) == 0:
+                    raise InputError("every face is degenerate once coincident vertices are merged "
+                                     "(the mesh has no area); use weld=False or a point-cloud method")
+            D = distance_matrix(Vw, Fw, P, S, method, k_neighbours, heat_t_factor=heat_t_factor,
+                                visibility=visibility, weld=False)
+            return D[inv]
 
     E = euclidean_distances(V, P, S)
     if method == "euclidean":

@@ -37,11 +37,20 @@ def _check(vertices, faces, w):
 
 
 def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, title: str = "",
-                     vmax: float | None = None, gamma: float = 1.0) -> Path:
-    """One row per labelled weight column, two views each; returns the path.
+                     vmax: float | None = None, gamma: float = 1.0, views=None, up: str = "z") -> Path:
+    """One row per labelled weight column, one panel per view; returns the path.
 
     ``gamma`` < 1 stretches the colour scale near 0 (``PowerNorm``) so that
-    small leaked weights show."""
+    small leaked weights show. ``views``: ``(name, elevation, azimuth)``
+    triples in degrees (default: front and oblique, for a shape lying in the
+    xy plane). ``up="y"`` draws Y-up data (glTF) upright: the drawing frame is
+    ``(x, -z, y)``, so azimuth -90 at elevation 0 faces a character that looks
+    along +z and azimuth 0 shows its left side."""
+    if up not in ("z", "y"):
+        raise InputError(f"up must be 'z' or 'y', got {up!r}")
+    views = tuple(_VIEWS if views is None else views)
+    if not views:
+        raise InputError("no views to draw")
     import matplotlib
 
     matplotlib.use("Agg", force=False)
@@ -52,6 +61,8 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
     if not cols:
         raise InputError("no weight columns to draw")
     checked = [(label, *_check(vertices, faces, w)) for label, w in cols]
+    if up == "y":
+        checked = [(label, V[:, [0, 2, 1]] * [1.0, -1.0, 1.0], F, w) for label, V, F, w in checked]
     V = checked[0][1]
     lo, hi = V.min(axis=0), V.max(axis=0)
     centre, half = (lo + hi) / 2, (hi - lo).max() / 2
@@ -60,14 +71,15 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
             else matplotlib.colors.PowerNorm(gamma, 0.0, top))
     cmap = matplotlib.colormaps["viridis"]
 
-    fig = plt.figure(figsize=(9, 3.6 * len(cols) + 0.6), dpi=110)
+    height = 3.6 * len(cols) + 0.7
+    fig = plt.figure(figsize=(4.5 * len(views), height), dpi=110)
     for r, (label, V, F, w) in enumerate(checked):
         fw = w[F].mean(axis=1)
         # a little Lambert shading so the shape reads in the oblique view
         n = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
         n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        for c, (vname, elev, azim) in enumerate(_VIEWS):
-            ax = fig.add_subplot(len(cols), 2, 2 * r + c + 1, projection="3d")
+        for c, (vname, elev, azim) in enumerate(views):
+            ax = fig.add_subplot(len(cols), len(views), len(views) * r + c + 1, projection="3d")
             e, a = np.radians(elev), np.radians(azim)
             eye = np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
             shade = 0.55 + 0.45 * np.abs(n @ eye)
@@ -85,8 +97,8 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
             ax.set_title(f"{label} — {vname}", fontsize=10)
     fig.suptitle(title, fontsize=12)
     sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
-    fig.subplots_adjust(left=0.0, right=0.86, bottom=0.02, top=0.9, wspace=0.0, hspace=0.08)
-    cax = fig.add_axes((0.89, 0.2, 0.02, 0.6))
+    fig.subplots_adjust(left=0.0, right=1.0 - 1.26 / (4.5 * len(views)), bottom=0.02, top=1.0 - 0.75 / height, wspace=0.0, hspace=0.08)
+    cax = fig.add_axes((1.0 - 1.0 / (4.5 * len(views)), 0.2, 0.18 / (4.5 * len(views)), 0.6))
     fig.colorbar(sm, cax=cax, label="weight" + (f" (colour scale γ={gamma:g})" if gamma != 1.0 else ""))
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
