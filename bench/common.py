@@ -1,0 +1,73 @@
+"""Shared pieces of the benchmark suites: run metadata, timing statistics, output.
+
+Reuses bench/table1.py's helpers (git, environment, statistics, atomic write).
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import pathlib
+import re
+import resource
+import sys
+
+import numpy as np
+
+HERE = pathlib.Path(__file__).resolve().parent
+if str(HERE) not in sys.path:
+    sys.path.insert(0, str(HERE))
+if str(HERE.parent) not in sys.path:
+    sys.path.insert(0, str(HERE.parent))
+
+import table1  # noqa: E402  (bench/table1.py: the colleague's Table-1 benchmark and helpers)
+
+stats = table1._stats           # seconds -> {"median", "p10", "p90", "min", "max", "n"} in ms
+git = table1._git
+atomic_write = table1._atomic_write
+
+
+def load() -> list[float]:
+    """os.getloadavg() (1, 5, 15 min) as a list."""
+    try:
+        return [round(x, 2) for x in os.getloadavg()]
+    except OSError:
+        return []
+
+
+def peak_rss_gb() -> float:
+    """Peak resident set size of this process so far, GB (Linux ru_maxrss is in KB)."""
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6
+
+
+def environment() -> dict:
+    """table1.environment() plus parsed PoCL / LLVM versions, CPU model and compute units."""
+    env = table1.environment()
+    dev = env["device"]
+    pv = dev.get("platform_version", "")
+    m = re.search(r"PoCL\s+(\S+)", pv)
+    llvm = re.search(r"LLVM\s+([\d.]+)", pv)
+    target = re.search(r"HSTR:\s*(\S+)", dev.get("device_version", ""))
+    env.update({"pocl_version": m.group(1) if m else dev.get("driver_version"),
+                "llvm_version": llvm.group(1) if llvm else None,
+                "cpu": env.get("processor"), "compute_units": dev.get("compute_units"),
+                "device_target": target.group(1) if target else None,
+                "memory_gb": _mem_total_gb()})
+    return env
+
+
+def _mem_total_gb():
+    try:
+        for line in open("/proc/meminfo"):
+            if line.startswith("MemTotal"):
+                return round(int(line.split()[1]) / 1e6, 2)
+    except OSError:
+        pass
+    return None
+
+
+def now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+
+
+def median(a) -> float:
+    return float(np.median(a))

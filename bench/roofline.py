@@ -1,0 +1,437 @@
+"""Roofline of the NR-MLS pose kernel on this device, measured in the same run.
+
+Two device ceilings, measured with OpenCL profiling events on a private queue:
+
+* **arithmetic**: ``peak_flops`` -- every work-item runs ``ACCS`` independent
+  ``float8`` accumulators through ``a = a*m + c`` (plain multiply and add, no
+  ``fma()``/``mad()``: those are ~10x slower on PoCL), ``ITERS`` times. FLOPs
+  counted: 2 per lane per update (a multiply and an add).
+* **bandwidth**: ``copy8`` -- ``dst[i] = src[i]`` over ``float8`` elements.
+  Bytes counted: read + written (no write-allocate traffic). Measured twice:
+  over a buffer far larger than the last-level cache (DRAM), and over one that
+  fits in it (L3), since the Table-1 pose kernels' working sets (2-8 MB) fit
+  in this CPU's 32 MB L3.
+
+The pose kernel's work is counted from ``kernels/nrmls.cl`` (:func:`pose_flops`,
+:func:`pose_bytes`); its time is the ``nrmls_pose`` profiling event of a bound
+:class:`nrpose.engine.Deformer` enqueued on the private queue. The bench reads
+the deformer's kernel objects (``_kernel``, ``_prepare``, ``_npad``,
+``_npairs``) without changing them: a benchmark-only use of private fields.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from nrpose import device
+from nrpose.engine import LANES, PER_ITEM
+
+ACCS = 8          # independent float8 accumulators per work-item
+ITERS = 2048      # updates of each accumulator
+PEAK_ITEMS = 4096  # work-items of the arithmetic kernel (many work-groups for both cores)
+COPY_DRAM_MB = 256
+COPY_L3_MB = 4
+
+ROOF_SOURCE = r"""
+__kernel void peak_flops(__global float8 *out, const float m, const float c, const int iters)
+{
+    const int g = get_global_id(0);
+    float8 a0 = (float8)(g), a1 = a0 + 1.0f, a2 = a0 + 2.0f, a3 = a0 + 3.0f,
+           a4 = a0 + 4.0f, a5 = a0 + 5.0f, a6 = a0 + 6.0f, a7 = a0 + 7.0f;
+    for (int i = 0; i < iters; ++i) {
+        a0 = a0 * m + c; a1 = a1 * m + c; a2 = a2 * m + c; a3 = a3 * m + c;
+        a4 = a4 * m + c; a5 = a5 * m + c; a6 = a6 * m + c; a7 = a7 * m + c;
+    }
+    out[g] = a0 + a1 + a2 + a3 + a4 + a5 + a6 + a7;
+}
+
+__kernel void copy8(__global const float8 *src, __global float8 *dst)
+{
+    const int g = get_global_id(0);
+    dst[g] = src[g];
+}
+
+__kernel void empty(__global float *out)
+{
+}
+"""
+
+# --------------------------------------------------------------------------- counting
+
+#: flops per point of ``nrmls_pose`` (LENGTH_LEVER build, the default lever rule), by
+#: section, as (per point handle, per segment slot, fixed). Multiplies, adds and
+#: subtractions are 1 each; constants folded by the compiler (-1.0f/6 ...) are not
+#: counted; integer index arithmetic, comparisons and select() are not counted.
+#: Calls and divisions (each counted as 1 flop in the totals) are listed apart.
+FLOP_COUNT = {
+    "point handle, q* term (3 mul + 3 add)": (6, 0, 0),
+    "segment slot: lever (ca+cb)*len2, lsum += (1 add + 1 mul + 1 add)": (0, 3, 0),
+    "segment slot: q* += ca*e + cb*e' (3 x (2 mul + 2 add))": (0, 12, 0),
+    "segment slot: r += l*table (3 x (1 mul + 1 add))": (0, 6, 0),
+    "point handle: qhat = q - q* (3 sub)": (3, 0, 0),
+    "point handle: y = R_ref^T qhat (3 x (3 mul + 2 add))": (15, 0, 0),
+    "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0),
+    "point handle: |c|^2 (3 mul + 2 add) + sqrt call": (6, 0, 0),
+    "point handle: phat.y (3 mul + 2 add)": (5, 0, 0),
+    "point handle: atan2 call, / sn (1 div)": (2, 0, 0),
+    "point handle: lever coef*|phat|^2, lsum +=, *k (3 mul + 2 add + 1 mul + 1 add + 1 mul)": (8, 0, 0),
+    "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0),
+    "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4),
+    "Rodrigues: x = |r|^2/4 (3 mul + 2 add + 1 mul)": (0, 0, 6),
+    "Rodrigues: sinc Horner degree 6 in x (6 mul + 6 add)": (0, 0, 12),
+    "Rodrigues: cos Horner degree 8 in x (8 mul + 8 add)": (0, 0, 16),
+    "Rodrigues: a = sinc*cos, b = 0.5*sinc*sinc (3 mul)": (0, 0, 3),
+    "Rodrigues: k = r x u, j = r x k (2 x 3 x (2 mul + 1 sub))": (0, 0, 18),
+    "Rodrigues: w = u + a k + b j (3 x (2 mul + 2 add))": (0, 0, 12),
+    "output: R_ref w + q* (3 x (3 mul + 3 add))": (0, 0, 18),
+}
+#: of the totals above: calls (counted 1 each) and divisions (counted 1 each)
+CALLS = {"sqrt": (1, 0, 0), "atan2": (1, 0, 0)}
+DIVISIONS = {"atan2(sn, cs) / sn": (1, 0, 0), "1 / lsum": (0, 0, 1)}
+
+
+def _total(table: dict, P: int, K: int) -> int:
+    return int(sum(p * P + k * K + f for p, k, f in table.values()))
+
+
+def pose_flops(P: int, K: int) -> dict:
+    """Floating-point operations per point of ``nrmls_pose`` for P point handles and K
+    segment slots (K = S dense, or k sparse): total and how it splits."""
+    return {"per_point": _total(FLOP_COUNT, P, K),
+            "formula": "{} P + {} K + {} (P point handles, K segment slots)".format(
+                *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(3))),
+            "calls_per_point": {name: _total({name: v}, P, K) for name, v in CALLS.items()},
+            "divisions_per_point": _total(DIVISIONS, P, K),
+            "rule": "mul/add/sub = 1 flop; sqrt, atan2 calls and divisions counted as 1 each "
+                    "(listed under calls_per_point / divisions_per_point); folded constants, "
+                    "integer index work, comparisons and select() not counted; counted per real "
+                    "point (padding to a multiple of 8 not counted); LENGTH_LEVER build (default "
+                    "lever rule)"}
+
+
+def pose_bytes(P: int, K: int, sparse: bool, length_lever: bool = True) -> dict:
+    """Bytes per point that ``nrmls_pose`` reads from the bound arrays and writes."""
+    parts = {"u (3 floats)": 12, "ref (int)": 4, "row (int)": 4,
+             "coef ((P + 2K) floats)": 4 * (P + 2 * K), "phat (3P floats)": 12 * P,
+             "out (3 floats written)": 12}
+    if sparse:
+        parts["slot (K ints)"] = 4 * K
+    if not length_lever:
+        parts["lever ((P + K) floats)"] = 4 * (P + K)
+    return {"per_point": int(sum(parts.values())), "parts": parts,
+            "rule": "each bound per-point array element read once + the output written once; "
+                    "per-pose handle data (posed handles, rotation table: a few KB, cache "
+                    "resident) added once per pose in bytes_per_pose"}
+
+
+def pose_work(deformer) -> dict:
+    """Counted flops and bytes of one ``nrmls_pose`` launch of a bound deformer."""
+    P, S = len(deformer.rest.points), len(deformer.rest.segments)
+    K = deformer.slots
+    sparse = K < S
+    n = deformer.n
+    fl = pose_flops(P, K)
+    by = pose_bytes(P, K, sparse, deformer.lever == "length")
+    per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 9 * (S + 1) + 3 * (S + 1) * S)
+    return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
+            "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
+            "flops_per_pose": fl["per_point"] * n,
+            "bytes_per_pose": by["per_point"] * n + per_pose_bytes,
+            "arithmetic_intensity": fl["per_point"] / by["per_point"],
+            "flops": fl, "bytes": by}
+
+
+# --------------------------------------------------------------------------- measuring
+
+class Roofs:
+    """Kernels measuring the device ceilings, on a private profiling queue."""
+
+    def __init__(self, quick: bool = False):
+        import pyopencl as cl
+        self.cl = cl
+        ctx, _ = device.context()
+        self.ctx = ctx
+        self.q = cl.CommandQueue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
+        prg = cl.Program(ctx, ROOF_SOURCE).build()
+        self.k_flops = cl.Kernel(prg, "peak_flops")
+        self.k_copy = cl.Kernel(prg, "copy8")
+        self.k_empty = cl.Kernel(prg, "empty")
+        self.quick = quick
+        self.items = 512 if quick else PEAK_ITEMS
+        self.iters = 256 if quick else ITERS
+        mf = cl.mem_flags
+        self.flops_out = cl.Buffer(ctx, mf.WRITE_ONLY, 32 * self.items)
+        self.k_flops.set_args(self.flops_out, np.float32(0.999), np.float32(1e-3), np.int32(self.iters))
+        self.copy = {}
+        for name, mb in (("dram", 8 if quick else COPY_DRAM_MB), ("l3", 1 if quick else COPY_L3_MB)):
+            nbytes = mb << 20
+            src = cl.Buffer(ctx, mf.READ_WRITE, nbytes)
+            dst = cl.Buffer(ctx, mf.READ_WRITE, nbytes)
+            cl.enqueue_fill_buffer(self.q, src, np.float32(1.0), 0, nbytes)
+            cl.enqueue_fill_buffer(self.q, dst, np.float32(0.0), 0, nbytes)
+            self.copy[name] = (src, dst, nbytes)
+        self.empty_out = cl.Buffer(ctx, mf.WRITE_ONLY, 4)
+        self.k_empty.set_args(self.empty_out)
+        self.q.finish()
+
+    def _event_s(self, kernel, gsize) -> float:
+        ev = self.cl.enqueue_nd_range_kernel(self.q, kernel, (gsize,), None)
+        ev.wait()
+        return (ev.profile.end - ev.profile.start) * 1e-9
+
+    def flops(self, n: int) -> list[float]:
+        """n samples of the arithmetic kernel's rate, GFLOP/s."""
+        work = 2 * 8 * ACCS * self.iters * self.items
+        self._event_s(self.k_flops, self.items)
+        return [work / self._event_s(self.k_flops, self.items) * 1e-9 for _ in range(n)]
+
+    def bandwidth(self, which: str, n: int) -> list[float]:
+        """n samples of the copy kernel's read + write rate over buffer ``which``, GB/s."""
+        src, dst, nbytes = self.copy[which]
+        self.k_copy.set_args(src, dst)
+        items = nbytes // 32
+        self._event_s(self.k_copy, items)
+        return [2 * nbytes / self._event_s(self.k_copy, items) * 1e-9 for _ in range(n)]
+
+    def empty_kernel(self, n: int, items: int = 1) -> dict:
+        """Launch floor: an empty kernel's profiling-event time and its enqueue + finish wall time (ms)."""
+        ev, wall = [], []
+        for _ in range(n):
+            t = time.perf_counter()
+            e = self.cl.enqueue_nd_range_kernel(self.q, self.k_empty, (items,), None)
+            e.wait()
+            wall.append(time.perf_counter() - t)
+            ev.append((e.profile.end - e.profile.start) * 1e-9)
+        return {"event_ms": float(np.median(ev) * 1e3), "wall_ms": float(np.median(wall) * 1e3)}
+
+    def measure(self, rounds: int) -> dict:
+        """Interleaved rounds of the three ceilings; medians and bests."""
+        fl, dram, l3 = [], [], []
+        for _ in range(rounds):
+            fl += self.flops(3)
+            dram += self.bandwidth("dram", 2)
+            l3 += self.bandwidth("l3", 5)
+        stat = lambda a: {"median": float(np.median(a)), "max": float(np.max(a)),  # noqa: E731
+                          "min": float(np.min(a)), "n": len(a)}
+        return {"gflops": stat(fl), "dram_gbs": stat(dram), "l3_gbs": stat(l3),
+                "launch": self.empty_kernel(5 * rounds)}
+
+    def describe(self) -> dict:
+        return {"arithmetic_kernel": f"peak_flops: {self.items} work-items x {ACCS} float8 accumulators x "
+                                     f"{self.iters} updates a = a*m + c (no fma/mad); 16 flops per float8 update",
+                "copy_kernel": "copy8: dst[i] = src[i] over float8; bytes = read + written",
+                "copy_buffers_mb": {k: v[2] >> 20 for k, v in self.copy.items()},
+                "timing": "OpenCL profiling events (end - start) on a private queue; medians"}
+
+    # ------------------------------------------------------------------ pose kernel
+    def pose_kernel(self, deformer, pose, n: int) -> dict:
+        """Profiling-event times (ms) of the deformer's prepare and pose kernels for ``pose``.
+
+        The pose is written by one ordinary ``deformer.pose`` call; the two kernels are then
+        re-enqueued on the private queue (same arguments, same inputs) n times."""
+        deformer.pose(pose)
+        S = len(deformer.rest.segments)
+        g_pose = -(-deformer._npad // (LANES * PER_ITEM))
+        g_prep = deformer._npairs + S + 1
+        self._event_s(deformer._prepare, g_prep)
+        self._event_s(deformer._kernel, g_pose)
+        prep, kern = [], []
+        for _ in range(n):
+            prep.append(self._event_s(deformer._prepare, g_prep))
+            kern.append(self._event_s(deformer._kernel, g_pose))
+        return {"kernel_ms": float(np.median(kern) * 1e3), "kernel_ms_min": float(np.min(kern) * 1e3),
+                "prepare_ms": float(np.median(prep) * 1e3), "n": n}
+
+    def store_variant(self, deformer):
+        """Diagnostic copy of ``nrmls_pose`` (built here from kernels/nrmls.cl, same options and
+        arguments) whose output is stored contiguously (three float8 vstores per chunk, SoA)
+        instead of scattered per point through ``row``: the difference is the cost of the
+        scattered scalar stores. Returns a callable giving one event time (s)."""
+        src = device.kernel_source("nrmls.cl")
+        start = src.index("    const int8 o = 3 * vload8(g, row);")
+        end = src.index("out[o.s7 + 2] = oz.s7;") + len("out[o.s7 + 2] = oz.s7;")
+        src = src[:start] + ("    vstore8(ox, g, out); vstore8(oy, g, out + np); vstore8(oz, g, out + 2 * np);"
+                             ) + src[end:]
+        P, S, K = len(deformer.rest.points), len(deformer.rest.segments), deformer.slots
+        opts = (["-DSPARSE"] if K < S else []) + (["-DLENGTH_LEVER"] if deformer.lever == "length" else [])
+        prg = self.cl.Program(self.ctx, src).build(options=opts)
+        k = self.cl.Kernel(prg, "nrmls_pose")
+        b = deformer._bufs
+        scratch = self.cl.Buffer(self.ctx, self.cl.mem_flags.WRITE_ONLY, 4 * 3 * deformer._npad)
+        k.set_args(np.int32(deformer._npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
+                   b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], deformer._pose.arg, b["derived"],
+                   scratch, np.int32(PER_ITEM))
+        g = -(-deformer._npad // (LANES * PER_ITEM))
+        self._event_s(k, g)
+        keep = (prg, k, scratch)   # the buffer must outlive the kernel's launches
+        return lambda: self._event_s(keep[1], g)
+
+    def pose_kernel_once(self, deformer) -> tuple[float, float]:
+        """(prepare, pose) kernel event times in seconds, re-running the deformer's last pose."""
+        S = len(deformer.rest.segments)
+        prep = self._event_s(deformer._prepare, deformer._npairs + S + 1)
+        kern = self._event_s(deformer._kernel, -(-deformer._npad // (LANES * PER_ITEM)))
+        return prep, kern
+
+
+def lane_divergence(deformer) -> dict:
+    """How often the pose kernel's 8 lanes disagree, read back from the bound buffers.
+
+    A chunk of 8 points whose reference rotations differ, or (sparse) a segment slot whose
+    8 segment indices differ, takes the gathered path (9 scalar loads per float8 value
+    instead of broadcasts)."""
+    import pyopencl as cl
+    _, q = device.context()
+    npad, S, K = deformer._npad, len(deformer.rest.segments), deformer.slots
+    ref = np.empty(npad, np.int32)
+    cl.enqueue_copy(q, ref, deformer._bufs["ref"])
+    chunks = ref.reshape(-1, LANES)
+    uni = (chunks == chunks[:, :1]).all(axis=1)
+    out = {"chunks": int(len(chunks)), "ref_uniform_fraction": float(uni.mean())}
+    if K and K < S:
+        slot = np.empty(K * npad, np.int32)
+        cl.enqueue_copy(q, slot, deformer._bufs["slot"])
+        sl = slot.reshape(K, -1, LANES)
+        both = uni[None] & (sl == sl[:, :, :1]).all(axis=2)
+        out["gathered_slot_fraction"] = float(1 - both.mean())
+    else:
+        out["gathered_slot_fraction"] = float(1 - uni.mean()) if K else 0.0
+    return out
+
+
+def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: dict,
+           prepare_ms: float) -> dict:
+    """Achieved rates of one pose kernel against the measured ceilings, and what bounds it."""
+    t = kernel_ms * 1e-3
+    gflops = work["flops_per_pose"] / t * 1e-9
+    gbs = work["bytes_per_pose"] / t * 1e-9
+    peak, dram, l3 = roofs["gflops"]["median"], roofs["dram_gbs"]["median"], roofs["l3_gbs"]["median"]
+    fits_l3 = work["bytes_per_pose"] < 16 << 20
+    bw_roof = l3 if fits_l3 else dram
+    f_arith, f_bw = gflops / peak, gbs / bw_roof
+    # the roofline ceiling at this arithmetic intensity (against the relevant bandwidth)
+    ceiling = min(peak, work["arithmetic_intensity"] * bw_roof)
+    outside = max(pose_ms - kernel_ms, 0.0) / pose_ms if pose_ms > 0 else 0.0
+    reasons = []
+    if outside >= 0.5:
+        reasons.append(f"launch overhead and host work: {100 * outside:.0f} % of the pose wall time is outside "
+                       f"the pose kernel (prepare kernel {prepare_ms:.3f} ms, an empty kernel's enqueue + "
+                       f"wait {launch['wall_ms']:.3f} ms, pose upload and result copy)")
+    if f_arith >= 0.3:
+        kernel_bound = "arithmetic"
+        reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof (compute bound)")
+    elif f_bw >= 0.5:
+        kernel_bound = "memory"
+        reasons.append(f"kernel at {100 * f_bw:.0f} % of the {'L3' if fits_l3 else 'DRAM'} copy bandwidth "
+                       f"(memory bound)")
+    else:
+        floor = launch["event_ms"]
+        if kernel_ms < 4 * floor:
+            kernel_bound = "launch"
+            reasons.append(f"kernel time {kernel_ms:.3f} ms is within 4x of an empty kernel's "
+                           f"{floor:.3f} ms event time (thread wake-up / work distribution)")
+        else:
+            kernel_bound = "latency"
+            reasons.append(f"kernel reaches neither roof ({100 * f_arith:.0f} % arithmetic, {100 * f_bw:.0f} % "
+                           f"{'L3' if fits_l3 else 'DRAM'} bandwidth): scattered scalar stores of the output "
+                           f"(xyz by row), per-slot scalar/gathered loads of handle data, sqrt/atan2 calls "
+                           f"and divisions, and loop-carried work per point rather than a bandwidth or "
+                           f"arithmetic limit")
+    return {"gflops": gflops, "gbs": gbs, "fraction_arithmetic": f_arith,
+            "fraction_bandwidth": f_bw, "bandwidth_roof": "l3" if fits_l3 else "dram",
+            "fraction_bandwidth_dram": gbs / dram, "fraction_bandwidth_l3": gbs / l3,
+            "roofline_ceiling_gflops": ceiling, "fraction_of_ceiling": gflops / ceiling,
+            "outside_kernel_fraction": outside, "kernel_bound": kernel_bound,
+            "pose_bound": "launch+host" if outside >= 0.5 else kernel_bound,
+            "bound_by": "; ".join(reasons)}
+
+
+# --------------------------------------------------------------------------- the suite
+
+def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" = None, log=None) -> dict:
+    """Roofline suite: device ceilings, then every Table-1 row's pose kernel against them.
+
+    Rows are table1's (same models, handles and poses; --quick: 500 points). Each
+    round poses every pose once through ``Deformer.pose`` (wall time) and, right
+    after, re-runs its prepare + pose kernels on the profiling queue (event times).
+    The ceilings are measured before and after the rows; the medians over both are used.
+    """
+    import pathlib
+    import zlib
+
+    import common
+    from common import table1
+    from nrpose.engine import Deformer
+
+    data = pathlib.Path(data) if data is not None else table1.DEFAULT_DATA
+    roofs = roofs or Roofs(quick)
+    rounds = 2 if quick else max(repeat, 3)
+    before = roofs.measure(rounds)
+    n_poses = 3 if quick else 10
+    rows = []
+    for model, count, h, paper_ms, rel in table1.TABLE1:
+        v, src = table1.load_model(model, count, rel, data, quick)
+        for kind in table1.KINDS:
+            rest = table1.chain_handles(v, h) if kind == "segments" else table1.fps_handles(v, h)
+            rng = np.random.default_rng(zlib.crc32(f"{model}/{kind}".encode()))
+            diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+            from nrpose.handles import Pose
+            poses = [Pose.make(rest, **(table1.chain_pose_args(rest, rng) if kind == "segments"
+                                        else table1.point_pose_args(rest, rng, diag))) for _ in range(n_poses)]
+            d = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
+            for p in poses:
+                d.pose(p)
+            wall, kern, prep, soa = [], [], [], []
+            variant = roofs.store_variant(d)
+            for _ in range(max(repeat, 1)):
+                for p in poses:
+                    t = time.perf_counter()
+                    d.pose(p)
+                    wall.append(time.perf_counter() - t)
+                    ev = roofs.pose_kernel_once(d)
+                    prep.append(ev[0])
+                    kern.append(ev[1])
+                    soa.append(variant())
+            work = pose_work(d)
+            work["lanes"] = lane_divergence(d)
+            rows.append({"model": model, "kind": kind, "points": int(len(v)), "handles": h,
+                         "source": src.get("kind"), "work": work,
+                         "pose_ms": common.stats(wall), "kernel_ms": common.stats(kern),
+                         "prepare_ms": common.stats(prep),
+                         "kernel_contiguous_store_ms": common.stats(soa), "load": common.load()})
+            if log:
+                log(f"roofline {model:9s} {kind:8s} pose {rows[-1]['pose_ms']['median']:.3f} ms, "
+                    f"kernel {rows[-1]['kernel_ms']['median']:.3f} ms, prepare {rows[-1]['prepare_ms']['median']:.3f} ms")
+            del d
+    after = roofs.measure(rounds)
+    ceilings = merge_roofs(before, after)
+    for r in rows:
+        r.update(assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"], ceilings,
+                        ceilings["launch"], r["prepare_ms"]["median"]))
+        r["scattered_store_share"] = max(0.0, 1 - r["kernel_contiguous_store_ms"]["median"] / r["kernel_ms"]["median"])
+        r["bound_by"] += (f"; measured: scattered output stores {100 * r['scattered_store_share']:.0f} % of the kernel "
+                          f"time, {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) visits "
+                          f"on the gathered path")
+    best = max(rows, key=lambda r: r["fraction_arithmetic"])
+    return {"roofs": ceilings, "roofs_before": before, "roofs_after": after, "method": roofs.describe(),
+            "flop_count": {"table": {k: list(v) for k, v in FLOP_COUNT.items()},
+                           "columns": ["per point handle", "per segment slot", "fixed"],
+                           "calls": {k: list(v) for k, v in CALLS.items()},
+                           "divisions": {k: list(v) for k, v in DIVISIONS.items()},
+                           **{k: v for k, v in pose_flops(1, 1).items() if k in ("formula", "rule")}},
+            "rows": rows, "poses_per_round": n_poses, "rounds": max(repeat, 1),
+            "best_row": f"{best['model']}/{best['kind']}", "best_fraction_arithmetic": best["fraction_arithmetic"]}
+
+
+def merge_roofs(before: dict, after: dict) -> dict:
+    """Ceilings from two measurements: medians of the two medians, best of the maxima."""
+    out = {}
+    for k in ("gflops", "dram_gbs", "l3_gbs"):
+        out[k] = {"median": float(np.median([before[k]["median"], after[k]["median"]])),
+                  "max": max(before[k]["max"], after[k]["max"]),
+                  "n": before[k]["n"] + after[k]["n"]}
+    out["launch"] = {k: float(np.median([before["launch"][k], after["launch"][k]])) for k in before["launch"]}
+    out["ridge_flops_per_byte_dram"] = out["gflops"]["median"] / out["dram_gbs"]["median"]
+    out["ridge_flops_per_byte_l3"] = out["gflops"]["median"] / out["l3_gbs"]["median"]
+    return out

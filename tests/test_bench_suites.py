@@ -1,0 +1,121 @@
+"""Smoke tests of the benchmark suites (bench/suites.py via nrpose.benchcli) at tiny sizes.
+
+One --quick run of every suite (seconds): the JSON document's fields are present
+and its figures positive and finite, the PNG is written. No timing assertions.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import pathlib
+
+import pytest
+
+pytest.importorskip("pyopencl")
+pytest.importorskip("matplotlib")
+
+from nrpose import benchcli  # noqa: E402
+from nrpose.errors import InputError  # noqa: E402
+
+DATA = pathlib.Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+
+
+def _parser():
+    ap = argparse.ArgumentParser(prog="nrpose")
+    benchcli.add_bench_parser(ap.add_subparsers(dest="command"))
+    return ap
+
+
+def _finite_positive(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x) and x > 0
+
+
+def _stats_ok(s) -> bool:
+    return all(_finite_positive(s[k]) for k in ("median", "p10", "p90", "min", "max")) and s["n"] >= 1
+
+
+@pytest.fixture(scope="module")
+def quick(tmp_path_factory):
+    out = tmp_path_factory.mktemp("suites")
+    args = _parser().parse_args(["bench", "--quick", "--repeat", "1", "--json", str(out / "s.json"),
+                                 "--png", str(out / "s.png"), "--data", str(DATA)])
+    assert args.func is benchcli.cmd_bench
+    assert args.func(args) == 0
+    return json.loads((out / "s.json").read_text()), out
+
+
+def test_document(quick):
+    doc, out = quick
+    assert doc["schema"] == "nrpose-bench-suites/1"
+    assert set(doc["suites"]) == {"table1", "roofline", "scaling", "clips"}
+    env = doc["environment"]
+    for key in ("pocl_version", "llvm_version", "cpu", "compute_units", "device", "python", "numpy"):
+        assert env[key], key
+    assert env["compute_units"] >= 1
+    assert doc["options"]["quick"] is True and doc["options"]["repeat"] == 1
+    assert len(doc["load_start"]) == 3 and len(doc["load_end"]) == 3
+    assert isinstance(doc["git_commit"], str) and isinstance(doc["git_dirty"], list)
+    assert _finite_positive(doc["seconds"]) and _finite_positive(doc["peak_rss_gb"])
+    assert (out / "s.png").stat().st_size > 10_000
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]     # no temporary left over
+    for t in doc["targets"]:
+        assert t["meaningful"] is False and {"name", "target", "measured", "met"} <= set(t)
+
+
+def test_table1(quick):
+    rows = quick[0]["suites"]["table1"]["rows"]
+    assert len(rows) == 8
+    for r in rows:
+        assert _stats_ok(r["pocl_pose_ms"]) and _stats_ok(r["numpy_pose_ms"])
+        assert _finite_positive(r["speedup_vs_numpy"]) and _finite_positive(r["paper_over_pocl"])
+
+
+def test_roofline(quick):
+    res = quick[0]["suites"]["roofline"]
+    for k in ("gflops", "dram_gbs", "l3_gbs"):
+        assert _finite_positive(res["roofs"][k]["median"])
+    assert _finite_positive(res["roofs"]["launch"]["wall_ms"])
+    assert res["flop_count"]["formula"].startswith("60 P + 21 K + 89")
+    assert len(res["rows"]) == 8
+    for r in res["rows"]:
+        assert _stats_ok(r["kernel_ms"]) and _stats_ok(r["pose_ms"])
+        for k in ("gflops", "gbs", "fraction_arithmetic", "fraction_bandwidth", "roofline_ceiling_gflops"):
+            assert _finite_positive(r[k]), k
+        assert r["work"]["flops_per_point"] == 60 * r["work"]["P"] + 21 * r["work"]["K"] + 89
+        assert 0 <= r["work"]["lanes"]["gathered_slot_fraction"] <= 1
+        assert r["kernel_bound"] in ("arithmetic", "memory", "launch", "latency") and r["bound_by"]
+
+
+def test_scaling(quick):
+    res = quick[0]["suites"]["scaling"]
+    modes = {r["mode"] for r in res["rows"]}
+    assert modes == {"dense", "sparse"}
+    assert any(r["mode"] == "sparse" and r["slots"] < r["handles"] for r in res["rows"])
+    for r in res["rows"]:
+        assert _stats_ok(r["pose_ms"]) and _stats_ok(r["kernel_ms"]) and _finite_positive(r["bind_ms"])
+    for m in ("dense", "sparse"):
+        f = res["fits"][m]
+        assert math.isfinite(f["power"]["b"]) and _finite_positive(f["power"]["a_ms"])
+        assert math.isfinite(f["linear"]["c0_ms"])
+
+
+def test_clips(quick):
+    rows = quick[0]["suites"]["clips"]["rows"]
+    if not DATA.exists():
+        pytest.skip(f"{DATA} absent: no characters to pose")
+    assert {r["method"] for r in rows} == {"nrmls", "lbs", "dqs"}
+    assert {"fox", "bvh"} <= {r["character"] for r in rows}
+    for r in rows:
+        assert _finite_positive(r["fps"]) and _finite_positive(r["batch_fps"]) and _stats_ok(r["frame_ms"])
+
+
+def test_bad_options(tmp_path):
+    args = _parser().parse_args(["bench", "--repeat", "0", "--json", str(tmp_path / "x.json")])
+    with pytest.raises(InputError):
+        benchcli.cmd_bench(args)
+    args = _parser().parse_args(["bench", "--json", str(tmp_path / "missing" / "x.json")])
+    with pytest.raises(InputError):
+        benchcli.cmd_bench(args)
+    with pytest.raises(SystemExit):
+        _parser().parse_args(["bench", "--suite", "nope"])
