@@ -54,9 +54,15 @@ side has zero length (CMU ``LHipJoint``, ``lowerneck``, collars at the chest)
 it looks through to the mapped descendants of ``c``. One pair (a chain joint:
 limbs, spine, neck): ``A_j`` is the minimal rotation taking the target
 direction onto the source direction, exactly. Several pairs (branch joints:
-hips, upper chest): ``A_j`` is the least-squares rotation of the unit
-directions (the pelvis/ribcage shapes differ; a residual angle remains on
-those bones, the same in every frame). No pair (hands, head, toes): the
+hips, upper chest): when two of them end at left/right counterparts (upper
+legs, clavicles or upper arms), ``A_j`` matches the frames built from the
+lateral direction (left end − right end, exactly; looking further down
+both chains while the two ends coincide) and the remaining bones'
+summed direction (spine, neck: as closely as the lateral constraint allows);
+else it is the least-squares rotation of the unit directions. Pelvis and rib
+cage shapes differ between rigs (CMU hip joints sit 19° in front of the
+root), so a residual angle remains on those bones; it is the same in every
+frame, and fitting it instead would tilt the target's pelvis. No pair (hands, head, toes): the
 direction to the mean end of the joint's own bones (:meth:`Skeleton.bones`).
 
 Transfer
@@ -377,6 +383,49 @@ def _fit_directions(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     return U @ np.diag([1.0, 1.0, d]) @ Vt
 
 
+def _left_right(slots: list) -> tuple[int, int] | None:
+    """Indices of the first left/right counterparts (``left_X``, ``right_X``) among slots, or None."""
+    for a, sa in enumerate(slots):
+        if sa and sa.startswith("left_"):
+            for b, sb in enumerate(slots):
+                if sb == "right_" + sa[5:]:
+                    return a, b
+    return None
+
+
+def _frame(lateral: np.ndarray, primary: np.ndarray) -> np.ndarray | None:
+    if not np.linalg.norm(lateral) > 0:
+        return None
+    x = lateral / np.linalg.norm(lateral)
+    y = primary - (primary @ x) * x
+    n = np.linalg.norm(y)
+    if not np.isfinite(n) or n < 1e-9:
+        return None
+    y /= n
+    return np.stack([x, y, np.cross(x, y)], axis=1)
+
+
+def _frame_align(lat_t, pri_t, lat_s, pri_s) -> np.ndarray | None:
+    """Rotation taking the target frame (lateral exact, primary in its plane) onto the source's."""
+    Ft, Fs = _frame(lat_t, pri_t), _frame(lat_s, pri_s)
+    return None if Ft is None or Fs is None else Fs @ Ft.T
+
+
+def _lateral(ts: Skeleton, m: dict[int, int], pt, ps, a: int, b: int, eps_t: float, eps_s: float):
+    """(target, source) vectors from the right counterpart b to the left one a, looking down both
+    chains (first mapped descendants) while they coincide in either rig (CMU collars start at one
+    point); None when they never separate."""
+    mapped = set(m)
+    while True:
+        lt, ls = pt[a] - pt[b], ps[m[a]] - ps[m[b]]
+        if np.linalg.norm(lt) > eps_t and np.linalg.norm(ls) > eps_s:
+            return lt, ls
+        da, db = _nearest_mapped(ts, a, mapped), _nearest_mapped(ts, b, mapped)
+        if not da or not db:
+            return None
+        a, b = da[0], db[0]
+
+
 def _rotations(G: np.ndarray) -> np.ndarray:
     return polar_rotation(G[..., :3, :3])
 
@@ -524,6 +573,7 @@ class RetargetPlan:
         self.source_rest_rot, self.target_rest_rot = _rotations(Gs0), _rotations(Gt0)
         eps_s, eps_t = 1e-6 * max(_extent(ps), 1e-300), 1e-6 * max(_extent(pt), 1e-300)
         lead_t, lead_s = _bone_mean_dirs(target_skel), _bone_mean_dirs(source_skel)
+        slots_t, slots_s = joint_slots(target_skel), joint_slots(source_skel)
         self.align, self.chain, self.pairs = {}, {}, {}
         for j, s in m.items():
             pairs = _pairs(target_skel, source_skel, m, pt, ps, j, eps_t, eps_s)
@@ -536,11 +586,24 @@ class RetargetPlan:
             elif pairs:
                 P = np.array([pt[p.target[1]] - pt[j] for p in pairs])
                 Q = np.array([ps[p.source[1]] - ps[s] for p in pairs])
-                self.align[j] = _fit_directions(P / np.linalg.norm(P, axis=1, keepdims=True),
-                                                Q / np.linalg.norm(Q, axis=1, keepdims=True))
+                P /= np.linalg.norm(P, axis=1, keepdims=True)
+                Q /= np.linalg.norm(Q, axis=1, keepdims=True)
+                sides = [slots_t.get(p.target[1]) or slots_s.get(p.source[1]) for p in pairs]
+                lr = _left_right(sides)
+                A = None
+                if lr is not None:
+                    lat = _lateral(target_skel, m, pt, ps, pairs[lr[0]].target[1], pairs[lr[1]].target[1],
+                                   eps_t, eps_s)
+                    rest = [k for k in range(len(pairs)) if k not in lr]
+                    if lat is not None and rest:
+                        A = _frame_align(lat[0], P[rest].sum(axis=0), lat[1], Q[rest].sum(axis=0))
+                self.align[j] = _fit_directions(P, Q) if A is None else A
             elif j in lead_t and s in lead_s:
                 self.align[j] = _align(lead_t[j], lead_s[s])
             else:
+                self.align[j] = np.eye(3)
+        for j, A in self.align.items():
+            if not np.isfinite(A).all():       # never expected: degenerate rest geometry
                 self.align[j] = np.eye(3)
         depth = _depths(target_skel)
         self.root = min(m, key=lambda j: (depth[j], j))

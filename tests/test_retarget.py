@@ -423,3 +423,24 @@ def test_bad_options_fail_cleanly(tmp_path, capsys):
     _assert_clean_failure(code, err, tmp_path, "give -o")
     code, _, err = run(["retarget", tmp_path / "a.bvh", tmp_path / "b.glb", "-o", tmp_path / "o.glb"], capsys)
     _assert_clean_failure(code, err, tmp_path, "no such file")
+
+
+@needs_data
+def test_gltf_source_clip_and_gltf_target_with_external_buffer(tmp_path, capsys):
+    g = pygltflib.GLTF2().load(str(DATA / "gltf" / "Mannequin.glb"))
+    (tmp_path / "mq.bin").write_bytes(g.binary_blob())
+    g.buffers[0].uri = "mq.bin"
+    g._glb_data = None
+    g.save_json(str(tmp_path / "mq.gltf"))
+    out = tmp_path / "out.glb"
+    clip = "Armature|mixamo.com|Layer0"
+    code, stdout, err = run(["retarget", DATA / "gltf" / "Ely.glb", tmp_path / "mq.gltf", "--source-clip", clip,
+                             "-o", out], capsys)
+    assert code == 0, err
+    back = load_character(out)                              # self-contained: the .bin was copied in
+    assert [c.name for c in back.clips] == [clip, f"{clip} (2)"]
+    original = load_character(DATA / "gltf" / "Mannequin.glb")
+    assert np.array_equal(back.meshes[0].vertices, original.meshes[0].vertices)
+    code, _, err = run(["retarget", DATA / "gltf" / "Ely.glb", tmp_path / "mq.gltf", "--source-clip", "walk",
+                        "-o", tmp_path / "o2.glb"], capsys)
+    assert code == 2 and "no clip 'walk'" in err and not (tmp_path / "o2.glb").exists()
