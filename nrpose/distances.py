@@ -333,7 +333,14 @@ def handle_sources(V, F, point_handles, segment_handles, *, visibility: bool = T
     if len(S) == 0:
         return out
     Es = E[:, len(P):]
-    _, nearest, Cn = point_segment_distances(V[surf_idx], S)
+    # nearest bone of each surface vertex from E (no second distance pass), and
+    # the closest point on that bone
+    nearest = np.argmin(Es[surf_idx], axis=1) if len(surf_idx) else np.zeros(0, np.int64)
+    A = S[nearest, 0]
+    AB = S[nearest, 1] - A
+    L2 = np.einsum("ij,ij->i", AB, AB)
+    t = np.einsum("ij,ij->i", V[surf_idx] - A, AB) / np.where(L2 > 0, L2, 1.0)
+    Cn = A + np.clip(np.where(L2 > 0, t, 0.0), 0.0, 1.0)[:, None] * AB
     if F is not None and visibility:
         vis = _visible(V, F, surf_idx, Cn)
     else:
