@@ -17,4 +17,4 @@ test: venv
 	$(PY) -m pytest -q
 
 bench: venv
-	$(PY) bench/table1.py
+	$(VENV)/bin/nrpose bench --suite all

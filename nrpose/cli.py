@@ -291,10 +291,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--png", help="write a contact sheet PNG")
     p.set_defaults(func=cmd_pose)
 
+    from .benchcli import add_bench_parser
     from .retargetcli import add_retarget_parser
     from .weightcli import add_weights_parser
     add_weights_parser(sub)
     add_retarget_parser(sub)
+    add_bench_parser(sub)
 
     p = sub.add_parser("info", help="meshes, joints and clips of a character")
     p.add_argument("character")
