@@ -32,7 +32,11 @@
  *   derived (written by nrmls_prepare from `rots`, once per pose)
  *          refs [(S+1)*9] row-major | table [(S+1)*S*3],
  *          table[j][s] = log(R_ref_j^-1 R_s)
- *   out    [N*3]          posed points, xyz interleaved, in the caller's order
+ *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order
+ *
+ * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
+ * apart) and `derived` F blocks (derived_stride apart); nrmls_prepare runs
+ * over (item, frame).
  */
 
 #define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
@@ -76,12 +80,13 @@ static float3 quat_log(float4 q)
  * so that blends seen from either handle agree even at an angle of exactly pi. */
 __kernel void nrmls_prepare(const int P, const int S, const int paper, const int npairs,
                             __global const int *pairs, __global const float *pose,
-                            __global float *derived)
+                            __global float *derived, const int pose_stride, const int derived_stride)
 {
     const int g = get_global_id(0);
-    __global const float *rots = pose + 3 * (P + 2 * S);
-    __global float *refs = derived;
-    __global float *table = derived + 9 * (S + 1);
+    const int f = get_global_id(1);                      /* frame */
+    __global const float *rots = pose + f * pose_stride + 3 * (P + 2 * S);
+    __global float *refs = derived + f * derived_stride;
+    __global float *table = refs + 9 * (S + 1);
     if (g >= npairs) {
         const int j = g - npairs;
         if (j <= S)
@@ -108,13 +113,18 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
                          __global const float *lever, __global const float *len2,
                          __global const float *phat,
                          __global const float *pose, __global const float *derived,
-                         __global float *out, const int per_item)
+                         __global float *out_frames, const int per_item,
+                         const int F, const int pose_stride, const int derived_stride)
 {
-    __global const float *qpos = pose;
-    __global const float *refs = derived;
-    __global const float *table = derived + 9 * (S + 1);
     const int chunks = np / 8;
     for (int g = get_global_id(0) * per_item; g < min(chunks, (int)(get_global_id(0) + 1) * per_item); ++g) {
+    /* frames innermost: a chunk's bound data is read from memory once and
+     * reused from L1 for every frame of the batch */
+    for (int f = 0; f < F; ++f) {
+    __global const float *qpos = pose + f * pose_stride;
+    __global const float *refs = derived + f * derived_stride;
+    __global const float *table = refs + 9 * (S + 1);
+    __global float *out = out_frames + f * 3 * np;
 
     /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered */
     const int8 rf = vload8(g, ref);
@@ -245,5 +255,6 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     out[o.s5] = ox.s5; out[o.s5 + 1] = oy.s5; out[o.s5 + 2] = oz.s5;
     out[o.s6] = ox.s6; out[o.s6 + 1] = oy.s6; out[o.s6 + 2] = oz.s6;
     out[o.s7] = ox.s7; out[o.s7 + 1] = oy.s7; out[o.s7 + 2] = oz.s7;
+    }
     }
 }

@@ -74,57 +74,96 @@ class Deformer:
         mf = cl.mem_flags
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                       for k, a in arrays.items()}
-        self._bufs["derived"] = cl.Buffer(ctx, mf.READ_WRITE, 4 * (9 * (S + 1) + 3 * (S + 1) * S))
         self._npos = 3 * (P + 2 * S)
-        self._pose = device.HostArray(self._npos + 9 * (S + 1))
-        self._pose.host[self._npos + 9 * S:] = np.eye(3).ravel()   # R_g until a pose needs it
+        self._pose_stride = self._npos + 9 * (S + 1)       # floats per frame: positions, rotations
+        self._derived_stride = 9 * (S + 1) + 3 * (S + 1) * S
         self._needs_global = blend == "relative" and bool((T.ref == S).any())
-        self._out = device.HostArray(3 * npad)
         options = (("-DSPARSE",) if K < S else ()) + (("-DLENGTH_LEVER",) if self.lever == "length" else ())
         prg = device.program("nrmls.cl", options)
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
         self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),
-                               self._bufs["pairs"], self._pose.arg, self._bufs["derived"])
+                               self._bufs["pairs"], None, None, np.int32(self._pose_stride),
+                               np.int32(self._derived_stride))
         self._kernel = cl.Kernel(prg, "nrmls_pose")
         b = self._bufs
         self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
-                              b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], self._pose.arg, b["derived"],
-                              self._out.arg, np.int32(PER_ITEM))
+                              b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], None, None, None,
+                              np.int32(PER_ITEM), np.int32(1), np.int32(self._pose_stride),
+                              np.int32(self._derived_stride))
+        self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # PoCL compiles a kernel's work-group function at its first launch
         # (~0.5 s): pay that at bind, not in the first frame
         self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
+
+    def _reserve(self, frames: int) -> None:
+        """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames."""
+        if frames <= self._frames:
+            return
+        import pyopencl as cl
+
+        ctx, _ = device.context()
+        self._pose = device.HostArray(frames * self._pose_stride)
+        blocks = self._pose.host.reshape(frames, self._pose_stride)
+        blocks[:, -9:] = np.eye(3).ravel()                      # R_g until a pose needs it
+        self._derived = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * frames * self._derived_stride)
+        self._out = device.HostArray(frames * 3 * self._npad)
+        self._prepare.set_arg(5, self._pose.arg)
+        self._prepare.set_arg(6, self._derived)
+        self._kernel.set_arg(12, self._pose.arg)
+        self._kernel.set_arg(13, self._derived)
+        self._kernel.set_arg(14, self._out.arg)
+        self._frames = frames
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
         """Posed points (N, 3): float32 on OpenCL, float64 on numpy.
 
         out: optional (N, 3) array to write the result into (and return).
         """
-        self.rest.same_layout(pose.handles, "posed handles")
+        result = self.pose_frames([pose], None if out is None else out[None])[0]
+        return result if out is None else out
+
+    def pose_frames(self, poses, out: np.ndarray | None = None) -> np.ndarray:
+        """Posed points (F, N, 3) of F poses in one launch (float32; float64 on numpy).
+
+        Each chunk of 8 points reads its bound data once for all F frames.
+        out: optional (F, N, 3) array to write into (and return).
+        """
+        poses = list(poses)
+        for p in poses:
+            self.rest.same_layout(p.handles, "posed handles")
+        F = len(poses)
         if self.backend == "numpy":
-            result = pose_reference(self.terms, self.rest, pose, self.blend)
-            if out is None:
-                return result
-            out[...] = result
-            return out
+            result = np.stack([pose_reference(self.terms, self.rest, p, self.blend) for p in poses]) if F \
+                else np.zeros((0, self.n, 3))
+        else:
+            result = self._run(poses)
+        if out is None:
+            return result.copy() if self.backend == "opencl" else result
+        out[...] = result
+        return out
+
+    def _run(self, poses: list) -> np.ndarray:
+        """Launch the prepare and pose kernels for the poses; a view of the output array."""
         import pyopencl as cl
 
-        h, host, k = pose.handles, self._pose.host, self._npos
-        host[: 3 * len(h.points)] = h.points.ravel()
-        host[3 * len(h.points): k] = h.segments.ravel()
-        host[k: k + pose.rotations.size] = pose.rotations.ravel()
-        if self._needs_global:
-            host[k + pose.rotations.size:] = global_rotation(self.rest, pose).ravel()
+        F, k = len(poses), self._npos
+        self._reserve(F)
+        blocks = self._pose.host[: F * self._pose_stride].reshape(F, self._pose_stride)
+        for f, pose in enumerate(poses):
+            h, rows = pose.handles, blocks[f]
+            rows[: 3 * len(h.points)] = h.points.ravel()
+            rows[3 * len(h.points): k] = h.segments.ravel()
+            rows[k: k + pose.rotations.size] = pose.rotations.ravel()
+            if self._needs_global:
+                rows[k + pose.rotations.size:] = global_rotation(self.rest, pose).ravel()
         self._pose.upload()
         S = len(self.rest.segments)
         q = self._queue
-        cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1,), None)
+        self._kernel.set_arg(16, np.int32(F))
+        cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
         self._out.download()
-        result = self._out.host[: 3 * self.n].reshape(self.n, 3)
-        if out is None:
-            return result.copy()
-        out[...] = result
-        return out
+        return self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]
 
 
 def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> tuple[dict, int]:

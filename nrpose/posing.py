@@ -46,6 +46,7 @@ METHODS = ("nrmls", "lbs", "dqs")
 WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
 SKELETON_K = 8        # segment slots per vertex for nrmls on skeletons with more bones
+BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
 
 @dataclass(frozen=True)
@@ -147,29 +148,31 @@ class CharacterPoser:
             empty = np.zeros((0, 3))
         else:
             mats = G @ ch.inverse_bind if self._bind_space else skin_rest
-        for f in range(F):
+        whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
+        for a in range(0, F, BATCH):
+            b = min(a + BATCH, F)
             t0 = time.perf_counter()
             if self._rigid_idx.size:
-                M = skin_rest[f][self._rigid_joint]
+                M = skin_rest[a:b, self._rigid_joint]                     # (f, n, 4, 4)
                 V = self._rest_world[self._rigid_idx]
-                out[f, self._rigid_idx] = np.einsum("nij,nj->ni", M[:, :3, :3], V) + M[:, :3, 3]
+                out[a:b, self._rigid_idx] = np.einsum("fnij,nj->fni", M[..., :3, :3], V) + M[..., :3, 3]
             if self._deform_idx.size:
-                whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
-                dst = out[f] if whole else np.empty((len(self._deform_idx), 3), np.float32)
+                dst = out[a:b] if whole else np.empty((b - a, len(self._deform_idx), 3), np.float32)
                 if self.method == "nrmls":
                     # FK output is consistent by construction: no Pose.make validation
-                    self._deformer.pose(Pose(HandleSet(empty, segs[f]), rots[f]), out=dst)
+                    self._deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
+                                               out=dst)
                 elif self._deformer is not None:
-                    dst[...] = self._deformer.pose(mats[f])
+                    dst[...] = self._deformer.pose_frames(mats[a:b])
                 else:
                     from . import skinning
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
-                    dst[...] = ref(*self._skin_ref, mats[f])
+                    dst[...] = [ref(*self._skin_ref, m) for m in mats[a:b]]
                 if not whole:
-                    out[f, self._deform_idx] = dst
-            frame_ms[f] = 1e3 * (time.perf_counter() - t0)
+                    out[a:b, self._deform_idx] = dst
+            frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
             if progress:
-                progress(f + 1, F)
+                progress(b, F)
         return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
 
 

@@ -290,3 +290,16 @@ def test_sparse_with_k_at_least_handles_is_dense(mixed):
     assert np.array_equal(Deformer(points, rest, k=rest.count).pose(pose), dense)
     with pytest.raises(InputError, match="positive integer"):
         Deformer(points, rest, k=0)
+
+
+def test_pose_frames_batch_matches_single_poses(mixed):
+    rest, points = mixed
+    rng = np.random.default_rng(8)
+    poses = [random_pose(rng, rest) for _ in range(5)]
+    dev, ref = both(points, rest)
+    single = np.stack([dev.pose(p) for p in poses])
+    batch = dev.pose_frames(poses)
+    assert batch.shape == (5, len(points), 3)
+    assert np.array_equal(batch, single)
+    assert np.abs(batch - ref.pose_frames(poses)).max() <= TOL * diag(points)
+    assert np.array_equal(dev.pose_frames(poses[:2]), single[:2])   # smaller batch after a larger one
