@@ -15,8 +15,7 @@ Two device ceilings, measured with OpenCL profiling events on a private queue:
 The pose kernel's work is counted from ``kernels/nrmls.cl`` (:func:`pose_flops`,
 :func:`pose_bytes`); its time is the ``nrmls_pose`` profiling event of a bound
 :class:`nrpose.engine.Deformer` enqueued on the private queue. The bench reads
-the deformer's kernel objects (``_kernel``, ``_prepare``, ``_npad``,
-``_npairs``) without changing them: a benchmark-only use of private fields.
+the deformer's kernel launches (:meth:`nrpose.engine.Deformer.launches`).
 """
 from __future__ import annotations
 
@@ -25,7 +24,7 @@ import time
 import numpy as np
 
 from nrpose import device
-from nrpose.engine import LANES, PER_ITEM
+from nrpose.engine import LANES, device_layout
 
 ACCS = 8          # independent float8 accumulators per work-item
 ITERS = 2048      # updates of each accumulator
@@ -175,8 +174,9 @@ class Roofs:
         self.k_empty.set_args(self.empty_out)
         self.q.finish()
 
-    def _event_s(self, kernel, gsize) -> float:
-        ev = self.cl.enqueue_nd_range_kernel(self.q, kernel, (gsize,), None)
+    def _event_s(self, kernel, gsize, lsize=None) -> float:
+        gsize = gsize if isinstance(gsize, tuple) else (gsize,)
+        ev = self.cl.enqueue_nd_range_kernel(self.q, kernel, gsize, lsize)
         ev.wait()
         return (ev.profile.end - ev.profile.start) * 1e-9
 
@@ -231,48 +231,15 @@ class Roofs:
         The pose is written by one ordinary ``deformer.pose`` call; the two kernels are then
         re-enqueued on the private queue (same arguments, same inputs) n times."""
         deformer.pose(pose)
-        S = len(deformer.rest.segments)
-        g_pose = -(-deformer._npad // (LANES * PER_ITEM))
-        g_prep = deformer._npairs + S + 1
-        self._event_s(deformer._prepare, g_prep)
-        self._event_s(deformer._kernel, g_pose)
-        prep, kern = [], []
-        for _ in range(n):
-            prep.append(self._event_s(deformer._prepare, g_prep))
-            kern.append(self._event_s(deformer._kernel, g_pose))
+        self.pose_kernel_once(deformer)
+        prep, kern = zip(*(self.pose_kernel_once(deformer) for _ in range(n)))
         return {"kernel_ms": float(np.median(kern) * 1e3), "kernel_ms_min": float(np.min(kern) * 1e3),
                 "prepare_ms": float(np.median(prep) * 1e3), "n": n}
 
-    def store_variant(self, deformer):
-        """Diagnostic copy of ``nrmls_pose`` (built here from kernels/nrmls.cl, same options and
-        arguments) whose output is stored contiguously (three float8 vstores per chunk, SoA)
-        instead of scattered per point through ``row``: the difference is the cost of the
-        scattered scalar stores. Returns a callable giving one event time (s)."""
-        src = device.kernel_source("nrmls.cl")
-        start = src.index("    const int8 o = 3 * vload8(g, row);")
-        end = src.index("out[o.s7 + 2] = oz.s7;") + len("out[o.s7 + 2] = oz.s7;")
-        src = src[:start] + ("    vstore8(ox, g, out); vstore8(oy, g, out + np); vstore8(oz, g, out + 2 * np);"
-                             ) + src[end:]
-        P, S, K = len(deformer.rest.points), len(deformer.rest.segments), deformer.slots
-        opts = (["-DSPARSE"] if K < S else []) + (["-DLENGTH_LEVER"] if deformer.lever == "length" else [])
-        prg = self.cl.Program(self.ctx, src).build(options=opts)
-        k = self.cl.Kernel(prg, "nrmls_pose")
-        b = deformer._bufs
-        scratch = self.cl.Buffer(self.ctx, self.cl.mem_flags.WRITE_ONLY, 4 * 3 * deformer._npad)
-        k.set_args(np.int32(deformer._npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
-                   b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], deformer._pose.arg, b["derived"],
-                   scratch, np.int32(PER_ITEM))
-        g = -(-deformer._npad // (LANES * PER_ITEM))
-        self._event_s(k, g)
-        keep = (prg, k, scratch)   # the buffer must outlive the kernel's launches
-        return lambda: self._event_s(keep[1], g)
-
     def pose_kernel_once(self, deformer) -> tuple[float, float]:
         """(prepare, pose) kernel event times in seconds, re-running the deformer's last pose."""
-        S = len(deformer.rest.segments)
-        prep = self._event_s(deformer._prepare, deformer._npairs + S + 1)
-        kern = self._event_s(deformer._kernel, -(-deformer._npad // (LANES * PER_ITEM)))
-        return prep, kern
+        (prep, gp, lp), (kern, gk, lk) = deformer.launches()
+        return self._event_s(prep, gp, lp), self._event_s(kern, gk, lk)
 
 
 def lane_divergence(deformer) -> dict:
@@ -281,18 +248,14 @@ def lane_divergence(deformer) -> dict:
     A chunk of 8 points whose reference rotations differ, or (sparse) a segment slot whose
     8 segment indices differ, takes the gathered path (9 scalar loads per float8 value
     instead of broadcasts)."""
-    import pyopencl as cl
-    _, q = device.context()
-    npad, S, K = deformer._npad, len(deformer.rest.segments), deformer.slots
-    ref = np.empty(npad, np.int32)
-    cl.enqueue_copy(q, ref, deformer._bufs["ref"])
+    arrays, K = device_layout(deformer.terms, deformer.rest, deformer.k, deformer.lever)
+    S = len(deformer.rest.segments)
+    ref = arrays["ref"]
     chunks = ref.reshape(-1, LANES)
     uni = (chunks == chunks[:, :1]).all(axis=1)
     out = {"chunks": int(len(chunks)), "ref_uniform_fraction": float(uni.mean())}
     if K and K < S:
-        slot = np.empty(K * npad, np.int32)
-        cl.enqueue_copy(q, slot, deformer._bufs["slot"])
-        sl = slot.reshape(K, -1, LANES)
+        sl = arrays["slot"].reshape(K, -1, LANES)
         both = uni[None] & (sl == sl[:, :, :1]).all(axis=2)
         out["gathered_slot_fraction"] = float(1 - both.mean())
     else:
@@ -382,8 +345,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
             d = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
             for p in poses:
                 d.pose(p)
-            wall, kern, prep, soa = [], [], [], []
-            variant = roofs.store_variant(d)
+            wall, kern, prep = [], [], []
             for _ in range(max(repeat, 1)):
                 for p in poses:
                     t = time.perf_counter()
@@ -392,14 +354,12 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
                     ev = roofs.pose_kernel_once(d)
                     prep.append(ev[0])
                     kern.append(ev[1])
-                    soa.append(variant())
             work = pose_work(d)
             work["lanes"] = lane_divergence(d)
             rows.append({"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                          "source": src.get("kind"), "work": work,
                          "pose_ms": common.stats(wall), "kernel_ms": common.stats(kern),
-                         "prepare_ms": common.stats(prep),
-                         "kernel_contiguous_store_ms": common.stats(soa), "load": common.load()})
+                         "prepare_ms": common.stats(prep), "load": common.load()})
             if log:
                 log(f"roofline {model:9s} {kind:8s} pose {rows[-1]['pose_ms']['median']:.3f} ms, "
                     f"kernel {rows[-1]['kernel_ms']['median']:.3f} ms, prepare {rows[-1]['prepare_ms']['median']:.3f} ms")
@@ -409,10 +369,8 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
     for r in rows:
         r.update(assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"], ceilings,
                         ceilings["launch"], r["prepare_ms"]["median"]))
-        r["scattered_store_share"] = max(0.0, 1 - r["kernel_contiguous_store_ms"]["median"] / r["kernel_ms"]["median"])
-        r["bound_by"] += (f"; measured: scattered output stores {100 * r['scattered_store_share']:.0f} % of the kernel "
-                          f"time, {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) visits "
-                          f"on the gathered path")
+        r["bound_by"] += (f"; measured: {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) "
+                          f"visits on the gathered path")
     best = max(rows, key=lambda r: r["fraction_arithmetic"])
     return {"roofs": ceilings, "roofs_before": before, "roofs_after": after, "method": roofs.describe(),
             "flop_count": {"table": {k: list(v) for k, v in FLOP_COUNT.items()},

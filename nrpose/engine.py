@@ -142,6 +142,13 @@ class Deformer:
         out[...] = result
         return out
 
+    def launches(self) -> list[tuple]:
+        """The last posing's kernel launches, ``[(kernel, global_size, local_size), ...]``
+        (prepare, then pose), for profiling with OpenCL events: re-enqueueing them
+        repeats the last pose_frames call on the device."""
+        S = len(self.rest.segments)
+        return [(self._prepare, (self._npairs + S + 1, self._batch), None), (self._kernel, *self._launch)]
+
     def _run(self, poses: list) -> np.ndarray:
         """Launch the prepare and pose kernels for the poses; a view of the output array."""
         import pyopencl as cl
@@ -160,6 +167,7 @@ class Deformer:
         S = len(self.rest.segments)
         q = self._queue
         self._kernel.set_arg(16, np.int32(F))
+        self._batch = F
         cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
         self._out.download()
