@@ -142,20 +142,38 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "length
         raise InputError(f"lever must be one of {LEVERS}, got {lever!r}")
     if distances is not None and weights is not None:
         raise InputError("give either distances or weights, not both")
-    n, P, S = len(v), len(rest.points), len(rest.segments)
-    H = P + S
-    t = segment_parameters(v, rest.segments)
-    p = handle_points(rest, t)
+    n, H = len(v), rest.count
     if weights is not None:
-        w = _check_matrix(weights, (n, H), "weights")
-        sums = w.sum(axis=1, keepdims=True)
+        w_all = _check_matrix(weights, (n, H), "weights")
+        sums = w_all.sum(axis=1)
         if (sums <= 0).any():
             raise InputError(f"weights: {int((sums <= 0).sum())} point(s) have no positive weight; "
                              "every point needs at least one influencing handle")
-        w = w / sums
+    elif distances is not None:
+        d_all = _check_matrix(distances, (n, H), "distances")
+    blocks = []
+    for a in range(0, n, BLOCK):   # bounded memory: (block, H, 3) temporaries
+        b = slice(a, min(a + BLOCK, n))
+        given = w_all[b] if weights is not None else None
+        dist = d_all[b] if distances is not None else None
+        blocks.append(_rest_block(v[b], rest, alpha, lever, dist, given, k))
+    return RestTerms(*(np.concatenate([getattr(blk, f) for blk in blocks])
+                       for f in RestTerms.__dataclass_fields__))
+
+
+#: points per block of rest_terms' computation
+BLOCK = 16384
+
+
+def _rest_block(v, rest: HandleSet, alpha, lever, distances, weights, k) -> RestTerms:
+    """rest_terms for one block of points (inputs already validated)."""
+    P, S = len(rest.points), len(rest.segments)
+    t = segment_parameters(v, rest.segments)
+    p = handle_points(rest, t)
+    if weights is not None:
+        w = weights / weights.sum(axis=1, keepdims=True)
     else:
-        d = (np.linalg.norm(v[:, None, :] - p, axis=2) if distances is None
-             else _check_matrix(distances, (n, H), "distances"))
+        d = np.linalg.norm(v[:, None, :] - p, axis=2) if distances is None else distances
         w = dense_weights(d, alpha)
     w = keep_top_k(w, k)
     p_star = np.einsum("nh,nhk->nk", w, p)
