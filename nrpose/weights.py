@@ -20,6 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from .errors import InputError
+from .handles import check_alpha
 
 __all__ = ["relative_weights", "dense_weights", "sparse_weights", "densify", "deviation"]
 
@@ -35,21 +36,11 @@ def _check_D(D) -> np.ndarray:
     return D
 
 
-def _check_alpha(alpha) -> float:
-    try:
-        a = float(alpha)
-    except (TypeError, ValueError):
-        raise InputError(f"alpha must be a number, got {alpha!r}") from None
-    if not np.isfinite(a) or a <= 0:
-        raise InputError(f"alpha must be finite and > 0, got {alpha!r}")
-    return a
-
-
 def relative_weights(D, alpha: float = 1.0) -> np.ndarray:
     """Un-normalised weights (N, H) ``(d_min / d)^(2α)`` in [0, 1]; rows whose
     minimum is 0 get 1 at the zero entries and 0 elsewhere."""
     D = _check_D(D)
-    a2 = 2.0 * _check_alpha(alpha)
+    a2 = 2.0 * check_alpha(alpha)
     dmin = D.min(axis=1, keepdims=True)
     with np.errstate(divide="ignore", invalid="ignore", under="ignore"):
         W = np.where(D > 0, dmin / np.where(D > 0, D, 1.0), 1.0) ** a2

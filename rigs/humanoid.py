@@ -44,6 +44,7 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from nrpose.character import Character, Clip, Mesh, Track
+from nrpose.distances import point_segment_distances
 from nrpose.rotation import Rotation
 from nrpose.skeleton import LocalPose, Skeleton
 
@@ -251,14 +252,6 @@ def _influence_segments():
     return seg
 
 
-def _point_segment_distance(V, seg):
-    """(N, S) distances from points V (N, 3) to segments seg (S, 2, 3)."""
-    a, ab = seg[:, 0], seg[:, 1] - seg[:, 0]
-    rel = V[:, None, :] - a[None]
-    t = np.clip(np.einsum("nsk,sk->ns", rel, ab) / np.einsum("sk,sk->s", ab, ab), 0.0, 1.0)
-    return np.linalg.norm(rel - t[..., None] * ab[None], axis=2)
-
-
 def _skin_weights(V, label, power: float = 4.0, influences: int = 4):
     """Joint indices (N, 4) int64 and weights (N, 4) float64 (see the module docstring)."""
     J = len(JOINT_NAMES)
@@ -266,7 +259,7 @@ def _skin_weights(V, label, power: float = 4.0, influences: int = 4):
     for j in range(J):
         if PARENTS[j] >= 0:
             allowed[j, PARENTS[j]] = allowed[PARENTS[j], j] = True
-    D = _point_segment_distance(V, _influence_segments())
+    D = point_segment_distances(V, _influence_segments())[0]
     D = np.where(allowed[label], np.maximum(D, 1e-4), np.inf)
     idx = np.argsort(D, axis=1, kind="stable")[:, :influences]
     d = np.take_along_axis(D, idx, axis=1)
