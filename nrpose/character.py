@@ -21,7 +21,6 @@ A ``.dmat`` pose file is libigl's per-bone quaternions for a TGF skeleton.
 """
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -243,10 +242,5 @@ def load_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
         from .formats.tgf import read_dmat_pose
 
         return read_dmat_pose(path, skeleton)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read pose file ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: not valid JSON ({exc})") from None
-    return parse_pose(doc, skeleton, str(path))
+    from .jsonfile import read_json
+    return parse_pose(read_json(path, "pose file"), skeleton, str(path))

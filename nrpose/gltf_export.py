@@ -98,24 +98,39 @@ def _check(positions, times, total_needed: int) -> tuple[np.ndarray, np.ndarray]
     return P, T
 
 
-class _Blob:
-    """Binary buffer with 4-byte aligned buffer views and accessors."""
+class Blob:
+    """The binary chunk of a GLB being written: 4-byte aligned buffer views and accessors.
+
+    Appends to ``gltf.bufferViews`` / ``gltf.accessors`` (all views in buffer 0);
+    :meth:`bytes` is the chunk's content.
+    """
 
     def __init__(self, gltf: pygltflib.GLTF2):
         self.gltf, self.parts, self.size = gltf, [], 0
 
-    def add(self, array: np.ndarray, kind: str, component: int, target=None, minmax: bool = False) -> int:
-        data = np.ascontiguousarray(array).tobytes()
-        self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=self.size,
-                                                          byteLength=len(data), target=target))
+    def append(self, data: bytes) -> int:
+        """Append raw bytes (then pad to 4); their byte offset."""
+        start = self.size
         self.parts.append(data)
         self.size += len(data)
         pad = (-self.size) % 4
         if pad:
             self.parts.append(b"\0" * pad)
             self.size += pad
+        return start
+
+    def raw(self, data: bytes, target=None) -> int:
+        """A buffer view of raw bytes; its index."""
+        self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=self.append(data),
+                                                          byteLength=len(data), target=target))
+        return len(self.gltf.bufferViews) - 1
+
+    def add(self, array: np.ndarray, kind: str, component: int = pygltflib.FLOAT, target=None,
+            minmax: bool = False) -> int:
+        """A buffer view and an accessor for ``array`` (already of the component's dtype); its index."""
+        view = self.raw(np.ascontiguousarray(array).tobytes(), target)
         count = len(array)
-        acc = pygltflib.Accessor(bufferView=len(self.gltf.bufferViews) - 1, componentType=component,
+        acc = pygltflib.Accessor(bufferView=view, componentType=component,
                                  count=count, type=kind)
         if minmax:
             flat = np.asarray(array).reshape(count, -1)
@@ -153,7 +168,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         name="nrpose", doubleSided=True,
         pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(baseColorFactor=[0.62, 0.70, 0.86, 1.0],
                                                             metallicFactor=0.0, roughnessFactor=0.8))]
-    blob = _Blob(gltf)
+    blob = Blob(gltf)
     onehot = np.eye(n_frames, dtype=np.float32)
     input_acc = blob.add(T.astype(np.float32), "SCALAR", _FLOAT, minmax=True)
     output_acc = blob.add(onehot.reshape(-1), "SCALAR", _FLOAT)

@@ -20,7 +20,6 @@ and posed directions, followed by ``twist`` radians about its posed direction.
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -163,14 +162,8 @@ def _rotation_matrices(values, idx: np.ndarray) -> np.ndarray:
 
 def load_handles(path: str | Path) -> tuple[HandleSet, Pose, float | None]:
     """Read a handle file; return (rest, pose, alpha or None if the file has none)."""
-    path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise HandleError(f"{path}: handle file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise HandleError(f"{path}: malformed JSON ({exc})") from None
-    return parse_handles(doc, str(path))
+    from .jsonfile import read_json
+    return parse_handles(read_json(path, "handle file", HandleError), str(path))
 
 
 def parse_handles(doc, where: str = "handles") -> tuple[HandleSet, Pose, float | None]:

@@ -105,6 +105,19 @@ def _umask() -> int:
 _UMASK = _umask()
 
 
+def check_writable(path) -> Path:
+    """The directory of output ``path``; InputError if path is a directory or its directory is missing.
+
+    Lets a command refuse a bad output name before doing any work."""
+    path = Path(path)
+    directory = path.parent if str(path.parent) else Path(".")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory; give a file name to write")
+    if not directory.is_dir():
+        raise InputError(f"{path}: directory {directory} does not exist; create it first")
+    return directory
+
+
 @contextlib.contextmanager
 def atomic_path(path) -> Iterator[Path]:
     """Yield a temporary path next to ``path`` (same directory, same extension).
@@ -122,11 +135,7 @@ def atomic_path(path) -> Iterator[Path]:
     Raises InputError when the directory does not exist or is not writable.
     """
     path = Path(path)
-    directory = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory; give a file name to write")
-    if not directory.is_dir():
-        raise InputError(f"{path}: directory {directory} does not exist; create it first")
+    directory = check_writable(path)
     # suffix: the full extension, so writers that infer the format from it work
     suffix = "".join(path.suffixes[-2:]) if path.name.endswith(".tar.gz") else path.suffix
     try:

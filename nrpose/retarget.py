@@ -105,7 +105,6 @@ Frames are sampled from the source clip at ``k / fps`` seconds,
 from __future__ import annotations
 
 import itertools
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -330,13 +329,9 @@ def joint_map(source_skel: Skeleton, target_skel: Skeleton, user_map: dict | Non
 
 def load_map(path: str | Path) -> dict:
     """A joint map file: JSON object {"TargetJoint": "SourceJoint" or null}."""
+    from .jsonfile import read_json
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text())
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read joint map ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: not valid JSON ({exc})") from None
+    doc = read_json(path, "joint map")
     if not isinstance(doc, dict) or not all(isinstance(v, str) or v is None for v in doc.values()):
         raise FileFormatError(f"{path}: a joint map is a JSON object {{\"TargetJoint\": \"SourceJoint\"}} "
                               "(null unmaps a target joint)")

@@ -38,6 +38,7 @@ import numpy as np
 import pygltflib
 
 from .errors import InputError, NrposeError
+from .meshio import check_writable
 
 __all__ = ["add_retarget_parser", "cmd_retarget", "write_glb_with_clip", "save_retarget_sheet"]
 
@@ -69,15 +70,6 @@ def _suffix(path: str, allowed: tuple[str, ...], what: str) -> str:
     return suffix
 
 
-def _writable(path: str) -> None:
-    p = Path(path)
-    directory = p.parent if str(p.parent) else Path(".")
-    if p.is_dir():
-        raise InputError(f"{p}: is a directory; give a file name to write")
-    if not directory.is_dir():
-        raise InputError(f"{p}: directory {directory} does not exist; create it first")
-
-
 def cmd_retarget(args) -> None:
     from .character import load_character
     from .retarget import format_map, joint_map, load_map, make_clip, retarget_pose
@@ -88,10 +80,10 @@ def cmd_retarget(args) -> None:
         raise InputError("give -o OUT.glb or OUT.bvh (or --show-map to print the joint mapping only)")
     if args.output is not None:
         _suffix(args.output, OUTPUT_SUFFIXES, "the output")
-        _writable(args.output)
+        check_writable(args.output)
     if args.png is not None:
         _suffix(args.png, (".png",), "--png")
-        _writable(args.png)
+        check_writable(args.png)
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise InputError(f"--fps {args.fps}: expected a positive number")
     for p in (args.source, args.target) + ((args.map,) if args.map else ()):
@@ -147,38 +139,6 @@ def _joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes], names)
     return joint_nodes
 
 
-class _Blob:
-    def __init__(self, gltf: pygltflib.GLTF2):
-        self.gltf, self.parts, self.size = gltf, [], 0
-
-    def raw(self, data: bytes) -> int:
-        """Append bytes as a new buffer view (4-byte aligned); its index."""
-        self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=self.size, byteLength=len(data)))
-        self.append(data)
-        return len(self.gltf.bufferViews) - 1
-
-    def append(self, data: bytes) -> int:
-        start = self.size
-        self.parts.append(data)
-        self.size += len(data)
-        pad = (-self.size) % 4
-        if pad:
-            self.parts.append(b"\0" * pad)
-            self.size += pad
-        return start
-
-    def accessor(self, array: np.ndarray, kind: str, minmax: bool = False) -> int:
-        array = np.ascontiguousarray(array, dtype=np.float32)
-        view = self.raw(array.tobytes())
-        acc = pygltflib.Accessor(bufferView=view, componentType=pygltflib.FLOAT, count=len(array), type=kind)
-        if minmax:
-            flat = array.reshape(len(array), -1)
-            acc.min = [float(x) for x in flat.min(axis=0)]
-            acc.max = [float(x) for x in flat.max(axis=0)]
-        self.gltf.accessors.append(acc)
-        return len(self.gltf.accessors) - 1
-
-
 def write_glb_with_clip(target_path, out_path, target, clip) -> str:
     """Write the target glTF plus ``clip`` (a Clip of its skeleton) as a new animation, as a GLB.
 
@@ -187,12 +147,13 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
     is not written).
     """
     from .formats import gltf as gltf_format
+    from .gltf_export import Blob
     from .meshio import atomic_path
 
     path = Path(target_path)
     gltf, buffers = gltf_format._read_document(path)
     joint_nodes = _joint_nodes(path, gltf, buffers, target.skeleton.names)
-    blob = _Blob(gltf)
+    blob = Blob(gltf)
     starts = [blob.append(bytes(b)) for b in buffers]
     for view in gltf.bufferViews:
         view.byteOffset = (view.byteOffset or 0) + starts[view.buffer]
@@ -217,15 +178,16 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
         key = track.times.tobytes()
         if key not in inputs:
-            inputs[key] = blob.accessor(track.times, "SCALAR", minmax=True)
-        output = blob.accessor(track.values, {"rotation": "VEC4", "translation": "VEC3", "scale": "VEC3"}[track.path])
+            inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)
+        output = blob.add(track.values.astype(np.float32),
+                          {"rotation": "VEC4", "translation": "VEC3", "scale": "VEC3"}[track.path])
         animation.samplers.append(pygltflib.AnimationSampler(input=inputs[key], output=output,
                                                              interpolation=track.interpolation))
         animation.channels.append(pygltflib.AnimationChannel(
             sampler=len(animation.samplers) - 1,
             target=pygltflib.AnimationChannelTarget(node=int(joint_nodes[track.joint]), path=track.path)))
     gltf.animations = list(gltf.animations or []) + [animation]
-    data = b"".join(blob.parts)
+    data = blob.bytes()
     gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
     gltf.set_binary_blob(data)
     with atomic_path(Path(out_path)) as tmp:
