@@ -76,11 +76,14 @@ def kernel_source(name: str) -> str:
     return resources.files("nrpose.kernels").joinpath(name).read_text()
 
 
-@functools.lru_cache(maxsize=None)
 def program(name: str, options: tuple[str, ...] = ()):
-    """Build (once) and return the program for kernel file ``name``."""
+    """Build (once per context) and return the program for kernel file ``name``."""
+    return _program(context()[0], name, tuple(options))
+
+
+@functools.lru_cache(maxsize=None)
+def _program(ctx, name: str, options: tuple[str, ...]):
     cl = _cl()
-    ctx, _ = context()
     try:
         return cl.Program(ctx, kernel_source(name)).build(options=list(options))
     except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where

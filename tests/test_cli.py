@@ -160,3 +160,40 @@ def test_demo_writes_pngs_and_prints_timing(tmp_path, capsys):
     assert z["positions"].shape[0] == 4 and np.isfinite(z["positions"]).all()
     for name in ("box_before.png", "box_after.png", "box_twist.ply", "walk.png", "walk.glb"):
         assert (tmp_path / name).stat().st_size > 0
+
+
+def test_no_opencl_platform_is_one_line_with_install_hint(cylinder_case, tmp_path, capsys, monkeypatch):
+    import pyopencl
+
+    from nrpose import device
+
+    mesh, handles = cylinder_case[:2]
+    monkeypatch.setattr(pyopencl, "get_platforms", lambda: [])
+    device.context.cache_clear()
+    try:
+        code, _, err = run(["deform", mesh, "-H", handles, "-o", tmp_path / "o.obj"], capsys)
+    finally:
+        device.context.cache_clear()
+    assert code == 2 and err.count("\n") == 1
+    assert "no OpenCL platform" in err and "pip install" in err
+    assert not (tmp_path / "o.obj").exists()
+    # the numpy reference needs no device
+    code, _, _ = run(["deform", mesh, "-H", handles, "-o", tmp_path / "o.obj", "--backend", "numpy"], capsys)
+    assert code == 0
+
+
+def test_pyopencl_ctx_is_honoured(monkeypatch):
+    from nrpose import device
+
+    monkeypatch.setenv("PYOPENCL_CTX", "0")
+    device.context.cache_clear()
+    try:
+        ctx, _ = device.context()
+        assert ctx.devices
+        monkeypatch.setenv("PYOPENCL_CTX", "99")
+        device.context.cache_clear()
+        with pytest.raises(Exception, match="PYOPENCL_CTX"):
+            device.context()
+    finally:
+        monkeypatch.delenv("PYOPENCL_CTX")
+        device.context.cache_clear()
