@@ -58,7 +58,7 @@ __kernel void empty(__global float *out)
 
 # --------------------------------------------------------------------------- counting
 
-#: flops per point of ``nrmls_pose`` (LENGTH_LEVER build, the default lever rule), by
+#: flops per point of ``nrmls_pose`` (DERIVED_LEVER build, the default lever rule), by
 #: section, as (per point handle, per segment slot, fixed). Multiplies, adds and
 #: subtractions are 1 each; constants folded by the compiler (-1.0f/6 ...) are not
 #: counted; integer index arithmetic, comparisons and select() are not counted.
@@ -105,7 +105,7 @@ def pose_flops(P: int, K: int) -> dict:
             "rule": "mul/add/sub = 1 flop; sqrt, atan2 calls and divisions counted as 1 each "
                     "(listed under calls_per_point / divisions_per_point); folded constants, "
                     "integer index work, comparisons and select() not counted; counted per real "
-                    "point (padding to a multiple of 8 not counted); LENGTH_LEVER build (default "
+                    "point (padding to a multiple of 8 not counted); DERIVED_LEVER build (default "
                     "lever rule)"}
 
 
@@ -131,7 +131,7 @@ def pose_work(deformer) -> dict:
     sparse = K < S
     n = deformer.n
     fl = pose_flops(P, K)
-    by = pose_bytes(P, K, sparse, deformer.lever == "length")
+    by = pose_bytes(P, K, sparse, deformer.lever != "paper")
     per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 9 * (S + 1) + 3 * (S + 1) * S)
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],

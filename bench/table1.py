@@ -68,7 +68,7 @@ KINDS = ("segments", "points")
 BOX_GRID = (11, 13, 42)            # 11 * 13 * 42 = 6,006
 BOX_SIZE = (1.0, 1.2, 4.0)
 MAX_BEND = np.radians(60.0)        # per-segment rotation of the chain poses
-ALPHA, BLEND, LEVER = 1.0, "relative", "length"
+ALPHA, BLEND, LEVER = 1.0, "relative", "weight"
 QUICK_POINTS = 500
 WARMUP = 10                        # untimed PoCL poses before timing a cell
 

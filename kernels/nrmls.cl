@@ -21,11 +21,12 @@
  *   coef   [P+2K][Np]     q* coefficients: point handles (w), then per segment slot
  *                         (w(1-t), w t) on the segment's posed ends
  *   lever  [P+K][Np]      normalised levers (points, then segment slots); built with
- *                         -DLENGTH_LEVER (the default lever rule) they are not
- *                         stored but derived: w_p |phat_p|^2 for a point handle,
- *                         w_s len2[s] for a segment (w_s = w(1-t) + w t), then
- *                         normalised per point: 1/(P+K) fewer loads per point
- *   len2   [S]            squared rest lengths of the segments (LENGTH_LEVER)
+ *                         -DDERIVED_LEVER (lever rules "weight" and "length") they
+ *                         are not stored but derived: w_p |phat_p|^2 for a point
+ *                         handle, w_s len2[s] for a segment (w_s = w(1-t) + w t),
+ *                         then normalised per point: 1/(P+K) fewer loads per point
+ *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
+ *                         rest length ("length"), see nrpose/blend.py
  *   phat   [P][3][Np]     p_i - p* of the point handles
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
  *          rotations of the segments and the global rotation R_g, row-major
@@ -144,7 +145,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     /* q* (weighted posed centroid, linear in the posed handle positions) and the
      * blended rotation vector relative to the reference */
     float8 qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
-#ifdef LENGTH_LEVER
+#ifdef DERIVED_LEVER
     float8 lsum = 0.0f;                  /* normaliser of the derived levers */
 #endif
     for (int p = 0; p < P; ++p) {
@@ -163,7 +164,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         const float8 ca = vload8(g, coef + (P + 2 * k) * np);
         const float8 cb = vload8(g, coef + (P + 2 * k + 1) * np);
         if (uniform && all(h == (int8)h.s0)) {
-#ifdef LENGTH_LEVER
+#ifdef DERIVED_LEVER
             const float8 l = (ca + cb) * len2[h.s0];
             lsum += l;
 #else
@@ -178,7 +179,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
             ry += l * t[1];
             rz += l * t[2];
         } else {
-#ifdef LENGTH_LEVER
+#ifdef DERIVED_LEVER
             const float8 l = (ca + cb) * GATHER8(len2, h);
             lsum += l;
 #else
@@ -206,7 +207,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         const float8 sn = sqrt(cx * cx + cy * cy + cz * cz);
         const float8 cs = px * yx + py * yy + pz * yz;
         const float8 k = select(0.0f, atan2(sn, cs) / sn, sn > 0.0f);
-#ifdef LENGTH_LEVER
+#ifdef DERIVED_LEVER
         const float8 lp = vload8(g, coef + p * np) * (px * px + py * py + pz * pz);
         lsum += lp;
         const float8 l = lp * k;
@@ -217,7 +218,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         ry += l * cy;
         rz += l * cz;
     }
-#ifdef LENGTH_LEVER
+#ifdef DERIVED_LEVER
     const float8 inv = select((float8)0.0f, 1.0f / lsum, lsum > 0.0f);
     rx *= inv;
     ry *= inv;

@@ -261,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="output mesh or point cloud")
     p.add_argument("--alpha", type=float, help="weight exponent: w = 1/d^(2 alpha) (overrides the file; default 1)")
     p.add_argument("--blend", choices=BLENDS, default="relative", help="rotation blend (default: relative)")
-    p.add_argument("--lever", choices=LEVERS, default="length", help="segment lever rule (default: length)")
+    p.add_argument("--lever", choices=LEVERS, default="weight", help="segment lever rule (default: weight)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--weights", choices=("euclidean", "heat", "exact", "graph", "knn"), default="euclidean",
                    help="distances for the weights: euclidean (default) or over the surface (heat, exact, graph; "

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import device
-from .blend import BLENDS, RestTerms, global_rotation, pose_reference, rest_terms
+from .blend import BLENDS, RestTerms, global_rotation, pose_reference, rest_terms, segment_levers
 from .errors import InputError
 from .handles import HandleSet, Pose
 
@@ -32,8 +32,8 @@ class Deformer:
     """A point set bound to rest handles.
 
     points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
-    blend: "relative" (default, equivariant) or "paper"; lever: "length"
-    (default) or "paper" (see :mod:`nrpose.blend`); distances / weights:
+    blend: "relative" (default, equivariant) or "paper"; lever: "weight"
+    (default), "length" or "paper" (see :mod:`nrpose.blend`); distances / weights:
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
     k: keep the k most influential handles of each point (None: all, dense).
     With k < S the kernel stores, per point, k segment slots (which segment,
@@ -41,7 +41,7 @@ class Deformer:
     """
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
-                 lever: str = "length", distances=None, weights=None, k: int | None = None,
+                 lever: str = "weight", distances=None, weights=None, k: int | None = None,
                  backend: str = "opencl"):
         self.lever = lever
         if backend not in BACKENDS:
@@ -78,7 +78,7 @@ class Deformer:
         self._pose_stride = self._npos + 9 * (S + 1)       # floats per frame: positions, rotations
         self._derived_stride = 9 * (S + 1) + 3 * (S + 1) * S
         self._needs_global = blend == "relative" and bool((T.ref == S).any())
-        options = (("-DSPARSE",) if K < S else ()) + (("-DLENGTH_LEVER",) if self.lever == "length" else ())
+        options = (("-DSPARSE",) if K < S else ()) + (("-DDERIVED_LEVER",) if self.lever != "paper" else ())
         prg = device.program("nrmls.cl", options)
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
         self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),
@@ -213,10 +213,10 @@ def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> t
     arrays = {
         "u": soa(T.u[order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
         "coef": soa(coef),
-        # the default lever rule is derived in the kernel from coef and len2
-        "lever": none if lever == "length" else soa(np.concatenate([T.lever[order, :P].T,
+        # levers other than "paper" are derived in the kernel from coef and len2
+        "lever": none if lever != "paper" else soa(np.concatenate([T.lever[order, :P].T,
                                                                      take(T.lever[:, P:]).T])),
-        "len2": np.sum((rest.segments[:, 1] - rest.segments[:, 0]) ** 2, axis=1).astype(np.float32) if S else none,
+        "len2": segment_levers(rest, lever).astype(np.float32) if S else none,
         "phat": soa(T.phat[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
                   else np.zeros(2, np.int32)),

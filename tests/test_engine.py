@@ -75,7 +75,7 @@ def test_kernel_matches_reference_random(n_pts, n_segs, alpha, blend):
         assert np.abs(out - expect).max() <= TOL * diag(points)
 
 
-@pytest.mark.parametrize("lever", ["length", "paper"])
+@pytest.mark.parametrize("lever", ["weight", "length", "paper"])
 def test_kernel_matches_reference_levers(lever):
     rng = np.random.default_rng(7)
     rest = random_rest(rng, 2, 5)
@@ -199,7 +199,7 @@ def test_supplied_distances_and_weights():
 
 
 # --------------------------------------------------------------------------- quality
-def _cylinder(pose, alpha, lever="length"):
+def _cylinder(pose, alpha, lever="weight"):
     V, F = cylinder.cylinder_mesh()
     out = Deformer(V, cylinder.rest_handles(), alpha=alpha, lever=lever).pose(pose)
     return V, F, out.astype(np.float64)
