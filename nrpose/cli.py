@@ -38,8 +38,9 @@ def _median_ms(fn, repeat: int) -> tuple[float, object]:
 
 def cmd_deform(args) -> None:
     from .handles import check_alpha, load_handles
-    from .meshio import read_geometry, write_geometry
+    from .meshio import SUFFIXES, check_writable, read_geometry, write_geometry
 
+    _check_outputs(args.output, SUFFIXES, args.png)
     geometry = read_geometry(args.input)
     rest, pose, file_alpha = load_handles(args.handles)
     alpha = check_alpha(args.alpha) if args.alpha is not None else (file_alpha or 1.0)
@@ -68,6 +69,8 @@ def cmd_deform(args) -> None:
 def cmd_demo(args) -> None:
     """Embedded default: the project's capsule humanoid walking (NR-MLS on PoCL: frames,
     animated .glb, contact sheet) and the paper's Figure 3 box (before/after PNGs)."""
+    if args.frames < 1 or args.repeat < 1:
+        raise NrposeError("--frames and --repeat must be at least 1")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print(f"device: {deformer_device()}")
@@ -155,6 +158,14 @@ def cmd_pose(args) -> None:
     from .character import load_character, load_pose
     from .posing import CharacterPoser
 
+    kind = _frames_output_kind(args.output)
+    if kind == "dir":   # created if needed: its parent must exist
+        parent = Path(args.output).resolve().parent
+        if not parent.is_dir() or Path(args.output).is_file():
+            raise NrposeError(f"{args.output}: cannot make a frame directory there (is {parent} a directory?)")
+    _check_outputs(args.output if kind != "dir" else None, None, args.png)
+    if not (np.isfinite(args.fps) and args.fps > 0):
+        raise NrposeError(f"--fps {args.fps}: expected a positive number of frames per second")
     character = load_character(args.character, args.skeleton)
     skel = character.skeleton
     if args.rest:
@@ -172,6 +183,9 @@ def cmd_pose(args) -> None:
         times = (np.asarray(args.time, dtype=np.float64) if args.time
                  else parse_frames(args.frames, args.fps) if args.frames
                  else np.arange(0.0, clip.duration + 1e-9, 1.0 / args.fps))
+        if kind == "glb" and (np.diff(times) <= 0).any():
+            raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
+                              "write .npz or a directory")
         local = clip.sample(times)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend)
@@ -204,24 +218,60 @@ def _motion_clip(motion, skel, path):
     return Clip(clip.name, clip.duration, skel.rest_pose, tracks)
 
 
+def _frames_output_kind(out: str) -> str:
+    """"npz", "glb" or "dir" for ``nrpose pose -o OUT``; NrposeError for other extensions."""
+    suffix = Path(out).suffix.lower()
+    if suffix in (".npz", ".glb"):
+        return suffix[1:]
+    if suffix == "":
+        return "dir"
+    raise NrposeError(f"{out}: output must end in .npz or .glb, or be a directory")
+
+
+def _check_outputs(out: str, suffixes, png: str | None) -> None:
+    """Refuse unusable output names before any work (nothing is written on failure)."""
+    from .meshio import check_writable
+
+    if out is not None:
+        if suffixes is not None and Path(out).suffix.lower() not in suffixes:
+            raise NrposeError(f"{out}: unknown output extension; use one of {', '.join(suffixes)}")
+        check_writable(out)
+    if png:
+        if Path(png).suffix.lower() != ".png":
+            raise NrposeError(f"--png {png}: the preview must end in .png")
+        check_writable(png)
+
+
 def _write_frames(out: str, frames, times: np.ndarray, fmt: str, character) -> None:
     from .meshio import atomic_path, write_geometry
 
     path = Path(out)
-    if path.suffix.lower() == ".npz":
+    kind = _frames_output_kind(out)
+    if kind == "npz":
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:
                 np.savez(fh, positions=frames.positions, faces=frames.faces, times=times,
                          mesh_names=np.array(frames.mesh_names), mesh_offsets=frames.mesh_offsets)
-    elif path.suffix.lower() == ".glb":
+    elif kind == "glb":
         from .gltf_export import write_animated_glb
         write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets)
-    elif path.suffix == "":
-        path.mkdir(parents=True, exist_ok=True)
-        for f, pos in enumerate(frames.positions):
-            write_geometry(path / f"frame_{f:04d}.{fmt}", pos, frames.faces)
     else:
-        raise NrposeError(f"{out}: output must end in .npz or .glb, or be a directory")
+        # all frames go to a temporary sibling directory first; only then are the
+        # previous run's frame files removed and the new ones moved in
+        import shutil
+        import tempfile
+
+        path.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        try:
+            for f, pos in enumerate(frames.positions):
+                write_geometry(tmp / f"frame_{f:04d}.{fmt}", pos, frames.faces)
+            for old in path.glob("frame_*"):
+                old.unlink()
+            for new in sorted(tmp.iterdir()):
+                new.replace(path / new.name)
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
 
 
 def cmd_info(args) -> None:

@@ -69,7 +69,6 @@ class Deformer:
         self._npad, self.slots = npad, K
         items = -(-npad // (LANES * PER_ITEM))
         local = -(-items // GROUPS)
-        self._launch = ((local * GROUPS,), (local,))
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         mf = cl.mem_flags
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
@@ -85,6 +84,9 @@ class Deformer:
                                self._bufs["pairs"], None, None, np.int32(self._pose_stride),
                                np.int32(self._derived_stride))
         self._kernel = cl.Kernel(prg, "nrmls_pose")
+        limit = self._kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, ctx.devices[0])
+        local = max(1, min(local, limit))          # beyond ~2M points: more groups, not bigger ones
+        self._launch = ((-(-items // local) * local,), (local,))
         b = self._bufs
         self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
                               b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], None, None, None,

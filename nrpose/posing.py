@@ -95,7 +95,7 @@ class CharacterPoser:
         self._rest_inv = np.linalg.inv(skel.rest_globals())
         self.bones = skel.bones()
         deform_meshes = [m for m in meshes if m.rigid_joint is None]
-        self._deformer = None
+        self._deformer, self._bind_space = None, False
         if deform_meshes:
             V = self._rest_world[self._deform_idx]
             faces = _submesh_faces(self.faces, self._deform_idx, self.n)
@@ -135,6 +135,8 @@ class CharacterPoser:
         progress: optional callable(done, total) called after each frame.
         """
         skel, ch = self.character.skeleton, self.character
+        if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
+            raise InputError("no frames to pose: give at least one time")
         G = skel.forward_kinematics(local)
         if G.ndim == 3:
             G = G[None]

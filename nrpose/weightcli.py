@@ -182,7 +182,7 @@ def character_weights(character, method: str, k=None, alpha: float = 1.0) -> dic
 # ---------------------------------------------------------------------------- command
 def cmd_weights(args) -> None:
     from .character import load_character
-    from .meshio import atomic_path
+    from .meshio import atomic_path, check_writable
 
     out = Path(args.output)
     if out.suffix.lower() != ".npz":
@@ -191,6 +191,9 @@ def cmd_weights(args) -> None:
         raise InputError("--png and --bone go together: --png MAP.png --bone NAME")
     if args.png and Path(args.png).suffix.lower() != ".png":
         raise InputError(f"{args.png}: the weight map must end in .png")
+    check_writable(out)
+    if args.png:
+        check_writable(args.png)
     character = load_character(args.character, args.skeleton)
     bones = character.skeleton.bones()
     b = resolve_bone(args.bone, bones, character.skeleton) if args.bone else None  # fail before the work

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nrpose import Deformer
+from nrpose import Deformer, DeviceError
 from nrpose.cli import main
 from nrpose.handles import handles_document
 from nrpose.meshio import read_geometry, write_geometry
@@ -84,8 +84,7 @@ def test_deform_bad_handles_exit_2_one_line_no_output(cylinder_case, tmp_path, c
     code, _, err = run(["deform", mesh, "-H", handles, "-o", out], capsys)
     assert code == 2
     assert err.count("\n") == 1 and err.startswith("nrpose")
-    assert not out.exists() and list(tmp_path.iterdir()) == sorted(tmp_path.iterdir()) and \
-        {p.name for p in tmp_path.iterdir()} == {"cyl.obj", "handles.json", "bad.json"}
+    assert {p.name for p in tmp_path.iterdir()} == {"cyl.obj", "handles.json", "bad.json"}
 
 
 def test_deform_bad_inputs_exit_2(cylinder_case, tmp_path, capsys):
@@ -192,8 +191,44 @@ def test_pyopencl_ctx_is_honoured(monkeypatch):
         assert ctx.devices
         monkeypatch.setenv("PYOPENCL_CTX", "99")
         device.context.cache_clear()
-        with pytest.raises(Exception, match="PYOPENCL_CTX"):
+        with pytest.raises(DeviceError, match="PYOPENCL_CTX"):
             device.context()
     finally:
         monkeypatch.delenv("PYOPENCL_CTX")
         device.context.cache_clear()
+
+
+def test_unwritable_png_or_output_fails_before_any_work(cylinder_case, tmp_path, capsys):
+    mesh, handles = cylinder_case[:2]
+    out = tmp_path / "out.ply"
+    for args in (["deform", mesh, "-H", handles, "-o", out, "--png", tmp_path / "missing" / "p.png"],
+                 ["deform", mesh, "-H", handles, "-o", tmp_path / "missing" / "o.ply"],
+                 ["deform", mesh, "-H", handles, "-o", tmp_path / "out.abc"],
+                 ["deform", mesh, "-H", handles, "-o", out, "--png", tmp_path / "p.jpg"]):
+        code, _, err = run(args, capsys)
+        assert code == 2 and err.count("\n") == 1, (args, err)
+        assert not out.exists()
+
+
+@needs_data
+def test_pose_bad_fps_and_png_leave_nothing(tmp_path, capsys):
+    fox = DATA / "gltf" / "Fox.glb"
+    out = tmp_path / "o.npz"
+    for args in (["pose", fox, "--clip", "Run", "--fps", "0", "-o", out],
+                 ["pose", fox, "--clip", "Run", "--fps", "nan", "-o", out],
+                 ["pose", fox, "--clip", "Run", "--fps", "-30", "-o", out],
+                 ["pose", fox, "--clip", "Run", "-o", out, "--png", tmp_path / "no" / "s.png"],
+                 ["pose", fox, "--clip", "Run", "--time", "0.5", "0.2", "-o", tmp_path / "o.glb"]):
+        code, _, err = run(args, capsys)
+        assert code == 2 and err.count("\n") == 1, (args, err)
+        assert list(tmp_path.iterdir()) == []
+
+
+@needs_data
+def test_pose_directory_output_replaces_previous_frames(tmp_path, capsys):
+    fox = DATA / "gltf" / "Fox.glb"
+    frames = tmp_path / "frames"
+    assert run(["pose", fox, "--clip", "Run", "--frames", "0:3", "-o", frames], capsys)[0] == 0
+    assert run(["pose", fox, "--clip", "Run", "--frames", "0:1", "-o", frames], capsys)[0] == 0
+    assert sorted(p.name for p in frames.iterdir()) == ["frame_0000.ply", "frame_0001.ply"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]      # no temporary left

@@ -303,3 +303,18 @@ def test_pose_frames_batch_matches_single_poses(mixed):
     assert np.array_equal(batch, single)
     assert np.abs(batch - ref.pose_frames(poses)).max() <= TOL * diag(points)
     assert np.array_equal(dev.pose_frames(poses[:2]), single[:2])   # smaller batch after a larger one
+
+
+def test_more_work_items_than_one_group_allows(monkeypatch):
+    """Large inputs launch more work-groups instead of groups above the device limit."""
+    import nrpose.engine as engine
+
+    monkeypatch.setattr(engine, "GROUPS", 1)        # one group would need > the device limit
+    rng = np.random.default_rng(3)
+    rest = random_rest(rng, 0, 2)
+    points = rng.uniform(-1, 1, (200_003, 3))
+    dev, ref = both(points[:1000], rest)
+    big = Deformer(points, rest)
+    assert big._launch[1][0] <= 4096
+    pose = random_pose(rng, rest)
+    assert np.abs(big.pose(pose)[:1000] - ref.pose(pose)).max() <= TOL * diag(points)

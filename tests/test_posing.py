@@ -117,6 +117,14 @@ def test_mesh_parented_to_a_joint_moves_rigidly(method):
     assert list(frames.mesh_names) == ["bar", "box"] and list(frames.mesh_offsets) == [0, 80]
 
 
+@pytest.mark.parametrize("method", ["nrmls", "lbs", "dqs"])
+def test_character_of_rigid_meshes_only(method):
+    ch = two_bone_character()
+    rigid_only = Character(ch.skeleton, (ch.meshes[1],))
+    frames = CharacterPoser(rigid_only, method=method).pose(ch.skeleton.rest_pose)
+    assert np.abs(frames.positions[0] - ch.meshes[1].vertices).max() <= 1e-6
+
+
 def test_skeleton_only_character_is_an_error():
     from nrpose.errors import InputError
 
