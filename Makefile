@@ -6,8 +6,7 @@ PY := $(VENV)/bin/python
 
 .PHONY: venv demo test bench
 venv:
-	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	@$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip
+	@test -x $(PY) || { $(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip; }
 	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test]'
 
 demo: venv

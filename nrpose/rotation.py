@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["Rotation", "minimal_rotvec", "apply", "kabsch", "relative_rotvec_table"]
+__all__ = ["Rotation", "minimal_rotvec", "kabsch", "relative_rotvec_table"]
 
 
 def minimal_rotvec(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -40,14 +40,6 @@ def minimal_rotvec(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return cross * scale[..., None]
 
 
-def apply(R: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Rotate rows: R (3,3) or (N,3,3) applied to X (N,3) as column vectors."""
-    R = np.asarray(R, dtype=np.float64)
-    if R.ndim == 2:
-        return X @ R.T
-    return np.einsum("nij,nj->ni", R, X)
-
-
 def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """Best rotation R (3,3) with ``R @ (p - p̄) ≈ (q - q̄)`` for the rows of P, Q (M,3).
 
@@ -55,8 +47,8 @@ def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     point, collinear points: the covariance is rank-deficient) a tiny multiple
     of the identity added to the covariance picks, among the optimal
     rotations, the one closest to the identity (the minimal rotation).
-    The result is exactly equivariant (R -> G R when Q -> G Q) whenever the
-    fit is unique.
+    The result is equivariant (R -> G R when Q -> G Q) whenever the fit is
+    unique, up to the ~1e-9 relative effect of that regularisation.
     """
     P = np.asarray(P, dtype=np.float64)
     Q = np.asarray(Q, dtype=np.float64)

@@ -30,9 +30,8 @@ def lbs(character, G):
     return np.einsum("fnab,nb->fna", M, np.c_[m.vertices, np.ones(len(m.vertices))])[..., :3]
 
 
-def test_build_is_fast_and_deterministic(built):
-    c, seconds = built
-    assert seconds < 3.0  # ~0.3 s measured; generous for a loaded CI machine
+def test_build_is_deterministic(built):
+    c, _ = built
     again = humanoid()
     assert np.array_equal(c.meshes[0].vertices, again.meshes[0].vertices)
     assert np.array_equal(c.meshes[0].faces, again.meshes[0].faces)

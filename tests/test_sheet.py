@@ -1,6 +1,5 @@
 """Contact sheets (PNG grids of animation frames)."""
 import struct
-import time
 
 import numpy as np
 import pytest
@@ -34,9 +33,7 @@ def walk():
 def test_mesh_sheet(tmp_path, walk):
     P, F, t, segs = walk
     out = tmp_path / "sheet.png"
-    start = time.perf_counter()
     frames = save_contact_sheet(out, P, F, t, "walk", 12, segs)
-    assert time.perf_counter() - start < 8.0       # ~2.5 s measured on 2 cores
     assert frames[0] == 0 and frames[-1] == len(P) - 1 and len(frames) == 12
     assert frames == sorted(set(frames))
     w, h = png_size(out)
