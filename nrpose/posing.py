@@ -81,17 +81,13 @@ class CharacterPoser:
         self.character, self.method = character, method
         skel = character.skeleton
         meshes = character.meshes
-        sizes = np.array([len(m.vertices) for m in meshes])
-        self.mesh_offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-        self.mesh_names = tuple(m.name for m in meshes)
-        self.faces = np.concatenate([m.faces + o for m, o in zip(meshes, self.mesh_offsets)]).astype(np.int64)
-        self.n = int(sizes.sum())
-        rigid = np.concatenate([np.full(len(m.vertices), -1 if m.rigid_joint is None else m.rigid_joint)
-                                for m in meshes])
-        self._rigid_idx = np.flatnonzero(rigid >= 0)
-        self._rigid_joint = rigid[self._rigid_idx]
-        self._deform_idx = np.flatnonzero(rigid < 0)
-        self._rest_world = np.concatenate([m.vertices for m in meshes])
+        geo = concatenate_meshes(meshes)
+        self.mesh_offsets, self.mesh_names, self.faces = geo.offsets, geo.names, geo.faces
+        self.n = len(geo.vertices)
+        self._rigid_idx = np.flatnonzero(geo.rigid >= 0)
+        self._rigid_joint = geo.rigid[self._rigid_idx]
+        self._deform_idx = np.flatnonzero(geo.rigid < 0)
+        self._rest_world = geo.vertices
         self._rest_inv = np.linalg.inv(skel.rest_globals())
         self.bones = skel.bones()
         deform_meshes = [m for m in meshes if m.rigid_joint is None]
@@ -179,6 +175,33 @@ class CharacterPoser:
 
 
 # ---------------------------------------------------------------------- helpers
+@dataclass(frozen=True)
+class MeshSet:
+    """A character's meshes concatenated in file order: vertices (V, 3) float64,
+    faces (M, 3) int64 (into the concatenation), offsets (meshes,) int64 where
+    each mesh starts, names, rigid (V,) int64: the joint a rigidly attached
+    vertex follows, or -1 for skinned/deforming vertices."""
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    offsets: np.ndarray
+    names: tuple[str, ...]
+    rigid: np.ndarray
+
+
+def concatenate_meshes(meshes) -> MeshSet:
+    """:class:`MeshSet` of a character's meshes."""
+    sizes = np.array([len(m.vertices) for m in meshes], dtype=np.int64)
+    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
+    return MeshSet(
+        vertices=np.concatenate([m.vertices for m in meshes]).astype(np.float64),
+        faces=np.concatenate([np.asarray(m.faces, np.int64).reshape(-1, 3) + o
+                              for m, o in zip(meshes, offsets)]).astype(np.int64),
+        offsets=offsets, names=tuple(m.name for m in meshes),
+        rigid=np.concatenate([np.full(len(m.vertices), -1 if m.rigid_joint is None else m.rigid_joint)
+                              for m in meshes]).astype(np.int64))
+
+
 def _submesh_faces(faces: np.ndarray, keep: np.ndarray, n: int) -> np.ndarray:
     """Faces among the vertices ``keep`` (renumbered), dropping faces that leave them."""
     new = np.full(n, -1)

@@ -130,7 +130,7 @@ def character_weights(character, method: str, k=None, alpha: float = 1.0) -> dic
     """
     from .distances import point_segment_distances
     from .handles import check_alpha
-    from .posing import SKELETON_K, _submesh_faces, surface_distances
+    from .posing import SKELETON_K, _submesh_faces, concatenate_meshes, surface_distances
     from .weights import dense_weights, keep_top_k
 
     if method not in WEIGHT_METHODS:
@@ -152,14 +152,8 @@ def character_weights(character, method: str, k=None, alpha: float = 1.0) -> dic
         if isinstance(k, bool) or int(k) != k or k < 1:
             raise InputError(f"k must be a positive integer or 'all', got {k!r}")
         k_eff = min(int(k), B)
-    meshes = character.meshes
-    sizes = np.array([len(m.vertices) for m in meshes])
-    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    V = np.concatenate([m.vertices for m in meshes]).astype(np.float64)
-    faces = np.concatenate([np.asarray(m.faces, np.int64).reshape(-1, 3) + o
-                            for m, o in zip(meshes, offsets)]).astype(np.int64)
-    rigid = np.concatenate([np.full(len(m.vertices), -1 if m.rigid_joint is None else m.rigid_joint)
-                            for m in meshes])
+    geo = concatenate_meshes(character.meshes)
+    V, faces, offsets, rigid = geo.vertices, geo.faces, geo.offsets, geo.rigid
     deform = np.flatnonzero(rigid < 0)
     n = len(V)
     D = point_segment_distances(V, bones.segments)[0] if n else np.zeros((0, B))
@@ -176,7 +170,7 @@ def character_weights(character, method: str, k=None, alpha: float = 1.0) -> dic
     for j in np.unique(rigid[rigid >= 0]):
         W[rigid == j, _rigid_owner_bone(int(j), bones, skel.parents)] = 1.0
     return {"weights": W, "distances": D, "bones": bones, "k": k_eff, "alpha": alpha, "vertices": V,
-            "faces": faces, "mesh_offsets": offsets, "mesh_names": tuple(m.name for m in meshes)}
+            "faces": faces, "mesh_offsets": offsets, "mesh_names": geo.names}
 
 
 # ---------------------------------------------------------------------------- command
