@@ -226,6 +226,12 @@ class Bones:
     names: tuple[str, ...]
     rest_globals: np.ndarray
 
+    def __post_init__(self):
+        # rest-only terms of pose(), computed once
+        Gr = self.rest_globals[self.joints]
+        object.__setattr__(self, "_rest_inv", np.linalg.inv(Gr))
+        object.__setattr__(self, "_rest_rot_t", np.swapaxes(polar_rotation(Gr[:, :3, :3]), -1, -2))
+
     @classmethod
     def from_skeleton(cls, skel: Skeleton, leaf_fraction: float = 0.5) -> "Bones":
         G = skel.rest_globals()
@@ -276,8 +282,7 @@ class Bones:
         :meth:`Skeleton.forward_kinematics`).
         """
         Gp = np.asarray(globals_, dtype=np.float64)[..., self.joints, :, :]
-        Gr = self.rest_globals[self.joints]
-        M = Gp @ np.linalg.inv(Gr)
+        M = Gp @ self._rest_inv
         ends = np.einsum("...bij,bkj->...bki", M[..., :3, :3], self.segments) + M[..., None, :3, 3]
-        R = polar_rotation(Gp[..., :3, :3]) @ np.swapaxes(polar_rotation(Gr[:, :3, :3]), -1, -2)
+        R = polar_rotation(Gp[..., :3, :3]) @ self._rest_rot_t
         return ends, R
