@@ -133,7 +133,8 @@ class Mesh:
     are then that joint with weight 1), else None;
     bind_vertices: (N, 3) float64 the skinned mesh's own POSITION data (glTF
     bind space, transformed by ``G_j @ inverse_bind_j`` in the glTF skinning
-    formula), else None.
+    formula), else None; inverse_bind: (J, 4, 4) its skin's inverse bind
+    matrices by skeleton joint (skins may differ), else None.
     """
 
     name: str
@@ -143,6 +144,7 @@ class Mesh:
     weights: np.ndarray | None = None
     rigid_joint: int | None = None
     bind_vertices: np.ndarray | None = None
+    inverse_bind: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)

@@ -16,8 +16,8 @@ Vertices of all the character's meshes are concatenated in file order
   that drives no bone hands its weight to its nearest ancestor that does.
 * ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.skinning`).
   With authored weights a glTF mesh is skinned from its own bind-space
-  POSITION data with ``G_j @ inverse_bind_j``: the glTF specification's
-  formula.
+  POSITION data with ``G_j @ inverse_bind_j`` of its own skin: the glTF
+  specification's formula.
 
 Weights: ``authored`` (the file's skin weights), ``euclidean`` (distance to
 the bone segments, ``1/d^(2α)``), or a topological distance over the surface
@@ -109,15 +109,22 @@ class CharacterPoser:
                     self._deformer = Deformer(V, rest, alpha=alpha, distances=D, k=kk, backend=backend)
             else:
                 from . import skinning
+                offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
-                    self._bind_space = all(m.bind_vertices is not None for m in deform_meshes)
+                    self._bind_space = all(m.bind_vertices is not None and m.inverse_bind is not None
+                                           for m in deform_meshes)
                     src = (np.concatenate([m.bind_vertices for m in deform_meshes]) if self._bind_space else V)
+                    if self._bind_space:
+                        # each distinct skin's inverse binds get their own block of J matrices
+                        self._ibms, group = _distinct([m.inverse_bind for m in deform_meshes])
+                        offset = np.repeat(group * skel.num_joints, [len(m.vertices) for m in deform_meshes])
                 else:
                     bone_w = keep_top_k(dense_weights(D, alpha), SKIN_INFLUENCES)
                     joint_w = np.zeros((len(V), skel.num_joints))
                     np.add.at(joint_w.T, self.bones.joints, bone_w.T)
                     self._bind_space, src = False, V
                 joints, wts = _compact(joint_w)
+                joints = joints + offset[:, None]
                 cls = skinning.LbsDeformer if method == "lbs" else skinning.DqsDeformer
                 self._deformer = cls(src, joints, wts) if backend == "opencl" else None
                 self._skin_ref = (src, joints, wts)
@@ -145,7 +152,8 @@ class CharacterPoser:
             segs, rots = self.bones.pose(G)
             empty = np.zeros((0, 3))
         else:
-            mats = G @ ch.inverse_bind if self._bind_space else skin_rest
+            mats = (np.concatenate([G @ ibm for ibm in self._ibms], axis=1) if self._bind_space
+                    else skin_rest)
         whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
         for a in range(0, F, BATCH):
             b = min(a + BATCH, F)
@@ -248,6 +256,18 @@ def _joint_to_bone_weights(joint_w: np.ndarray, V: np.ndarray, bones, parents: n
     per_joint = np.zeros((len(V), jw.shape[1]))
     np.add.at(per_joint.T, bones.joints, share.T)
     return jw[:, bones.joints] * share / per_joint[:, bones.joints]
+
+
+def _distinct(arrays: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
+    """The distinct arrays of a list and, for each entry, the index of its distinct array."""
+    distinct, index = [], []
+    for a in arrays:
+        k = next((i for i, d in enumerate(distinct) if np.array_equal(d, a)), None)
+        if k is None:
+            distinct.append(a)
+            k = len(distinct) - 1
+        index.append(k)
+    return distinct, np.array(index, np.int64)
 
 
 def _compact(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -181,3 +181,68 @@ def test_skeleton_only_character_is_an_error():
     with pytest.raises(InputError, match="no skin weights"):
         CharacterPoser(bare, weights="authored")
     assert CharacterPoser(bare, weights="euclidean").pose(ch.skeleton.rest_pose).positions.shape == (1, 80, 3)
+
+
+def two_skin_glb(path: Path) -> None:
+    """Two meshes on one 2-joint chain, skinned by two skins whose inverse bind matrices
+    differ (skin 1 binds its mesh 5 units lower: IBM_j = G_j⁻¹ · T(0, 5, 0))."""
+    def tr(x, y, z):
+        m = np.eye(4)
+        m[:3, 3] = [x, y, z]
+        return m
+
+    x = np.linspace(0.1, 1.9, 10)
+    world = np.concatenate([np.c_[x, np.full(10, dy), np.zeros(10)] for dy in (-0.1, 0.1)]).astype(np.float32)
+    wa = np.clip((world[:, 0] - 0.8) / 0.4, 0, 1)
+    joints = np.tile(np.array([0, 1, 0, 0], np.uint16), (len(world), 1))
+    weights = np.c_[1 - wa, wa, np.zeros((len(world), 2))].astype(np.float32)
+    rest_g = [np.eye(4), tr(1, 0, 0)]
+    ibm0 = np.array([np.linalg.inv(g) for g in rest_g])
+    ibm1 = np.array([np.linalg.inv(g) @ tr(0, 5, 0) for g in rest_g])
+    pos_b = (world - np.float32([0, 5, 0])).astype(np.float32)          # T(0,5,0) · pos_b = world
+    tris = np.array([[i, i + 1, 10 + i] for i in range(9)] + [[i + 1, 11 + i, 10 + i] for i in range(9)],
+                    np.uint16).ravel()
+    chunks = [world, pos_b, joints, weights, ibm0.transpose(0, 2, 1).astype(np.float32),
+              ibm1.transpose(0, 2, 1).astype(np.float32), tris]
+    blob, views = b"", []
+    for c in chunks:
+        views.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=c.nbytes))
+        blob += c.tobytes()
+    acc = [pygltflib.Accessor(bufferView=0, componentType=5126, count=len(world), type="VEC3",
+                              min=world.min(0).tolist(), max=world.max(0).tolist()),
+           pygltflib.Accessor(bufferView=1, componentType=5126, count=len(world), type="VEC3",
+                              min=pos_b.min(0).tolist(), max=pos_b.max(0).tolist()),
+           pygltflib.Accessor(bufferView=2, componentType=5123, count=len(world), type="VEC4"),
+           pygltflib.Accessor(bufferView=3, componentType=5126, count=len(world), type="VEC4"),
+           pygltflib.Accessor(bufferView=4, componentType=5126, count=2, type="MAT4"),
+           pygltflib.Accessor(bufferView=5, componentType=5126, count=2, type="MAT4"),
+           pygltflib.Accessor(bufferView=6, componentType=5123, count=len(tris), type="SCALAR")]
+    prim = lambda p: pygltflib.Primitive(attributes=pygltflib.Attributes(POSITION=p, JOINTS_0=2, WEIGHTS_0=3),  # noqa: E731
+                                         indices=6, mode=4)
+    gltf = pygltflib.GLTF2(
+        scene=0, scenes=[pygltflib.Scene(nodes=[0, 2, 3])],
+        nodes=[pygltflib.Node(name="root", children=[1]), pygltflib.Node(name="elbow", translation=[1, 0, 0]),
+               pygltflib.Node(name="A", mesh=0, skin=0), pygltflib.Node(name="B", mesh=1, skin=1)],
+        meshes=[pygltflib.Mesh(name="A", primitives=[prim(0)]), pygltflib.Mesh(name="B", primitives=[prim(1)])],
+        skins=[pygltflib.Skin(joints=[0, 1], inverseBindMatrices=4), pygltflib.Skin(joints=[0, 1], inverseBindMatrices=5)],
+        accessors=acc, bufferViews=views, buffers=[pygltflib.Buffer(byteLength=len(blob))])
+    gltf.set_binary_blob(blob)
+    gltf.save_binary(str(path))
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs", "nrmls"])
+def test_skins_with_different_inverse_binds(tmp_path, method):
+    path = tmp_path / "two_skins.glb"
+    two_skin_glb(path)
+    ch = load_character(path)
+    assert np.abs(ch.meshes[0].vertices - ch.meshes[1].vertices).max() <= 1e-6   # same world bind shape
+    rot = np.array([0.0, 0.0, np.sin(np.pi / 8), np.cos(np.pi / 8)])             # 45° at the elbow
+    pose = LocalPose(ch.skeleton.translation, np.array([[0, 0, 0, 1.0], rot]), ch.skeleton.scale)
+    out = CharacterPoser(ch, method=method).pose(pose).positions[0]
+    G = ch.skeleton.forward_kinematics(pose)
+    expect = gltf_skinning(path, dict(zip(ch.skeleton.names, G)))
+    if method == "lbs":
+        assert np.abs(out - expect).max() <= 1e-5
+    # every method moves both meshes alike: they share the world bind shape and the skeleton
+    assert np.abs(out[:20] - out[20:]).max() <= 1e-5
+    assert np.abs(out[:20] - expect[:20]).max() <= 0.1                           # and near LBS

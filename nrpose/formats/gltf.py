@@ -394,7 +394,10 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
             blended = np.einsum("nk,nkab->nab", weights, bind[local])
             W = np.einsum("nab,nb->na", blended, Vh)[:, :3]
             joints = node_to_joint[np.asarray(skin.joints)][local]
-            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64)))
+            # this skin's inverse bind matrices, by skeleton joint (identity for joints it lacks)
+            ibm = np.tile(np.eye(4), (int(node_to_joint.max()) + 1, 1, 1))
+            ibm[node_to_joint[np.asarray(skin.joints)]] = binds[node.skin]
+            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64), ibm))
     return meshes
 
 
