@@ -113,7 +113,7 @@ import numpy as np
 
 from .character import Character, Clip, Track
 from .errors import FileFormatError, InputError
-from .rotation import Rotation
+from .rotation import Rotation, kabsch, minimal_rotvec
 from .skeleton import LocalPose, Skeleton, _match_hint, polar_rotation
 
 __all__ = ["joint_map", "load_map", "format_map", "normalize_name", "joint_slots", "mapped_bones",
@@ -356,26 +356,8 @@ def format_map(mapping: dict[str, str], source_skel: Skeleton, target_skel: Skel
 def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Minimal rotation matrices (..., 3, 3) taking directions a onto b (a half turn about a
     perpendicular axis when they are opposite)."""
-    a = a / np.linalg.norm(a, axis=-1, keepdims=True)
-    b = b / np.linalg.norm(b, axis=-1, keepdims=True)
-    axis = np.cross(a, b)
-    s = np.linalg.norm(axis, axis=-1)
-    c = np.sum(a * b, axis=-1)
-    angle = np.arctan2(s, c)
-    # opposite directions: any axis perpendicular to a
-    helper = np.where((np.abs(a[..., :1]) < 0.9), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
-    perp = np.cross(a, helper)
-    perp /= np.linalg.norm(perp, axis=-1, keepdims=True)
-    unit = np.where((s > 1e-12)[..., None], axis / np.where(s > 1e-12, s, 1.0)[..., None], perp)
-    rv = unit * np.where((s > 1e-12) | (c < 0), angle, 0.0)[..., None]
-    return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(a.shape[:-1] + (3, 3))
-
-
-def _fit_directions(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Rotation R (3, 3) with R p ≈ q for unit rows P, Q (M, 3), not centred."""
-    U, _, Vt = np.linalg.svd(Q.T @ P)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
+    rv = minimal_rotvec(a, b, opposite="half_turn")
+    return Rotation.from_rotvec(rv.reshape(-1, 3)).as_matrix().reshape(rv.shape[:-1] + (3, 3))
 
 
 def _left_right(slots: list) -> tuple[int, int] | None:
@@ -592,7 +574,7 @@ class RetargetPlan:
                     rest = [k for k in range(len(pairs)) if k not in lr]
                     if lat is not None and rest:
                         A = _frame_align(lat[0], P[rest].sum(axis=0), lat[1], Q[rest].sum(axis=0))
-                self.align[j] = _fit_directions(P, Q) if A is None else A
+                self.align[j] = kabsch(P, Q, centre=False) if A is None else A
             elif j in lead_t and s in lead_s:
                 self.align[j] = _align(lead_t[j], lead_s[s])
             else:

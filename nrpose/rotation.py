@@ -21,13 +21,15 @@ from scipy.spatial.transform import Rotation
 __all__ = ["Rotation", "minimal_rotvec", "kabsch", "relative_rotvec_table"]
 
 
-def minimal_rotvec(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def minimal_rotvec(a: np.ndarray, b: np.ndarray, opposite: str = "zero") -> np.ndarray:
     """Rotation vectors of the smallest rotations taking direction ``a`` to ``b``.
 
     a, b: (..., 3) float64, any non-zero length. Returns (..., 3) float64 with
-    angle ``atan2(|a×b|, a·b)`` about ``a×b``. Zero vectors give a zero rotation;
-    exactly opposite directions (angle π, axis undefined) give a zero axis
-    too, i.e. a zero rotation vector: the direction is ill-posed there.
+    angle ``atan2(|a×b|, a·b)`` about ``a×b``. Zero vectors give a zero rotation.
+    Exactly opposite directions (angle π, axis undefined) give a zero rotation
+    vector with ``opposite="zero"`` (the blend's convention, matched by the
+    kernels), or a half turn about an axis perpendicular to ``a`` with
+    ``opposite="half_turn"``.
     """
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
@@ -37,11 +39,21 @@ def minimal_rotvec(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     angle = np.arctan2(s, c)
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = np.where(s > 0, angle / np.where(s > 0, s, 1.0), 0.0)
-    return cross * scale[..., None]
+    out = cross * scale[..., None]
+    if opposite == "half_turn":
+        flip = (s <= 1e-12 * np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)) & (c < 0)
+        if np.any(flip):
+            helper = np.where(np.abs(a[..., :1]) < 0.9 * np.linalg.norm(a, axis=-1, keepdims=True),
+                              np.array([1.0, 0, 0]), np.array([0, 1.0, 0]))
+            perp = np.cross(a, helper)
+            perp = np.pi * perp / np.linalg.norm(perp, axis=-1, keepdims=True)
+            out = np.where(flip[..., None], perp, out)
+    return out
 
 
-def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
-    """Best rotation R (3,3) with ``R @ (p - p̄) ≈ (q - q̄)`` for the rows of P, Q (M,3).
+def kabsch(P: np.ndarray, Q: np.ndarray, centre: bool = True) -> np.ndarray:
+    """Best rotation R (3,3) with ``R @ (p - p̄) ≈ (q - q̄)`` for the rows of P, Q (M,3)
+    (``centre=False``: ``R @ p ≈ q``, e.g. for directions).
 
     Unweighted least squares (Kabsch). Where the fit is not unique (a single
     point, collinear points: the covariance is rank-deficient) a tiny multiple
@@ -52,8 +64,8 @@ def kabsch(P: np.ndarray, Q: np.ndarray) -> np.ndarray:
     """
     P = np.asarray(P, dtype=np.float64)
     Q = np.asarray(Q, dtype=np.float64)
-    Pc = P - P.mean(axis=0)
-    Qc = Q - Q.mean(axis=0)
+    Pc = P - P.mean(axis=0) if centre else P
+    Qc = Q - Q.mean(axis=0) if centre else Q
     C = Qc.T @ Pc  # maximise trace(R^T C)
     scale = max(np.abs(C).max(), np.abs(Pc).max() ** 2, 1e-300)
     C = C + 1e-9 * scale * np.eye(3)

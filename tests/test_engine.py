@@ -318,3 +318,16 @@ def test_more_work_items_than_one_group_allows(monkeypatch):
     assert big._launch[1][0] <= 4096
     pose = random_pose(rng, rest)
     assert np.abs(big.pose(pose)[:1000] - ref.pose(pose)).max() <= TOL * diag(points)
+
+
+def test_minimal_rotation_conventions():
+    from nrpose.rotation import minimal_rotvec
+
+    a = np.array([[1.0, 0, 0], [0, 2.0, 0], [0, 0, 1.0]])
+    b = np.array([[0, 3.0, 0], [0, -1.0, 0], [0, 0, 5.0]])
+    r = minimal_rotvec(a, b)
+    assert np.allclose(r[0], [0, 0, np.pi / 2]) and np.allclose(r[1:], 0)   # opposite: zero (the blend)
+    h = minimal_rotvec(a, b, opposite="half_turn")
+    assert np.isclose(np.linalg.norm(h[1]), np.pi) and abs(h[1] @ a[1]) < 1e-12
+    assert np.allclose(Rotation.from_rotvec(h).apply(a / np.linalg.norm(a, axis=1, keepdims=True)),
+                       b / np.linalg.norm(b, axis=1, keepdims=True))
