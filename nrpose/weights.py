@@ -22,7 +22,7 @@ import numpy as np
 from .errors import InputError
 from .handles import check_alpha
 
-__all__ = ["relative_weights", "dense_weights", "sparse_weights", "densify", "deviation"]
+__all__ = ["relative_weights", "dense_weights", "keep_top_k", "deviation"]
 
 
 def _check_D(D) -> np.ndarray:
@@ -56,24 +56,6 @@ def dense_weights(D, alpha: float = 1.0) -> np.ndarray:
     return W / W.sum(axis=1, keepdims=True)
 
 
-def sparse_weights(D, k: int = 4, alpha: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
-    """Top-k handles per point: ``(indices (N, k') int32, weights (N, k') float64)``.
-
-    ``k' = min(k, H)``. Weights are those of :func:`relative_weights` restricted
-    to the kept handles, renormalised to sum 1 per row; columns are ordered by
-    decreasing weight (increasing distance), ties by lower handle index.
-    """
-    D = _check_D(D)
-    if isinstance(k, bool) or int(k) != k or k < 1:
-        raise InputError(f"k must be a positive integer, got {k!r}")
-    k = int(min(int(k), D.shape[1]))
-    order = np.argsort(D, axis=1, kind="stable")[:, :k]
-    Dk = np.take_along_axis(D, order, axis=1)
-    W = relative_weights(Dk, alpha)  # the row minimum is always kept
-    W /= W.sum(axis=1, keepdims=True)
-    return order.astype(np.int32), W
-
-
 def keep_top_k(W: np.ndarray, k: int | None) -> np.ndarray:
     """Dense weights (N, H) keeping only the k largest of each row (ties: lower
     handle index), renormalised to sum 1; ``k=None`` or k ≥ H returns W as is."""
@@ -85,19 +67,6 @@ def keep_top_k(W: np.ndarray, k: int | None) -> np.ndarray:
     W = W.copy()
     np.put_along_axis(W, drop, 0.0, axis=1)
     return W / W.sum(axis=1, keepdims=True)
-
-
-def densify(indices, weights, n_handles: int) -> np.ndarray:
-    """Scatter sparse (N, k) weights back into a dense (N, H) matrix."""
-    idx = np.asarray(indices)
-    w = np.asarray(weights, dtype=np.float64)
-    if idx.shape != w.shape or idx.ndim != 2:
-        raise InputError(f"indices {idx.shape} and weights {w.shape} must be the same (N, k) shape")
-    if idx.size and (idx.min() < 0 or idx.max() >= n_handles):
-        raise InputError(f"handle indices out of range [0, {n_handles})")
-    out = np.zeros((idx.shape[0], int(n_handles)))
-    np.add.at(out, (np.repeat(np.arange(idx.shape[0]), idx.shape[1]), idx.ravel()), w.ravel())
-    return out
 
 
 def deviation(sparse_result, dense_result, reference_size: float | None = None) -> dict[str, float]:

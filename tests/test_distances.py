@@ -28,7 +28,7 @@ igl = pytest.importorskip("igl")
 from nrpose import bindcache  # noqa: E402
 from nrpose.distances import distance_matrix, euclidean_distances, handle_sources  # noqa: E402
 from nrpose.errors import HandleError, InputError  # noqa: E402
-from nrpose.weights import deviation, dense_weights, densify, relative_weights, sparse_weights  # noqa: E402
+from nrpose.weights import deviation, dense_weights, keep_top_k, relative_weights  # noqa: E402
 from rigs.fingers import fingers_shape  # noqa: E402
 
 
@@ -302,20 +302,22 @@ def test_relative_and_dense_weights():
         relative_weights(np.ones((2, 2)), alpha=0)
 
 
-def test_sparse_weights_top_k():
+def test_keep_top_k():
     rng = np.random.default_rng(1)
     D = rng.uniform(0.1, 5.0, size=(50, 7))
     D[0, :] = 1.0  # ties: lowest indices win
-    idx, w = sparse_weights(D, k=3, alpha=1.0)
-    assert idx.dtype == np.int32 and idx.shape == (50, 3) and w.shape == (50, 3)
-    np.testing.assert_allclose(w.sum(axis=1), 1.0)
-    np.testing.assert_array_equal(idx[0], [0, 1, 2])
-    np.testing.assert_array_equal(idx, np.argsort(D, axis=1, kind="stable")[:, :3])
-    assert (np.diff(w, axis=1) <= 1e-15).all()
-    # k >= H reproduces the dense weights
-    idx7, w7 = sparse_weights(D, k=10)
-    assert idx7.shape == (50, 7)
-    np.testing.assert_allclose(densify(idx7, w7, 7), dense_weights(D), rtol=1e-12)
+    W = dense_weights(D, alpha=1.0)
+    K = keep_top_k(W, 3)
+    assert (np.count_nonzero(K, axis=1) == 3).all()
+    np.testing.assert_allclose(K.sum(axis=1), 1.0)
+    np.testing.assert_array_equal(np.flatnonzero(K[0]), [0, 1, 2])
+    kept = np.sort(np.argsort(D, axis=1, kind="stable")[:, :3], axis=1)
+    np.testing.assert_array_equal(np.sort(np.argsort(-K, axis=1, kind="stable")[:, :3], axis=1), kept)
+    rows = np.arange(50)[:, None]
+    np.testing.assert_allclose(K[rows, kept], W[rows, kept] / W[rows, kept].sum(axis=1, keepdims=True))
+    assert keep_top_k(W, 10) is W and keep_top_k(W, None) is W     # k >= H: dense as is
+    with pytest.raises(InputError):
+        keep_top_k(W, 0)
 
 
 def test_deviation_report():
