@@ -329,7 +329,7 @@ def bench_sparsity(data: pathlib.Path, ks=(4, 8), alphas=(1.0, 2.0)) -> dict:
 
 def bench_figure2() -> dict:
     from nrpose import Deformer, HandleSet, Pose
-    from rigs.fingers import fingers_shape
+    from nrpose.rigs.fingers import fingers_shape
 
     s = fingers_shape()
     V, F = s.vertices, s.faces
@@ -418,6 +418,30 @@ def weight_maps(data: pathlib.Path, out_dir: pathlib.Path) -> dict:
 
 
 # ---------------------------------------------------------------------------- main
+
+def fingers_figure(path=ROOT / "results" / "fingers_weights.png", alpha: float = 1.0) -> dict:
+    """Figure 2 of the seed paper on the palm-and-two-fingers shape: the blend
+    weight of finger A's bone with Euclidean vs heat-geodesic distances.
+    Returns a few numbers (max weight of bone A on finger B for both)."""
+    from nrpose.distances import distance_matrix
+    from nrpose.rigs.fingers import fingers_shape
+    from nrpose.weightmap import save_weight_maps
+    from nrpose.weights import dense_weights
+
+    s = fingers_shape()
+    V, F = s.vertices, s.faces
+    a = s.bone_names.index("finger_a")
+    W = {}
+    for method in ("euclidean", "heat"):
+        D = distance_matrix(V, F, None, s.bones, method=method)
+        W[method] = dense_weights(D, alpha)[:, a]
+    on_b = (V[:, 0] > 0.5 * s.finger_gap) & (V[:, 1] > 0.3)  # finger B, above the palm
+    stats = {m: float(W[m][on_b].max()) for m in W}
+    save_weight_maps(V, F, {f"{m}: max on finger B {stats[m]:.3f}": W[m] for m in W}, path,
+                     f"weight of finger A's bone (α={alpha:g}): spatial vs topological distance",
+                     gamma=0.5)
+    return stats
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=3, help="binds timed per configuration (median; default 3)")

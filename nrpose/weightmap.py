@@ -10,7 +10,6 @@ Matplotlib's Agg backend: no display needed.
 """
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Mapping
 
@@ -18,7 +17,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["save_weight_map", "save_weight_maps", "fingers_figure"]
+__all__ = ["save_weight_map", "save_weight_maps"]
 
 _VIEWS = (("front", 90.0, -90.0), ("oblique", 28.0, -62.0))
 
@@ -101,7 +100,6 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
     cax = fig.add_axes((1.0 - 1.0 / (4.5 * len(views)), 0.2, 0.18 / (4.5 * len(views)), 0.6))
     fig.colorbar(sm, cax=cax, label="weight" + (f" (colour scale γ={gamma:g})" if gamma != 1.0 else ""))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path)
     plt.close(fig)
     return path
@@ -110,35 +108,3 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
 def save_weight_map(vertices, faces, weights_column, path, title: str = "") -> Path:
     """Two views of the mesh coloured by one handle's weights; returns the path."""
     return save_weight_maps(vertices, faces, {"weight": weights_column}, path, title)
-
-
-def fingers_figure(path="bench/results/fingers_weights.png", alpha: float = 1.0) -> dict:
-    """Figure 2 of the seed paper on the palm-and-two-fingers shape: the blend
-    weight of finger A's bone with Euclidean vs heat-geodesic distances.
-    Returns a few numbers (max weight of bone A on finger B for both)."""
-    from .distances import distance_matrix
-    from .weights import dense_weights
-
-    try:
-        from rigs.fingers import fingers_shape
-    except ImportError:  # installed package layout
-        from nrpose.rigs.fingers import fingers_shape
-
-    s = fingers_shape()
-    V, F = s.vertices, s.faces
-    a = s.bone_names.index("finger_a")
-    W = {}
-    for method in ("euclidean", "heat"):
-        D = distance_matrix(V, F, None, s.bones, method=method)
-        W[method] = dense_weights(D, alpha)[:, a]
-    on_b = (V[:, 0] > 0.5 * s.finger_gap) & (V[:, 1] > 0.3)  # finger B, above the palm
-    stats = {m: float(W[m][on_b].max()) for m in W}
-    save_weight_maps(V, F, {f"{m}: max on finger B {stats[m]:.3f}": W[m] for m in W}, path,
-                     f"weight of finger A's bone (α={alpha:g}): spatial vs topological distance",
-                     gamma=0.5)
-    return stats
-
-
-if __name__ == "__main__":  # pragma: no cover
-    out = sys.argv[1] if len(sys.argv) > 1 else "bench/results/fingers_weights.png"
-    print(fingers_figure(out))

@@ -13,15 +13,12 @@ Measured (libigl 2.6.3, this machine), asserted with a little headroom:
 from __future__ import annotations
 
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 igl = pytest.importorskip("igl")
 
@@ -29,7 +26,7 @@ from nrpose import bindcache  # noqa: E402
 from nrpose.distances import distance_matrix, euclidean_distances, handle_sources  # noqa: E402
 from nrpose.errors import HandleError, InputError  # noqa: E402
 from nrpose.weights import deviation, dense_weights, keep_top_k, relative_weights  # noqa: E402
-from rigs.fingers import fingers_shape  # noqa: E402
+from nrpose.rigs.fingers import fingers_shape  # noqa: E402
 
 
 def icosphere(subdiv: int = 4):

@@ -16,8 +16,6 @@ import numpy as np
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
 igl = pytest.importorskip("igl")
 
@@ -29,7 +27,7 @@ from nrpose.meshio import write_geometry  # noqa: E402
 from nrpose.posing import CharacterPoser  # noqa: E402
 from nrpose.rotation import Rotation  # noqa: E402
 from nrpose.weightcli import add_weights_parser  # noqa: E402
-from rigs.fingers import fingers_shape  # noqa: E402
+from nrpose.rigs.fingers import fingers_shape  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not (DATA / "gltf").is_dir(), reason=f"shared assets not found at {DATA}")
