@@ -77,6 +77,7 @@ from nrpose.distances import distance_matrix, handle_sources, weld_vertices  # n
 from nrpose.meshio import atomic_path, read_geometry  # noqa: E402
 from nrpose.rotation import Rotation  # noqa: E402
 from nrpose.skeleton import LocalPose  # noqa: E402
+from table1 import fps_handles  # noqa: E402  (bench/ is on sys.path as the script's folder)
 from nrpose.weights import dense_weights, deviation, keep_top_k  # noqa: E402
 
 SKELETON_K = 8
@@ -121,18 +122,6 @@ def timed(fn, repeat: int) -> tuple[dict, object]:
         samples.append(time.perf_counter() - t)
     return {"median_s": float(np.median(samples)), "min_s": float(min(samples)),
             "max_s": float(max(samples)), "runs": len(samples)}, out
-
-
-def fps_points(V: np.ndarray, h: int) -> np.ndarray:
-    """h farthest-point samples starting at the vertex nearest the centroid (bench/table1.py's rule)."""
-    c = V.mean(axis=0)
-    idx = [int(np.argmin(np.linalg.norm(V - c, axis=1)))]
-    d = np.linalg.norm(V - V[idx[0]], axis=1)
-    for _ in range(h - 1):
-        i = int(np.argmax(d))
-        idx.append(i)
-        d = np.minimum(d, np.linalg.norm(V - V[i], axis=1))
-    return V[idx]
 
 
 def bind_weights(V, F, P, S, method: str, k: int | None):
@@ -252,7 +241,7 @@ def bench_bind(data: pathlib.Path, repeat: int, exact_repeat: int, exact_bones: 
     # -- bunny with 4 point handles
     g = read_geometry(data / "meshes" / "stanford-bunny.obj")
     V, F = g.vertices, g.faces
-    P = fps_points(V, 4)
+    P = fps_handles(V, 4).points   # bench/table1.py's placement rule
     rec = {"vertices": int(len(V)), "faces": int(len(F)), "point_handles": P.tolist(), "methods": {}}
     for method in ("heat", "graph", "euclidean") + (() if skip_exact else ("exact",)):
         n = exact_repeat if method == "exact" else repeat
