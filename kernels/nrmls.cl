@@ -40,8 +40,7 @@
  * over (item, frame).
  */
 
-#define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
-                                (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+#include "lanes.h"
 
 /* Unit quaternion (x, y, z, w) of a row-major rotation matrix (Shepperd). */
 static float4 quat_of(__global const float *m)
@@ -128,8 +127,8 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     __global float *out = out_frames + f * 3 * np;
 
     /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered */
-    const int8 rf = vload8(g, ref);
-    const int uniform = all(rf == (int8)rf.s0);
+    const int8 rf = LOADI8(g, ref);
+    const int uniform = SAME8(rf);
     float8 m00, m01, m02, m10, m11, m12, m20, m21, m22;
     if (uniform) {
         __global const float *m = refs + 9 * rf.s0;
@@ -149,7 +148,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     float8 lsum = 0.0f;                  /* normaliser of the derived levers */
 #endif
     for (int p = 0; p < P; ++p) {
-        const float8 c = vload8(g, coef + p * np);
+        const float8 c = LOAD8(g, coef + p * np);
         qx += c * qpos[3 * p];
         qy += c * qpos[3 * p + 1];
         qz += c * qpos[3 * p + 2];
@@ -157,18 +156,18 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     for (int k = 0; k < K; ++k) {
         /* segment slot k: dense, slot k is segment k; SPARSE, slot[k] names it per point */
 #ifdef SPARSE
-        const int8 h = vload8(g, slot + k * np);
+        const int8 h = LOADI8(g, slot + k * np);
 #else
         const int8 h = (int8)k;
 #endif
-        const float8 ca = vload8(g, coef + (P + 2 * k) * np);
-        const float8 cb = vload8(g, coef + (P + 2 * k + 1) * np);
-        if (uniform && all(h == (int8)h.s0)) {
+        const float8 ca = LOAD8(g, coef + (P + 2 * k) * np);
+        const float8 cb = LOAD8(g, coef + (P + 2 * k + 1) * np);
+        if (uniform && SAME8(h)) {
 #ifdef DERIVED_LEVER
             const float8 l = (ca + cb) * len2[h.s0];
             lsum += l;
 #else
-            const float8 l = vload8(g, lever + (P + k) * np);
+            const float8 l = LOAD8(g, lever + (P + k) * np);
 #endif
             __global const float *e = qpos + 3 * (P + 2 * h.s0);
             __global const float *t = table + 3 * (S * rf.s0 + h.s0);
@@ -183,7 +182,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
             const float8 l = (ca + cb) * GATHER8(len2, h);
             lsum += l;
 #else
-            const float8 l = vload8(g, lever + (P + k) * np);
+            const float8 l = LOAD8(g, lever + (P + k) * np);
 #endif
             const int8 e = 3 * (P + 2 * h), t = 3 * (S * rf + h);
             qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
@@ -200,26 +199,26 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         const float8 yx = m00 * hx + m10 * hy + m20 * hz;
         const float8 yy = m01 * hx + m11 * hy + m21 * hz;
         const float8 yz = m02 * hx + m12 * hy + m22 * hz;
-        const float8 px = vload8(g, phat + (3 * p) * np);
-        const float8 py = vload8(g, phat + (3 * p + 1) * np);
-        const float8 pz = vload8(g, phat + (3 * p + 2) * np);
+        const float8 px = LOAD8(g, phat + (3 * p) * np);
+        const float8 py = LOAD8(g, phat + (3 * p + 1) * np);
+        const float8 pz = LOAD8(g, phat + (3 * p + 2) * np);
         const float8 cx = py * yz - pz * yy, cy = pz * yx - px * yz, cz = px * yy - py * yx;
         const float8 sn = sqrt(cx * cx + cy * cy + cz * cz);
         const float8 cs = px * yx + py * yy + pz * yz;
-        const float8 k = select(0.0f, atan2(sn, cs) / sn, sn > 0.0f);
+        const float8 k = sn > 0.0f ? atan2(sn, cs) / sn : (float8)0.0f;
 #ifdef DERIVED_LEVER
-        const float8 lp = vload8(g, coef + p * np) * (px * px + py * py + pz * pz);
+        const float8 lp = LOAD8(g, coef + p * np) * (px * px + py * py + pz * pz);
         lsum += lp;
         const float8 l = lp * k;
 #else
-        const float8 l = vload8(g, lever + p * np) * k;
+        const float8 l = LOAD8(g, lever + p * np) * k;
 #endif
         rx += l * cx;
         ry += l * cy;
         rz += l * cz;
     }
 #ifdef DERIVED_LEVER
-    const float8 inv = select((float8)0.0f, 1.0f / lsum, lsum > 0.0f);
+    const float8 inv = lsum > 0.0f ? 1.0f / lsum : (float8)0.0f;
     rx *= inv;
     ry *= inv;
     rz *= inv;
@@ -229,7 +228,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
      * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
      * sinc and cos are Taylor polynomials in x = h^2 (|r| <= pi, so h <= pi/2:
      * truncation < 5e-8); no sqrt, no division, no transcendental call. */
-    const float8 ux = vload8(g, u), uy = vload8(g, u + np), uz = vload8(g, u + 2 * np);
+    const float8 ux = LOAD8(g, u), uy = LOAD8(g, u + np), uz = LOAD8(g, u + 2 * np);
     const float8 x = 0.25f * (rx * rx + ry * ry + rz * rz);
     const float8 sinc = 1.0f + x * (-1.0f / 6 + x * (1.0f / 120 + x * (-1.0f / 5040 + x * (1.0f / 362880
                       + x * (-1.0f / 39916800 + x * (1.0f / 6227020800.0f))))));
@@ -247,15 +246,8 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     const float8 ox = m00 * wx + m01 * wy + m02 * wz + qx;
     const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
     const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
-    const int8 o = 3 * vload8(g, row);
-    out[o.s0] = ox.s0; out[o.s0 + 1] = oy.s0; out[o.s0 + 2] = oz.s0;
-    out[o.s1] = ox.s1; out[o.s1 + 1] = oy.s1; out[o.s1 + 2] = oz.s1;
-    out[o.s2] = ox.s2; out[o.s2 + 1] = oy.s2; out[o.s2 + 2] = oz.s2;
-    out[o.s3] = ox.s3; out[o.s3 + 1] = oy.s3; out[o.s3 + 2] = oz.s3;
-    out[o.s4] = ox.s4; out[o.s4 + 1] = oy.s4; out[o.s4 + 2] = oz.s4;
-    out[o.s5] = ox.s5; out[o.s5 + 1] = oy.s5; out[o.s5 + 2] = oz.s5;
-    out[o.s6] = ox.s6; out[o.s6 + 1] = oy.s6; out[o.s6 + 2] = oz.s6;
-    out[o.s7] = ox.s7; out[o.s7 + 1] = oy.s7; out[o.s7 + 2] = oz.s7;
+    const int8 o = LOADI8(g, row);
+    STORE_ROWS(ox, oy, oz, out, o);
     }
     }
 }

@@ -25,26 +25,14 @@
  * block has weight 0 at influence k all later influences are 0 too: the loop
  * stops there.
  *
- * Per the PoCL notes: no fma()/mad() builtins, explicit float8 lanes.
+ * Per the PoCL notes: no fma()/mad() builtins, explicit float8 lanes; no
+ * out-of-line builtins in loops (kernels/lanes.h).
  */
 
-/* Store the 8 lanes of (x, y, z) as 8 consecutive rows of 3 floats. */
-#define STORE_ROWS(x, y, z, q) do {                           \
-    vstore3((float3)((x).s0, (y).s0, (z).s0), 0, (q));        \
-    vstore3((float3)((x).s1, (y).s1, (z).s1), 1, (q));        \
-    vstore3((float3)((x).s2, (y).s2, (z).s2), 2, (q));        \
-    vstore3((float3)((x).s3, (y).s3, (z).s3), 3, (q));        \
-    vstore3((float3)((x).s4, (y).s4, (z).s4), 4, (q));        \
-    vstore3((float3)((x).s5, (y).s5, (z).s5), 5, (q));        \
-    vstore3((float3)((x).s6, (y).s6, (z).s6), 6, (q));        \
-    vstore3((float3)((x).s7, (y).s7, (z).s7), 7, (q));        \
-} while (0)
+#include "lanes.h"
 
-#define GATHER8(base, idx, c) ((float8)(                 \
-    (base)[(idx).s0 + (c)], (base)[(idx).s1 + (c)],      \
-    (base)[(idx).s2 + (c)], (base)[(idx).s3 + (c)],      \
-    (base)[(idx).s4 + (c)], (base)[(idx).s5 + (c)],      \
-    (base)[(idx).s6 + (c)], (base)[(idx).s7 + (c)]))
+/* rows 0..7 of an 8-vertex block */
+#define BLOCK_ROWS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
 
 __kernel void lbs(__global const float *restrict rest,
                   __global const int *restrict joints,
@@ -64,30 +52,30 @@ __kernel void lbs(__global const float *restrict rest,
 
     for (int k = 0; k < K; ++k) {
         const size_t o = ((size_t)g * K + k) * 8;
-        const float8 w = vload8(0, weights + o);
-        if (!any(w != 0.0f)) break;
-        const int8 j = vload8(0, joints + o) * 12;
-        a0  += w * GATHER8(M, j, 0);
-        a1  += w * GATHER8(M, j, 1);
-        a2  += w * GATHER8(M, j, 2);
-        a3  += w * GATHER8(M, j, 3);
-        a4  += w * GATHER8(M, j, 4);
-        a5  += w * GATHER8(M, j, 5);
-        a6  += w * GATHER8(M, j, 6);
-        a7  += w * GATHER8(M, j, 7);
-        a8  += w * GATHER8(M, j, 8);
-        a9  += w * GATHER8(M, j, 9);
-        a10 += w * GATHER8(M, j, 10);
-        a11 += w * GATHER8(M, j, 11);
+        const float8 w = LOAD8(0, weights + o);
+        if (!ANY_NONZERO8(w)) break;
+        const int8 j = LOADI8(0, joints + o) * 12;
+        a0  += w * GATHER8(M, j);
+        a1  += w * GATHER8(M, j + 1);
+        a2  += w * GATHER8(M, j + 2);
+        a3  += w * GATHER8(M, j + 3);
+        a4  += w * GATHER8(M, j + 4);
+        a5  += w * GATHER8(M, j + 5);
+        a6  += w * GATHER8(M, j + 6);
+        a7  += w * GATHER8(M, j + 7);
+        a8  += w * GATHER8(M, j + 8);
+        a9  += w * GATHER8(M, j + 9);
+        a10 += w * GATHER8(M, j + 10);
+        a11 += w * GATHER8(M, j + 11);
     }
 
     __global const float *p = rest + (size_t)g * 24;
-    const float8 x = vload8(0, p), y = vload8(1, p), z = vload8(2, p);
+    const float8 x = LOAD8(0, p), y = LOAD8(1, p), z = LOAD8(2, p);
     __global float *q = out + ((size_t)f * G + g) * 24;
     const float8 ox = a0 * x + a1 * y + a2  * z + a3;
     const float8 oy = a4 * x + a5 * y + a6  * z + a7;
     const float8 oz = a8 * x + a9 * y + a10 * z + a11;
-    STORE_ROWS(ox, oy, oz, q);
+    STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
 }
 
 __kernel void dqs(__global const float *restrict rest,
@@ -104,27 +92,27 @@ __kernel void dqs(__global const float *restrict rest,
 
     /* Dominant joint's rotation quaternion (influence 0) for the
      * hemisphere test. */
-    const int8 j0 = vload8(0, joints + (size_t)g * K * 8) * 8;
-    const float8 px = GATHER8(D, j0, 0), py = GATHER8(D, j0, 1);
-    const float8 pz = GATHER8(D, j0, 2), pw = GATHER8(D, j0, 3);
+    const int8 j0 = LOADI8(0, joints + (size_t)g * K * 8) * 8;
+    const float8 px = GATHER8(D, j0), py = GATHER8(D, j0 + 1);
+    const float8 pz = GATHER8(D, j0 + 2), pw = GATHER8(D, j0 + 3);
 
     float8 rx = 0.0f, ry = 0.0f, rz = 0.0f, rw = 0.0f;
     float8 dx = 0.0f, dy = 0.0f, dz = 0.0f, dw = 0.0f;
 
     for (int k = 0; k < K; ++k) {
         const size_t o = ((size_t)g * K + k) * 8;
-        const float8 w = vload8(0, weights + o);
-        if (!any(w != 0.0f)) break;
-        const int8 j = vload8(0, joints + o) * 8;
-        const float8 qx = GATHER8(D, j, 0), qy = GATHER8(D, j, 1);
-        const float8 qz = GATHER8(D, j, 2), qw = GATHER8(D, j, 3);
+        const float8 w = LOAD8(0, weights + o);
+        if (!ANY_NONZERO8(w)) break;
+        const int8 j = LOADI8(0, joints + o) * 8;
+        const float8 qx = GATHER8(D, j), qy = GATHER8(D, j + 1);
+        const float8 qz = GATHER8(D, j + 2), qw = GATHER8(D, j + 3);
         const float8 dot = qx * px + qy * py + qz * pz + qw * pw;
-        const float8 s = select(w, -w, dot < 0.0f);   /* antipodality */
+        const float8 s = dot < 0.0f ? -w : w;   /* antipodality */
         rx += s * qx; ry += s * qy; rz += s * qz; rw += s * qw;
-        dx += s * GATHER8(D, j, 4);
-        dy += s * GATHER8(D, j, 5);
-        dz += s * GATHER8(D, j, 6);
-        dw += s * GATHER8(D, j, 7);
+        dx += s * GATHER8(D, j + 4);
+        dy += s * GATHER8(D, j + 5);
+        dz += s * GATHER8(D, j + 6);
+        dw += s * GATHER8(D, j + 7);
     }
 
     /* Normalise by the blended real part's norm. */
@@ -133,7 +121,7 @@ __kernel void dqs(__global const float *restrict rest,
     dx *= inv; dy *= inv; dz *= inv; dw *= inv;
 
     __global const float *p = rest + (size_t)g * 24;
-    const float8 x = vload8(0, p), y = vload8(1, p), z = vload8(2, p);
+    const float8 x = LOAD8(0, p), y = LOAD8(1, p), z = LOAD8(2, p);
 
     /* x' = x + 2 r × (r × x + w x) + 2 (w d - dw r + r × d) */
     const float8 cx = ry * z - rz * y + rw * x;
@@ -147,5 +135,5 @@ __kernel void dqs(__global const float *restrict rest,
     const float8 ox = x + 2.0f * ((ry * cz - rz * cy) + tx);
     const float8 oy = y + 2.0f * ((rz * cx - rx * cz) + ty);
     const float8 oz = z + 2.0f * ((rx * cy - ry * cx) + tz);
-    STORE_ROWS(ox, oy, oz, q);
+    STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
 }

@@ -9,11 +9,14 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 from importlib import resources
 
 import numpy as np
 
 from .errors import DeviceError
+
+_INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
 
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
                 "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
@@ -72,8 +75,14 @@ def describe() -> dict:
 
 
 def kernel_source(name: str) -> str:
-    """Text of ``kernels/<name>`` as shipped in the installed package."""
-    return resources.files("nrpose.kernels").joinpath(name).read_text()
+    """Text of ``kernels/<name>`` as shipped in the installed package, with each
+    ``#include "x.h"`` line replaced by the text of ``kernels/x.h`` (pasted here
+    rather than left to the compiler so that PoCL's kernel cache, keyed on the
+    source, sees changes to the header)."""
+    folder = resources.files("nrpose.kernels")
+    lines = folder.joinpath(name).read_text().splitlines(keepends=True)
+    return "".join(folder.joinpath(m.group(1)).read_text() if (m := _INCLUDE.match(line)) else line
+                   for line in lines)
 
 
 def program(name: str, options: tuple[str, ...] = ()):

@@ -1,0 +1,45 @@
+/* 8-lane helpers shared by the kernels (pasted in place of `#include "lanes.h"`
+ * by nrpose/device.py, so that PoCL's kernel cache sees the whole source).
+ *
+ * PoCL's builtins vload8, vstore3, all, any and select are out-of-line calls
+ * in the binary it builds here, and each call spills every live float8
+ * register around it: the dragon pose kernel spent half its time on them.
+ * These macros do the same with pointer casts, scalar stores and bit
+ * operations, which compile inline. Vector selects are written `c ? a : b`.
+ */
+
+/* Chunk g (8 consecutive floats / ints starting at p + 8g); p + 8g must be
+ * 32-byte aligned: rows of a multiple of 8 elements in an OpenCL buffer are. */
+#define LOAD8(g, p) (*(__global const float8 *)((p) + 8 * (g)))
+#define LOADI8(g, p) (*(__global const int8 *)((p) + 8 * (g)))
+
+/* OR of the 8 lanes. */
+static inline int or8(const int8 v)
+{
+    const int4 a = v.lo | v.hi;
+    const int2 b = a.lo | a.hi;
+    return b.x | b.y;
+}
+
+/* True when the 8 lanes hold one value. */
+#define SAME8(h) (or8((h) ^ (int8)(h).s0) == 0)
+
+/* True when some lane of x is not zero. */
+#define ANY_NONZERO8(x) (or8((x) != 0.0f) != 0)
+
+/* Store lane l of (x, y, z) as the 3 floats at q + 3 * o.sl, for the 8 lanes
+ * (o: int8 of row indices; rows 0..7 for consecutive rows). */
+#define STORE_ROWS(x, y, z, q, o) do {                                              \
+    (q)[3 * (o).s0] = (x).s0; (q)[3 * (o).s0 + 1] = (y).s0; (q)[3 * (o).s0 + 2] = (z).s0; \
+    (q)[3 * (o).s1] = (x).s1; (q)[3 * (o).s1 + 1] = (y).s1; (q)[3 * (o).s1 + 2] = (z).s1; \
+    (q)[3 * (o).s2] = (x).s2; (q)[3 * (o).s2 + 1] = (y).s2; (q)[3 * (o).s2 + 2] = (z).s2; \
+    (q)[3 * (o).s3] = (x).s3; (q)[3 * (o).s3 + 1] = (y).s3; (q)[3 * (o).s3 + 2] = (z).s3; \
+    (q)[3 * (o).s4] = (x).s4; (q)[3 * (o).s4 + 1] = (y).s4; (q)[3 * (o).s4 + 2] = (z).s4; \
+    (q)[3 * (o).s5] = (x).s5; (q)[3 * (o).s5 + 1] = (y).s5; (q)[3 * (o).s5 + 2] = (z).s5; \
+    (q)[3 * (o).s6] = (x).s6; (q)[3 * (o).s6 + 1] = (y).s6; (q)[3 * (o).s6 + 2] = (z).s6; \
+    (q)[3 * (o).s7] = (x).s7; (q)[3 * (o).s7 + 1] = (y).s7; (q)[3 * (o).s7 + 2] = (z).s7; \
+} while (0)
+
+/* float8 of p[i.s0], ..., p[i.s7]. */
+#define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
+                                (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
