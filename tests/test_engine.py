@@ -75,6 +75,22 @@ def test_kernel_matches_reference_random(n_pts, n_segs, alpha, blend):
         assert np.abs(out - expect).max() <= TOL * diag(points)
 
 
+@pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
+def test_kernel_matches_reference_large_point_handle_angles(angle):
+    """Point-handle minimal rotations of every size up to nearly pi, where the kernel's
+    inline sqrt/atan2 (kernels/nrmls.cl) unfold the octant: the paper blend has no
+    reference rotation, so a global turn reaches each handle's minimal rotation."""
+    rng = np.random.default_rng(int(angle))
+    rest = random_rest(rng, 6, 0)
+    points = rng.uniform(-1.5, 1.5, (203, 3))
+    axis = rng.normal(size=3)
+    rot = Rotation.from_rotvec(np.radians(angle) * axis / np.linalg.norm(axis))
+    dev, ref = both(points, rest, blend="paper")
+    for noise in (0.0, 0.05):
+        pose = Pose.make(rest, rot.apply(rest.points) + rng.normal(scale=noise, size=(6, 3)))
+        assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
+
+
 @pytest.mark.parametrize("lever", ["weight", "length", "paper"])
 def test_kernel_matches_reference_levers(lever):
     rng = np.random.default_rng(7)
