@@ -8,23 +8,31 @@
  * explicit vectors were worth ~4x over scalar work-items (shared/notes/pocl.md).
  * No fma()/mad() builtins: they are ~10x slower than a*b+c on PoCL.
  *
- * Layouts (Np = number of points padded to a multiple of 8; SoA rows of Np):
- *   u      [3][Np]        v - p*
- *   ref    [Np]  int      reference rotation index: segment s, or S for global;
- *                         points are stored sorted by ref (stable), so the 8 lanes
- *                         of a work-item nearly always share it (scalar loads
- *                         instead of gathers)
- *   row    [Np]  int      output row of each stored point (undoes the sort)
- *   K                     segment slots per point: S (dense) or k (built with
- *                         -DSPARSE: the k most influential segments of each point)
- *   slot   [K][Np]  int   (SPARSE only) segment held by each slot
- *   coef   [P+2K][Np]     q* coefficients: point handles (w), then per segment slot
+ * Bound data is stored chunk-major: chunk g (points 8g..8g+7 of the stored
+ * order) has one float record and one int record, each a list of rows of 8
+ * lanes, so a work-item streams through two contiguous regions of memory
+ * (with SoA rows of all N points, 20-40 rows 4 MB apart each cost a
+ * prefetch stream and a TLB entry: 1M points x 8 slots posed ~2x slower).
+ * Np = number of points padded to a multiple of 8.
+ *   float record, FREC(P, K) floats, rows:
+ *   u      [3]            v - p*
+ *   coef   [P+2K]         q* coefficients: point handles (w), then per segment slot
  *                         (w(1-t), w t) on the segment's posed ends
- *   lever  [P+K][Np]      normalised levers (points, then segment slots); built with
+ *   phat   [3P]           p_i - p* of the point handles (x, y, z rows per handle)
+ *   lever  [P+K]          normalised levers (points, then segment slots); built with
  *                         -DDERIVED_LEVER (lever rules "weight" and "length") they
  *                         are not stored but derived: w_p |phat_p|^2 for a point
  *                         handle, w_s len2[s] for a segment (w_s = w(1-t) + w t),
  *                         then normalised per point: 1/(P+K) fewer loads per point
+ *   int record, IREC(K) ints, rows:
+ *   ref    [1]            reference rotation index: segment s, or S for global;
+ *                         points are stored sorted by ref (stable), so the 8 lanes
+ *                         of a work-item nearly always share it (scalar loads
+ *                         instead of gathers)
+ *   row    [1]            output row of each stored point (undoes the sort)
+ *   slot   [K]            (SPARSE only) segment held by each slot
+ *   K                     segment slots per point: S (dense) or k (built with
+ *                         -DSPARSE: the k most influential segments of each point)
  *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
  *                         rest length ("length"), see nrpose/blend.py
  *   phat   [P][3][Np]     p_i - p* of the point handles
@@ -41,6 +49,17 @@
  */
 
 #include "lanes.h"
+
+#ifdef DERIVED_LEVER
+#define FREC(P, K) (8 * (3 + 4 * (P) + 2 * (K)))
+#else
+#define FREC(P, K) (8 * (3 + 5 * (P) + 3 * (K)))
+#endif
+#ifdef SPARSE
+#define IREC(K) (8 * (2 + (K)))
+#else
+#define IREC(K) 16
+#endif
 
 /* Unit quaternion (x, y, z, w) of a row-major rotation matrix (Shepperd). */
 static float4 quat_of(__global const float *m)
@@ -136,10 +155,8 @@ __kernel void nrmls_prepare(const int P, const int S, const int paper, const int
 }
 
 __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
-                         __global const float *u, __global const int *ref, __global const int *row,
-                         __global const int *slot, __global const float *coef,
-                         __global const float *lever, __global const float *len2,
-                         __global const float *phat,
+                         __global const float *frec, __global const int *irec,
+                         __global const float *len2,
                          __global const float *pose, __global const float *derived,
                          __global float *out_frames, const int per_item,
                          const int F, const int pose_stride, const int derived_stride)
@@ -148,6 +165,14 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     for (int g = get_global_id(0) * per_item; g < min(chunks, (int)(get_global_id(0) + 1) * per_item); ++g) {
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
+    /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */
+    __global const float *u = frec + g * FREC(P, K);
+    __global const float *coef = u + 8 * 3;
+    __global const float *phat = coef + 8 * (P + 2 * K);
+#ifndef DERIVED_LEVER
+    __global const float *lever = phat + 8 * 3 * P;
+#endif
+    __global const int *ints = irec + g * IREC(K);
     for (int f = 0; f < F; ++f) {
     __global const float *qpos = pose + f * pose_stride;
     __global const float *refs = derived + f * derived_stride;
@@ -155,7 +180,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     __global float *out = out_frames + f * 3 * np;
 
     /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered */
-    const int8 rf = LOADI8(g, ref);
+    const int8 rf = LOADI8(0, ints);
     const int uniform = SAME8(rf);
     float8 m00, m01, m02, m10, m11, m12, m20, m21, m22;
     if (uniform) {
@@ -176,7 +201,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     float8 lsum = 0.0f;                  /* normaliser of the derived levers */
 #endif
     for (int p = 0; p < P; ++p) {
-        const float8 c = LOAD8(g, coef + p * np);
+        const float8 c = LOAD8(p, coef);
         qx += c * qpos[3 * p];
         qy += c * qpos[3 * p + 1];
         qz += c * qpos[3 * p + 2];
@@ -184,18 +209,18 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     for (int k = 0; k < K; ++k) {
         /* segment slot k: dense, slot k is segment k; SPARSE, slot[k] names it per point */
 #ifdef SPARSE
-        const int8 h = LOADI8(g, slot + k * np);
+        const int8 h = LOADI8(2 + k, ints);
 #else
         const int8 h = (int8)k;
 #endif
-        const float8 ca = LOAD8(g, coef + (P + 2 * k) * np);
-        const float8 cb = LOAD8(g, coef + (P + 2 * k + 1) * np);
+        const float8 ca = LOAD8(P + 2 * k, coef);
+        const float8 cb = LOAD8(P + 2 * k + 1, coef);
         if (uniform && SAME8(h)) {
 #ifdef DERIVED_LEVER
             const float8 l = (ca + cb) * len2[h.s0];
             lsum += l;
 #else
-            const float8 l = LOAD8(g, lever + (P + k) * np);
+            const float8 l = LOAD8(P + k, lever);
 #endif
             __global const float *e = qpos + 3 * (P + 2 * h.s0);
             __global const float *t = table + 3 * (S * rf.s0 + h.s0);
@@ -210,7 +235,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
             const float8 l = (ca + cb) * GATHER8(len2, h);
             lsum += l;
 #else
-            const float8 l = LOAD8(g, lever + (P + k) * np);
+            const float8 l = LOAD8(P + k, lever);
 #endif
             const int8 e = 3 * (P + 2 * h), t = 3 * (S * rf + h);
             qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
@@ -227,19 +252,19 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         const float8 yx = m00 * hx + m10 * hy + m20 * hz;
         const float8 yy = m01 * hx + m11 * hy + m21 * hz;
         const float8 yz = m02 * hx + m12 * hy + m22 * hz;
-        const float8 px = LOAD8(g, phat + (3 * p) * np);
-        const float8 py = LOAD8(g, phat + (3 * p + 1) * np);
-        const float8 pz = LOAD8(g, phat + (3 * p + 2) * np);
+        const float8 px = LOAD8(3 * p, phat);
+        const float8 py = LOAD8(3 * p + 1, phat);
+        const float8 pz = LOAD8(3 * p + 2, phat);
         const float8 cx = py * yz - pz * yy, cy = pz * yx - px * yz, cz = px * yy - py * yx;
         const float8 sn = sqrt8(cx * cx + cy * cy + cz * cz);
         const float8 cs = px * yx + py * yy + pz * yz;
         const float8 k = sn > 0.0f ? atan2pos8(sn, cs) / sn : (float8)0.0f;
 #ifdef DERIVED_LEVER
-        const float8 lp = LOAD8(g, coef + p * np) * (px * px + py * py + pz * pz);
+        const float8 lp = LOAD8(p, coef) * (px * px + py * py + pz * pz);
         lsum += lp;
         const float8 l = lp * k;
 #else
-        const float8 l = LOAD8(g, lever + p * np) * k;
+        const float8 l = LOAD8(p, lever) * k;
 #endif
         rx += l * cx;
         ry += l * cy;
@@ -256,7 +281,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
      * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
      * sinc and cos are Taylor polynomials in x = h^2 (|r| <= pi, so h <= pi/2:
      * truncation < 5e-8); no sqrt, no division, no transcendental call. */
-    const float8 ux = LOAD8(g, u), uy = LOAD8(g, u + np), uz = LOAD8(g, u + 2 * np);
+    const float8 ux = LOAD8(0, u), uy = LOAD8(1, u), uz = LOAD8(2, u);
     const float8 x = 0.25f * (rx * rx + ry * ry + rz * rz);
     const float8 sinc = 1.0f + x * (-1.0f / 6 + x * (1.0f / 120 + x * (-1.0f / 5040 + x * (1.0f / 362880
                       + x * (-1.0f / 39916800 + x * (1.0f / 6227020800.0f))))));
@@ -274,7 +299,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     const float8 ox = m00 * wx + m01 * wy + m02 * wz + qx;
     const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
     const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
-    const int8 o = LOADI8(g, row);
+    const int8 o = LOADI8(1, ints);
     STORE_ROWS(ox, oy, oz, out, o);
     }
     }

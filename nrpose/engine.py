@@ -73,8 +73,11 @@ class Deformer:
         local = -(-items // GROUPS)
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         mf = cl.mem_flags
+        frec, irec = chunk_records(arrays, P, S, K, self.lever)
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
-                      for k, a in arrays.items()}
+                      for k, a in (("frec", frec), ("irec", irec), ("len2", arrays["len2"]),
+                                   ("pairs", arrays["pairs"]))}
+        del frec, irec, arrays
         self._npos = 3 * (P + 2 * S)
         self._pose_stride = self._npos + 9 * (S + 1)       # floats per frame: positions, rotations
         self._derived_stride = 9 * (S + 1) + 3 * (S + 1) * S
@@ -90,9 +93,8 @@ class Deformer:
         local = max(1, min(local, limit))          # beyond ~2M points: more groups, not bigger ones
         self._launch = ((-(-items // local) * local,), (local,))
         b = self._bufs
-        self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), np.int32(K), b["u"], b["ref"], b["row"],
-                              b["slot"], b["coef"], b["lever"], b["len2"], b["phat"], None, None, None,
-                              np.int32(PER_ITEM), np.int32(1), np.int32(self._pose_stride),
+        self._kernel.set_args(np.int32(npad), np.int32(P), np.int32(S), np.int32(K), b["frec"], b["irec"],
+                              b["len2"], None, None, None, np.int32(PER_ITEM), np.int32(1), np.int32(self._pose_stride),
                               np.int32(self._derived_stride))
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # PoCL compiles a kernel's work-group function at its first launch
@@ -113,9 +115,9 @@ class Deformer:
         self._out = device.HostArray(frames * 3 * self._npad)
         self._prepare.set_arg(5, self._pose.arg)
         self._prepare.set_arg(6, self._derived)
-        self._kernel.set_arg(12, self._pose.arg)
-        self._kernel.set_arg(13, self._derived)
-        self._kernel.set_arg(14, self._out.arg)
+        self._kernel.set_arg(7, self._pose.arg)
+        self._kernel.set_arg(8, self._derived)
+        self._kernel.set_arg(9, self._out.arg)
         self._frames = frames
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
@@ -170,7 +172,7 @@ class Deformer:
         self._pose.upload()
         S = len(self.rest.segments)
         q = self._queue
-        self._kernel.set_arg(16, np.int32(F))
+        self._kernel.set_arg(11, np.int32(F))
         self._batch = F
         cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
@@ -226,3 +228,20 @@ def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> t
                   else np.zeros(2, np.int32)),
     }
     return arrays, K
+
+
+def chunk_records(arrays: dict, P: int, S: int, K: int, lever: str) -> tuple[np.ndarray, np.ndarray]:
+    """The per-point arrays of :func:`device_layout` packed chunk-major, as
+    kernels/nrmls.cl reads them: (float32 records, int32 records), one record
+    of rows of 8 lanes per chunk of 8 stored points (rows in the kernel's order).
+    P point handles, S segments, K segment slots (K < S: sparse, slots stored)."""
+    floats = [arrays["u"], arrays["coef"]] + ([arrays["phat"]] if P else [])
+    if lever == "paper":
+        floats.append(arrays["lever"])
+    ints = [arrays["ref"][None], arrays["row"][None]] + ([arrays["slot"]] if K < S else [])
+
+    def pack(rows: list[np.ndarray]) -> np.ndarray:  # (R, Npad) blocks -> (Npad/8, R, 8)
+        a = np.concatenate(rows)
+        return np.ascontiguousarray(a.reshape(len(a), -1, LANES).transpose(1, 0, 2)).ravel()
+
+    return pack(floats), pack(ints)
