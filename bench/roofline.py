@@ -71,9 +71,11 @@ FLOP_COUNT = {
     "point handle: qhat = q - q* (3 sub)": (3, 0, 0),
     "point handle: y = R_ref^T qhat (3 x (3 mul + 2 add))": (15, 0, 0),
     "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0),
-    "point handle: |c|^2 (3 mul + 2 add) + sqrt call": (6, 0, 0),
+    "point handle: |c|^2 (3 mul + 2 add)": (5, 0, 0),
+    "point handle: sqrt8 (3 Newton steps of 4 mul + 1 sub, then x*y; the bit-trick seed is integer)": (16, 0, 0),
     "point handle: phat.y (3 mul + 2 add)": (5, 0, 0),
-    "point handle: atan2 call, / sn (1 div)": (2, 0, 0),
+    "point handle: atan2pos8 (lo/hi 1 div, a*a, degree-7 Horner 7 mul + 7 add, *a, 2 octant subs)": (19, 0, 0),
+    "point handle: angle / sn (1 div)": (1, 0, 0),
     "point handle: lever coef*|phat|^2, lsum +=, *k (3 mul + 2 add + 1 mul + 1 add + 1 mul)": (8, 0, 0),
     "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0),
     "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4),
@@ -85,9 +87,8 @@ FLOP_COUNT = {
     "Rodrigues: w = u + a k + b j (3 x (2 mul + 2 add))": (0, 0, 12),
     "output: R_ref w + q* (3 x (3 mul + 3 add))": (0, 0, 18),
 }
-#: of the totals above: calls (counted 1 each) and divisions (counted 1 each)
-CALLS = {"sqrt": (1, 0, 0), "atan2": (1, 0, 0)}
-DIVISIONS = {"atan2(sn, cs) / sn": (1, 0, 0), "1 / lsum": (0, 0, 1)}
+#: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
+DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0), "angle / sn": (1, 0, 0), "1 / lsum": (0, 0, 1)}
 
 
 def _total(table: dict, P: int, K: int) -> int:
@@ -100,10 +101,10 @@ def pose_flops(P: int, K: int) -> dict:
     return {"per_point": _total(FLOP_COUNT, P, K),
             "formula": "{} P + {} K + {} (P point handles, K segment slots)".format(
                 *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(3))),
-            "calls_per_point": {name: _total({name: v}, P, K) for name, v in CALLS.items()},
             "divisions_per_point": _total(DIVISIONS, P, K),
-            "rule": "mul/add/sub = 1 flop; sqrt, atan2 calls and divisions counted as 1 each "
-                    "(listed under calls_per_point / divisions_per_point); folded constants, "
+            "rule": "mul/add/sub = 1 flop (an FMA is 2); divisions counted as 1 each (listed under "
+                    "divisions_per_point); sqrt and atan2 are inline polynomials, counted by their "
+                    "operations; folded constants, "
                     "integer index work, comparisons and select() not counted; counted per real "
                     "point (padding to a multiple of 8 not counted); DERIVED_LEVER build (default "
                     "lever rule)"}
@@ -298,8 +299,9 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
             kernel_bound = "latency"
             reasons.append(f"kernel reaches neither roof ({100 * f_arith:.0f} % arithmetic, {100 * f_bw:.0f} % "
                            f"{'L3' if fits_l3 else 'DRAM'} bandwidth): scattered scalar stores of the output "
-                           f"(xyz by row), per-slot scalar/gathered loads of handle data, sqrt/atan2 calls "
-                           f"and divisions, and loop-carried work per point rather than a bandwidth or "
+                           f"(xyz by row), per-slot scalar/gathered loads of handle data, divisions and "
+                           f"register spills: instruction throughput of one thread (single poses of Table-1 "
+                           f"size end before PoCL's second worker joins) rather than a bandwidth or "
                            f"arithmetic limit")
     return {"gflops": gflops, "gbs": gbs, "fraction_arithmetic": f_arith,
             "fraction_bandwidth": f_bw, "bandwidth_roof": "l3" if fits_l3 else "dram",
@@ -354,12 +356,16 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
                     ev = roofs.pose_kernel_once(d)
                     prep.append(ev[0])
                     kern.append(ev[1])
+            # the same poses as one launch of F frames (how clips are posed): kernel time per frame
+            d.pose_frames(poses)
+            batched = [roofs.pose_kernel_once(d)[1] / len(poses) for _ in range(max(repeat, 1))]
             work = pose_work(d)
             work["lanes"] = lane_divergence(d)
             rows.append({"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                          "source": src.get("kind"), "work": work,
                          "pose_ms": common.stats(wall), "kernel_ms": common.stats(kern),
-                         "prepare_ms": common.stats(prep), "load": common.load()})
+                         "prepare_ms": common.stats(prep), "batched_kernel_ms_per_frame": common.stats(batched),
+                         "batch_frames": len(poses), "load": common.load()})
             if log:
                 log(f"roofline {model:9s} {kind:8s} pose {rows[-1]['pose_ms']['median']:.3f} ms, "
                     f"kernel {rows[-1]['kernel_ms']['median']:.3f} ms, prepare {rows[-1]['prepare_ms']['median']:.3f} ms")
@@ -371,15 +377,31 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
                         ceilings["launch"], r["prepare_ms"]["median"]))
         r["bound_by"] += (f"; measured: {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) "
                           f"visits on the gathered path")
+        r["batched"] = batched_rates(r["work"], r["batched_kernel_ms_per_frame"]["median"], ceilings)
     best = max(rows, key=lambda r: r["fraction_arithmetic"])
+    best_batched = max(rows, key=lambda r: r["batched"]["fraction_arithmetic"])
     return {"roofs": ceilings, "roofs_before": before, "roofs_after": after, "method": roofs.describe(),
             "flop_count": {"table": {k: list(v) for k, v in FLOP_COUNT.items()},
                            "columns": ["per point handle", "per segment slot", "fixed"],
-                           "calls": {k: list(v) for k, v in CALLS.items()},
                            "divisions": {k: list(v) for k, v in DIVISIONS.items()},
                            **{k: v for k, v in pose_flops(1, 1).items() if k in ("formula", "rule")}},
             "rows": rows, "poses_per_round": n_poses, "rounds": max(repeat, 1),
-            "best_row": f"{best['model']}/{best['kind']}", "best_fraction_arithmetic": best["fraction_arithmetic"]}
+            "best_row": f"{best['model']}/{best['kind']}", "best_fraction_arithmetic": best["fraction_arithmetic"],
+            "best_batched_row": f"{best_batched['model']}/{best_batched['kind']}",
+            "best_batched_fraction_arithmetic": best_batched["batched"]["fraction_arithmetic"]}
+
+
+def batched_rates(work: dict, ms_per_frame: float, roofs: dict) -> dict:
+    """Achieved rates of a batched launch (F frames), per frame, against the ceilings."""
+    t = ms_per_frame * 1e-3
+    gflops = work["flops_per_pose"] / t * 1e-9
+    fits_l3 = work["bytes_per_pose"] < 16 << 20
+    # a batch reads the bound data once for all its frames: bytes per frame are an upper bound
+    gbs = work["bytes_per_pose"] / t * 1e-9
+    return {"kernel_ms_per_frame": ms_per_frame, "gflops": gflops,
+            "fraction_arithmetic": gflops / roofs["gflops"]["median"],
+            "gbs_upper_bound": gbs,
+            "fraction_bandwidth_upper_bound": gbs / roofs["l3_gbs" if fits_l3 else "dram_gbs"]["median"]}
 
 
 def merge_roofs(before: dict, after: dict) -> dict:

@@ -8,8 +8,8 @@ Rows (paper figures, Intel Core 2 Quad 2.4 GHz, C++):
     box         6,006 points x  4 handles    6.2 ms
 
 For each row and each handle kind ("segments": a PCA chain; "points":
-farthest-point samples) this measures, in one run and interleaving the two
-backends: bind time (``Deformer`` construction), ``Pose.make`` time,
+farthest-point samples) this measures, in one run and alternating the two
+backends (rounds of 20 consecutive PoCL poses, then 3 numpy poses): bind time (``Deformer`` construction), ``Pose.make`` time,
 ``Deformer.pose`` on PoCL (OpenCL) over >= 20 distinct poses, the float64 numpy
 reference pose, their ratio, the time per point per handle, the ratio to the
 paper, and the largest PoCL-vs-numpy error relative to the bounding-box diagonal.
@@ -355,16 +355,19 @@ def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, 
     gc.disable()
     try:
         for r in range(repeat):
-            # numpy poses are spread through the PoCL loop (a different set each round),
-            # so both backends see the same machine
-            ref_at = {(r * 7 + j * n_poses // n_ref) % n_poses for j in range(n_ref)}
+            # rounds alternate a block of the PoCL poses (back to back, as frames are posed)
+            # with a few numpy poses (a different set each round), so both backends see the
+            # same machine; poses of one backend are not split by the other's, whose ~100 ms
+            # of host work would leave PoCL's worker threads asleep and its caches cold
+            outs = {}
             for i, p in enumerate(poses):
                 dt, out = _timed(lambda p=p: dcl.pose(p))
                 cl_s.append(dt)
-                if i in ref_at:
-                    dt, ref = _timed(lambda p=p: dnp.pose(p))
-                    np_s.append(dt)
-                    err = max(err, float(np.abs(out.astype(np.float64) - ref).max()) / diag)
+                outs[i] = out
+            for i in sorted({(r * 7 + j * n_poses // n_ref) % n_poses for j in range(n_ref)}):
+                dt, ref = _timed(lambda p=poses[i]: dnp.pose(p))
+                np_s.append(dt)
+                err = max(err, float(np.abs(outs[i].astype(np.float64) - ref).max()) / diag)
         # the same poses as one batch per launch (how clips are posed): per-frame time
         batch_s = []
         for _ in range(repeat):

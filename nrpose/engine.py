@@ -97,6 +97,7 @@ class Deformer:
                               b["len2"], None, None, None, np.int32(PER_ITEM), np.int32(1), np.int32(self._pose_stride),
                               np.int32(self._derived_stride))
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
+        self._batch = 1       # frames per launch, as last set on the pose kernel
         # PoCL compiles a kernel's work-group function at its first launch
         # (~0.5 s): pay that at bind, not in the first frame
         self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
@@ -172,11 +173,12 @@ class Deformer:
         self._pose.upload()
         S = len(self.rest.segments)
         q = self._queue
-        self._kernel.set_arg(11, np.int32(F))
-        self._batch = F
+        if F != self._batch:
+            self._kernel.set_arg(11, np.int32(F))
+            self._batch = F
         cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
-        cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
-        self._out.download()
+        done = cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
+        self._out.download(done)
         return self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]
 
 
