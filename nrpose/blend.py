@@ -168,14 +168,18 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
                              "every point needs at least one influencing handle")
     elif distances is not None:
         d_all = _check_matrix(distances, (n, H), "distances")
-    blocks = []
-    for a in range(0, n, BLOCK):   # bounded memory: (block, H, 3) temporaries
+    out: dict[str, np.ndarray] = {}
+    for a in range(0, n, BLOCK):   # bounded memory: (block, H, 3) temporaries, results filled in place
         b = slice(a, min(a + BLOCK, n))
         given = w_all[b] if weights is not None else None
         dist = d_all[b] if distances is not None else None
-        blocks.append(_rest_block(v[b], rest, alpha, lever, dist, given, k))
-    return RestTerms(*(np.concatenate([getattr(blk, f) for blk in blocks])
-                       for f in RestTerms.__dataclass_fields__))
+        blk = _rest_block(v[b], rest, alpha, lever, dist, given, k)
+        for f in RestTerms.__dataclass_fields__:
+            part = getattr(blk, f)
+            if f not in out:
+                out[f] = np.empty((n,) + part.shape[1:], part.dtype)
+            out[f][b] = part
+    return RestTerms(**out)
 
 
 #: points per block of rest_terms' computation
@@ -190,7 +194,11 @@ def _rest_block(v, rest: HandleSet, alpha, lever, distances, weights, k) -> Rest
     if weights is not None:
         w = weights / weights.sum(axis=1, keepdims=True)
     else:
-        d = np.linalg.norm(v[:, None, :] - p, axis=2) if distances is None else distances
+        if distances is None:
+            diff = v[:, None, :] - p
+            d = np.sqrt(np.einsum("nhk,nhk->nh", diff, diff))
+        else:
+            d = distances
         w = dense_weights(d, alpha)
     w = keep_top_k(w, k)
     p_star = np.einsum("nh,nhk->nk", w, p)
