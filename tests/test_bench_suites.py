@@ -119,3 +119,31 @@ def test_bad_options(tmp_path):
         benchcli.cmd_bench(args)
     with pytest.raises(SystemExit):
         _parser().parse_args(["bench", "--suite", "nope"])
+
+
+def test_report_renders_the_documents(quick, tmp_path):
+    """bench/report.py puts every row and target of the documents between the README markers."""
+    import sys
+    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "bench"))
+    import report
+
+    doc, _ = quick
+    t1 = dict(doc["suites"]["table1"], timestamp=doc["timestamp"], git_commit=doc["git_commit"],
+              environment=doc["environment"])
+    readme = tmp_path / "README.md"
+    readme.write_text("head\n<!-- results -->\nold\n<!-- /results -->\nmid\n"
+                      "<!-- suites-results -->\nold\n<!-- /suites-results -->\ntail\n")
+    (tmp_path / "t1.json").write_text(json.dumps(t1))
+    (tmp_path / "s.json").write_text(json.dumps(doc))
+    assert report.main(["--table1", str(tmp_path / "t1.json"), "--suites", str(tmp_path / "s.json"),
+                        "--readme", str(readme)]) == 0
+    text = readme.read_text()
+    assert text.startswith("head\n") and "\nmid\n" in text and text.endswith("tail\n") and "old" not in text
+    for r in doc["suites"]["table1"]["rows"]:
+        assert f"| {r['model']} | {r['kind']} |" in text and f"| {r['model']}/{r['kind']} |" in text
+    for t in doc["targets"]:
+        assert t["name"] in text
+    readme.write_text("no markers")
+    assert report.main(["--table1", str(tmp_path / "t1.json"), "--suites", str(tmp_path / "s.json"),
+                        "--readme", str(readme)]) == 2
+    assert readme.read_text() == "no markers"

@@ -1,0 +1,163 @@
+"""Render the committed benchmark results into bench/README.md.
+
+    python bench/report.py [--table1 results/table1.json] [--suites results/suites.json]
+                           [--readme bench/README.md]
+
+Replaces the text between ``<!-- results -->`` / ``<!-- /results -->`` (from the
+Table-1 document) and ``<!-- suites-results -->`` / ``<!-- /suites-results -->``
+(from the suites document) with tables of their figures, so that the README
+quotes exactly what the JSON holds. Everything outside the markers (method,
+observations) is left alone. Writes atomically; exits 2 with one line on a
+missing or malformed document.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import pathlib
+import re
+import sys
+import tempfile
+
+HERE = pathlib.Path(__file__).resolve().parent
+
+
+def _ms(x: float) -> str:
+    return f"{x:.3f}" if x < 10 else f"{x:.1f}"
+
+
+def _row(cells) -> str:
+    return "| " + " | ".join(str(c).replace("|", "\\|") for c in cells) + " |"
+
+
+def _table(head: list[str], rows: list[list]) -> str:
+    return "\n".join([_row(head), _row(["---"] * len(head))] + [_row(r) for r in rows])
+
+
+def _header(doc: dict) -> str:
+    env = doc.get("environment", {})
+    dev = env.get("device", {})
+    opts = doc.get("options", {})
+    return (f"commit {doc.get('git_commit', '?')[:8]}{' (dirty)' if doc.get('git_dirty') else ''}, "
+            f"{doc.get('timestamp', '?')}, `--repeat {opts.get('repeat', '?')}`, "
+            f"{dev.get('device_version', dev.get('device', '?'))}, {env.get('cpu_count', '?')} CPUs")
+
+
+def table1_block(doc: dict) -> str:
+    """Markdown for one Table-1 document (bench/table1.py)."""
+    rows = []
+    for r in doc["rows"]:
+        cl, b = r["pocl_pose_ms"], r["pocl_batched_per_frame_ms"]
+        rows.append([r["model"], r["kind"], f"{r['points']:,} × {r['handles']}", _ms(r["bind_ms"]["median"]),
+                     _ms(r["pose_make_ms"]["median"]),
+                     f"**{_ms(cl['median'])}** [{_ms(cl['p10'])}–{_ms(cl['p90'])}]",
+                     _ms(r["numpy_pose_ms"]["median"]), f"{r['speedup_vs_numpy']:.0f}×",
+                     f"{_ms(b['median'])} ({r['batched_speedup_vs_numpy']:.0f}×)",
+                     r["paper_ms"], f"{r['paper_over_pocl']:.0f}×", f"{r['max_error_rel_bbox']:.1e}"])
+    t = doc["targets"]
+    verdict = lambda ok: "met" if ok else "**not met**"  # noqa: E731
+    return "\n".join([
+        f"`results/table1.json`: {_header(doc)}. Medians in ms (PoCL p10–p90 in brackets); "
+        "`Pose.make` is not included in the pose times; batched = one launch posing the "
+        f"{doc['rows'][0]['batch_frames']} poses, per frame.", "",
+        _table(["row", "kind", "N × h", "bind", "Pose.make", "PoCL pose", "numpy pose", "numpy/PoCL",
+                "batched (numpy/batched)", "paper", "paper/PoCL", "max err / diag"], rows), "",
+        f"Targets ({t['row']}): pose ≤ {t['pose_ms_max']} ms: {_ms(t['pose_ms'])} ms, "
+        f"{verdict(t['pose_ms_met'])}; ≥ {t['speedup_min']:.0f}× faster than the numpy reference: "
+        f"{t['speedup']:.0f}×, {verdict(t['speedup_met'])}."])
+
+
+def suites_block(doc: dict) -> str:
+    """Markdown for one suites document (bench/suites.py)."""
+    s = doc["suites"]
+    out = [f"`results/suites.json`: {_header(doc)}, load {doc.get('load_start')} → {doc.get('load_end')}, "
+           f"{doc.get('seconds', 0) / 60:.1f} min, peak RSS {doc.get('peak_rss_gb', 0):.1f} GB.", "",
+           "Targets (medians, same run):", ""]
+    for t in doc.get("targets", []):
+        m = t["measured"]
+        shown = "—" if m is None else (f"{m:.3g}" if isinstance(m, float) else m)
+        out.append(f"* {t['name']}: **{shown}** ({t.get('where', '')}) → "
+                   f"{'met' if t['met'] else '**not met**'}")
+    if "table1" in s:
+        out += ["", _table(["Table-1 row", "PoCL ms", "batched ms/frame", "numpy ms", "numpy/PoCL",
+                            "paper/PoCL"],
+                           [[f"{r['model']}/{r['kind']}", _ms(r["pocl_pose_ms"]["median"]),
+                             _ms(r["pocl_batched_per_frame_ms"]["median"]), _ms(r["numpy_pose_ms"]["median"]),
+                             f"{r['speedup_vs_numpy']:.0f}×", f"{r['paper_over_pocl']:.0f}×"]
+                            for r in s["table1"]["rows"]])]
+    if "roofline" in s:
+        ro = s["roofline"]
+        c = ro["roofs"]
+        out += ["", f"Roofline ceilings: {c['gflops']['median']:.0f} GFLOP/s arithmetic (best "
+                    f"{c['gflops']['max']:.0f}), copy {c['dram_gbs']['median']:.1f} GB/s DRAM, "
+                    f"{c['l3_gbs']['median']:.1f} GB/s L3-resident; empty kernel "
+                    f"{c['launch']['event_ms'] * 1e3:.1f} µs event, {c['launch']['wall_ms'] * 1e3:.0f} µs "
+                    "enqueue+wait.", "",
+                _table(["row", "flop/pt", "B/pt", "pose ms", "kernel ms", "GFLOP/s", "% arith",
+                        "batched kernel ms/frame", "batched % arith", "bound"],
+                       [[f"{r['model']}/{r['kind']}", r["work"]["flops_per_point"], r["work"]["bytes_per_point"],
+                         _ms(r["pose_ms"]["median"]), _ms(r["kernel_ms"]["median"]), f"{r['gflops']:.1f}",
+                         f"{100 * r['fraction_arithmetic']:.1f}",
+                         _ms(r["batched"]["kernel_ms_per_frame"]),
+                         f"{100 * r['batched']['fraction_arithmetic']:.1f}", r["kernel_bound"]]
+                        for r in ro["rows"]])]
+    if "scaling" in s:
+        sc = s["scaling"]
+        out += ["", "Scaling fits (pose medians):", ""]
+        for mode, f in sc["fits"].items():
+            if "linear" in f:
+                lin, pw = f["linear"], f.get("power", {})
+                out.append(f"* {mode}: t = {lin['c0_ms']:.3f} ms + {lin['c1_ns_per_point']:.1f} ns·N + "
+                           f"{lin['c2_ns_per_point_handle']:.2f} ns·N·H (R² {lin['r2']:.3f}); "
+                           f"t ∝ (N·H)^{pw.get('b', float('nan')):.2f}")
+        out += ["", _table(["mode", "N", "H", "bind s", "RSS GB", "pose ms", "kernel ms", "gathered"],
+                           [[r["mode"], f"{r['points']:,}", r["handles"], f"{r['bind_ms'] / 1e3:.2f}",
+                             f"{r['peak_rss_gb_after_bind']:.1f}", _ms(r["pose_ms"]["median"]),
+                             _ms(r["kernel_ms"]["median"]) if "kernel_ms" in r else "—",
+                             f"{100 * r['work']['lanes']['gathered_slot_fraction']:.0f} %"]
+                            for r in sc["rows"]])]
+    if "clips" in s:
+        by: dict[tuple, dict] = {}
+        for r in s["clips"]["rows"]:
+            key = (r["character"], r["clip"], r["weights"], r["vertices"], r["joints"])
+            by.setdefault(key, {})[r["method"]] = r
+        out += ["", _table(["character (clip, weights)", "V", "J", "nrmls ms/frame", "lbs ms/frame",
+                            "dqs ms/frame"],
+                           [[f"{ch} ({clip}, {w})", f"{v:,}", j] +
+                            [_ms(m[k]["frame_ms"]["median"]) if k in m else "—" for k in ("nrmls", "lbs", "dqs")]
+                            for (ch, clip, w, v, j), m in by.items()])]
+    return "\n".join(out)
+
+
+def splice(text: str, tag: str, block: str) -> str:
+    """text with the part between <!-- tag --> and <!-- /tag --> replaced by block."""
+    pat = re.compile(rf"(<!-- {re.escape(tag)} -->\n).*?(\n<!-- /{re.escape(tag)} -->)", re.S)
+    if not pat.search(text):
+        raise ValueError(f"markers <!-- {tag} --> ... <!-- /{tag} --> not found")
+    return pat.sub(lambda m: m.group(1) + block + m.group(2), text, count=1)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--table1", default=str(HERE / "results" / "table1.json"))
+    ap.add_argument("--suites", default=str(HERE / "results" / "suites.json"))
+    ap.add_argument("--readme", default=str(HERE / "README.md"))
+    a = ap.parse_args(argv)
+    try:
+        text = pathlib.Path(a.readme).read_text()
+        text = splice(text, "results", table1_block(json.loads(pathlib.Path(a.table1).read_text())))
+        text = splice(text, "suites-results", suites_block(json.loads(pathlib.Path(a.suites).read_text())))
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        print(f"bench/report.py: {type(exc).__name__}: {exc}", file=sys.stderr)
+        return 2
+    fd, tmp = tempfile.mkstemp(dir=pathlib.Path(a.readme).parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as f:
+        f.write(text)
+    os.replace(tmp, a.readme)
+    print(f"wrote {a.readme}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
