@@ -35,7 +35,6 @@
  *                         -DSPARSE: the k most influential segments of each point)
  *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
  *                         rest length ("length"), see nrpose/blend.py
- *   phat   [P][3][Np]     p_i - p* of the point handles
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
  *          rotations of the segments and the global rotation R_g, row-major
  *   derived (written by nrmls_prepare from `rots`, once per pose)
@@ -82,16 +81,21 @@ static float4 quat_of(__global const float *m)
     return normalize(q);
 }
 
-/* sqrt(x) for x >= 0 without PoCL's out-of-line sqrt call: the inverse square
- * root from the exponent-halving bit trick, three Newton steps (relative error
- * 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding), times x. sqrt8(0) = 0. */
+/* sqrt(x) for finite x >= 0 without PoCL's out-of-line sqrt call: the inverse
+ * square root from the exponent-halving bit trick, three Newton steps
+ * (relative error 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding), times x.
+ * The seed needs a normal float: denormal x (< 2^-126; |c|^2 of a point handle
+ * on a model ~1e-19 across) is scaled by 2^64 first and the result by 2^-32.
+ * sqrt8(0) = 0; infinite x gives a wrong value (callers only use finite x > 0). */
 static inline float8 sqrt8(const float8 x)
 {
-    float8 y = as_float8((int8)0x5f375a86 - (as_int8(x) >> 1));
-    y = y * (1.5f - 0.5f * x * y * y);
-    y = y * (1.5f - 0.5f * x * y * y);
-    y = y * (1.5f - 0.5f * x * y * y);
-    return x * y;
+    const int8 tiny = x < 1.17549435e-38f;
+    const float8 xs = tiny ? x * 18446744073709551616.0f : x;          /* 2^64 */
+    float8 y = as_float8((int8)0x5f375a86 - (as_int8(xs) >> 1));
+    y = y * (1.5f - 0.5f * xs * y * y);
+    y = y * (1.5f - 0.5f * xs * y * y);
+    y = y * (1.5f - 0.5f * xs * y * y);
+    return (tiny ? (float8)2.3283064365386963e-10f : (float8)1.0f) * (xs * y);    /* 2^-32 */
 }
 
 /* atan2(s, c) for s >= 0 (an angle in [0, pi]) without the out-of-line call:
@@ -166,18 +170,18 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
     /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */
-    __global const float *u = frec + g * FREC(P, K);
+    __global const float *u = frec + (size_t)g * FREC(P, K);
     __global const float *coef = u + 8 * 3;
     __global const float *phat = coef + 8 * (P + 2 * K);
 #ifndef DERIVED_LEVER
     __global const float *lever = phat + 8 * 3 * P;
 #endif
-    __global const int *ints = irec + g * IREC(K);
+    __global const int *ints = irec + (size_t)g * IREC(K);
     for (int f = 0; f < F; ++f) {
     __global const float *qpos = pose + f * pose_stride;
     __global const float *refs = derived + f * derived_stride;
     __global const float *table = refs + 9 * (S + 1);
-    __global float *out = out_frames + f * 3 * np;
+    __global float *out = out_frames + (size_t)f * 3 * np;
 
     /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered */
     const int8 rf = LOADI8(0, ints);

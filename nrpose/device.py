@@ -114,7 +114,7 @@ class HostArray:
     """A float32 array that the host writes or reads and a kernel uses as an argument.
 
     On devices with fine-grained SVM the host array *is* the device memory:
-    no copies, a pose is only kernel enqueues and a ``finish``. Elsewhere a
+    no copies, a pose is only kernel enqueues and a wait (:func:`wait`). Elsewhere a
     device buffer shadows it and :meth:`upload` / :meth:`download` copy.
 
     size: number of float32 elements; svm: force (True) or refuse (False)
@@ -166,7 +166,8 @@ def wait(queue, event=None) -> None:
         cl = _cl()
         queue.flush()
         done = cl.command_execution_status.COMPLETE
-        for _ in range(int(SPIN_S * 1e6)):
+        deadline = time.perf_counter() + SPIN_S
+        while time.perf_counter() < deadline:
             if event.command_execution_status == done:
                 return
             os.sched_yield()

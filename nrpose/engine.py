@@ -183,8 +183,10 @@ class Deformer:
 
 
 def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> tuple[dict, int]:
-    """The bound arrays of kernels/nrmls.cl (its header states the layouts) and the
-    number K of segment slots per point (S when dense, k < S with top-k sparsity).
+    """The per-point arrays that kernels/nrmls.cl binds, as rows of all points
+    (:func:`chunk_records` packs them into its chunk-major records; its header
+    states the rows), and the number K of segment slots per point (S when
+    dense, k < S with top-k sparsity).
 
     Points are stored sorted by reference rotation, then by their slots, so
     that a work-item's 8 lanes share them; ``row`` sends each back to the
