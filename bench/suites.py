@@ -188,11 +188,16 @@ def _plot_roofline(ax, res):
     ax.axhline(0.3 * peak, color="r", lw=0.8, ls=":", label="30 % of arithmetic roof")
     for r in res["rows"]:
         mk = "o" if r["kind"] == "segments" else "s"
-        ax.loglog(r["work"]["arithmetic_intensity"], r["gflops"], mk, ms=7,
-                  label=f"{r['model']}/{r['kind']}: {100 * r['fraction_arithmetic']:.0f} % ({r['kernel_bound']})")
+        line, = ax.loglog(r["work"]["arithmetic_intensity"], r["gflops"], mk, ms=7,
+                          label=f"{r['model']}/{r['kind']}: {100 * r['fraction_arithmetic']:.0f} % "
+                                f"({r['kernel_bound']}); batched {100 * r['batched']['fraction_arithmetic']:.0f} %")
+        # the same poses in one launch (hollow marker, same colour), per frame
+        ax.loglog(r["work"]["arithmetic_intensity"], r["batched"]["gflops"], mk, ms=9, mfc="none",
+                  mec=line.get_color())
     ax.set_xlabel("arithmetic intensity (counted flop / byte)")
     ax.set_ylabel("GFLOP/s (pose kernel, events)")
-    ax.set_title("Roofline: nrmls_pose at Table-1 sizes against this device's measured ceilings", fontsize=9)
+    ax.set_title("Roofline: nrmls_pose at Table-1 sizes against this device's measured ceilings "
+                 "(filled: single pose; hollow: batched launch, per frame)", fontsize=9)
     ax.legend(fontsize=6, ncol=2, loc="lower right")
     ax.grid(which="both", alpha=0.3)
 
