@@ -151,17 +151,18 @@ class HostArray:
             _cl().enqueue_copy(self._queue, self.host, self.arg, is_blocking=True)
 
 
-SPIN_S = 2e-3   # poll a command's status this long before blocking on it
+SPIN_S = 3e-4   # poll a command's status this long before blocking on it
 
 
 def wait(queue, event=None) -> None:
     """Wait until ``event`` (None: everything enqueued on ``queue``) completes.
 
-    Sub-millisecond commands are polled, yielding the core between polls, for
-    up to SPIN_S seconds before blocking: measured on the 2-core VM, the host
-    thread's wake-up after a blocking ``finish`` costs ~0.1 ms, which was half
-    the posing time of the 6,006-point box (bench/README.md). Longer commands
-    block as before, so no core is held busy."""
+    The event is polled, yielding the core between polls, for up to SPIN_S
+    seconds before blocking. Measured on the 2-core VM (bench/README.md): the host
+    thread's wake-up after a blocking ``finish`` costs ~0.1 ms, half the posing
+    time of the 6,006-point box; polling longer than ~0.3 ms slowed kernels that
+    keep both cores busy (point handles: +10 %), so longer commands block.
+    """
     if event is not None:
         cl = _cl()
         queue.flush()
