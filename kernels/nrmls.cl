@@ -1,4 +1,5 @@
-/* Near-rigid MLS pose kernel (Jeong & Kim), relative-rotation blend.
+/* Near-rigid MLS pose kernel (Jeong & Kim): relative-rotation blend (default),
+ * the paper's blend, or (built with -DQUAT_BLEND) the quaternion blend.
  *
  * Reference: nrpose/blend.py (pose_reference), float64. Everything that
  * depends only on the rest configuration is bound once (see nrpose/engine.py);
@@ -38,8 +39,10 @@
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
  *          rotations of the segments and the global rotation R_g, row-major
  *   derived (written by nrmls_prepare from `rots`, once per pose)
- *          refs [(S+1)*9] row-major | table [(S+1)*S*3],
- *          table[j][s] = log(R_ref_j^-1 R_s)
+ *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4]):
+ *          relative/paper blends, TW = 3: table[j][s] = log(R_ref_j^-1 R_s);
+ *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j, and
+ *          quats[j] = Q_j, unit quaternions (x, y, z, w) of the rotations
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order
  *
  * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
@@ -48,6 +51,26 @@
  */
 
 #include "lanes.h"
+
+#ifdef QUAT_BLEND
+#define TW 4      /* floats per rotation-table entry */
+#else
+#define TW 3
+#if defined(DERIVED_LEVER)
+#define NORMALISE_LEVERS  /* derived levers are normalised per point (the quaternion blend normalises Q) */
+#endif
+#endif
+
+/* Q_ref, the unit quaternion of each lane's reference rotation (QUAT_BLEND), into gx..gw */
+#define LOAD_QREF() do {                                                                    \
+        __global const float *qt = table + TW * (S + 1) * S;                                \
+        if (uniform) {                                                                      \
+            gx = qt[4 * rf.s0]; gy = qt[4 * rf.s0 + 1]; gz = qt[4 * rf.s0 + 2]; gw = qt[4 * rf.s0 + 3]; \
+        } else {                                                                            \
+            const int8 r4 = 4 * rf;                                                         \
+            gx = GATHER8(qt, r4); gy = GATHER8(qt, r4 + 1); gz = GATHER8(qt, r4 + 2); gw = GATHER8(qt, r4 + 3); \
+        }                                                                                   \
+    } while (0)
 
 #ifdef DERIVED_LEVER
 #define FREC(P, K) (8 * (3 + 4 * (P) + 2 * (K)))
@@ -140,12 +163,21 @@ __kernel void nrmls_prepare(const int P, const int S, const int paper, const int
     __global float *table = refs + 9 * (S + 1);
     if (g >= npairs) {
         const int j = g - npairs;
-        if (j <= S)
+        if (j <= S) {
             for (int k = 0; k < 9; ++k)
                 refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : rots[9 * j + k];
+#ifdef QUAT_BLEND
+            vstore4(quat_of(rots + 9 * j), j, table + TW * (S + 1) * S);
+#endif
+        }
         return;
     }
     const int j = pairs[2 * g], i = pairs[2 * g + 1];
+#ifdef QUAT_BLEND
+    const float4 qi = quat_of(rots + 9 * i), qj = quat_of(rots + 9 * j);
+    vstore4(dot(qi, qj) < 0.0f ? -qi : qi, j * S + i, table);
+    return;
+#endif
     float3 r = (float3)(0.0f);
     if (paper) {
         r = quat_log(quat_of(rots + 9 * i));
@@ -201,7 +233,11 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     /* q* (weighted posed centroid, linear in the posed handle positions) and the
      * blended rotation vector relative to the reference */
     float8 qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
-#ifdef DERIVED_LEVER
+#ifdef QUAT_BLEND
+    float8 rw = 0.0f;                    /* r: the lever-weighted quaternion sum */
+    float8 gx, gy, gz, gw;               /* Q_ref */
+#endif
+#ifdef NORMALISE_LEVERS
     float8 lsum = 0.0f;                  /* normaliser of the derived levers */
 #endif
     for (int p = 0; p < P; ++p) {
@@ -222,34 +258,48 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         if (uniform && SAME8(h)) {
 #ifdef DERIVED_LEVER
             const float8 l = (ca + cb) * len2[h.s0];
-            lsum += l;
 #else
             const float8 l = LOAD8(P + k, lever);
 #endif
+#ifdef NORMALISE_LEVERS
+            lsum += l;
+#endif
             __global const float *e = qpos + 3 * (P + 2 * h.s0);
-            __global const float *t = table + 3 * (S * rf.s0 + h.s0);
+            __global const float *t = table + TW * (S * rf.s0 + h.s0);
             qx += ca * e[0] + cb * e[3];
             qy += ca * e[1] + cb * e[4];
             qz += ca * e[2] + cb * e[5];
             rx += l * t[0];
             ry += l * t[1];
             rz += l * t[2];
+#ifdef QUAT_BLEND
+            rw += l * t[3];
+#endif
         } else {
 #ifdef DERIVED_LEVER
             const float8 l = (ca + cb) * GATHER8(len2, h);
-            lsum += l;
 #else
             const float8 l = LOAD8(P + k, lever);
 #endif
-            const int8 e = 3 * (P + 2 * h), t = 3 * (S * rf + h);
+#ifdef NORMALISE_LEVERS
+            lsum += l;
+#endif
+            const int8 e = 3 * (P + 2 * h), t = TW * (S * rf + h);
             qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
             qy += ca * GATHER8(qpos, e + 1) + cb * GATHER8(qpos, e + 4);
             qz += ca * GATHER8(qpos, e + 2) + cb * GATHER8(qpos, e + 5);
             rx += l * GATHER8(table, t);
             ry += l * GATHER8(table, t + 1);
             rz += l * GATHER8(table, t + 2);
+#ifdef QUAT_BLEND
+            rw += l * GATHER8(table, t + 3);
+#endif
         }
     }
+#ifdef QUAT_BLEND
+    if (P > 0)
+        LOAD_QREF();
+#endif
     for (int p = 0; p < P; ++p) {
         /* minimal rotation taking phat onto R_ref^-1 qhat */
         const float8 hx = qpos[3 * p] - qx, hy = qpos[3 * p + 1] - qy, hz = qpos[3 * p + 2] - qz;
@@ -260,32 +310,65 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         const float8 py = LOAD8(3 * p + 1, phat);
         const float8 pz = LOAD8(3 * p + 2, phat);
         const float8 cx = py * yz - pz * yy, cy = pz * yx - px * yz, cz = px * yy - py * yx;
-        const float8 sn = sqrt8(cx * cx + cy * cy + cz * cz);
         const float8 cs = px * yx + py * yy + pz * yz;
-        const float8 k = sn > 0.0f ? atan2pos8(sn, cs) / sn : (float8)0.0f;
+        const float8 pp = px * px + py * py + pz * pz;
 #ifdef DERIVED_LEVER
-        const float8 lp = LOAD8(p, coef) * (px * px + py * py + pz * pz);
-        lsum += lp;
-        const float8 l = lp * k;
+        const float8 lp = LOAD8(p, coef) * pp;
 #else
-        const float8 l = LOAD8(p, lever) * k;
+        const float8 lp = LOAD8(p, lever);
+#endif
+#ifdef QUAT_BLEND
+        /* m = (c, |phat||y| + phat.y) / |.|, the half-angle quaternion of the minimal
+         * rotation (identity for opposite or zero vectors); r += lp Q_ref (x) m */
+        const float8 w0 = sqrt8(pp * (yx * yx + yy * yy + yz * yz)) + cs;
+        const float8 mn = sqrt8(w0 * w0 + cx * cx + cy * cy + cz * cz);
+        const float8 k = mn > 0.0f ? lp / mn : (float8)0.0f;
+        const float8 mx = k * cx, my = k * cy, mz = k * cz;
+        const float8 mw = mn > 0.0f ? k * w0 : lp;
+        rx += gw * mx + mw * gx + (gy * mz - gz * my);
+        ry += gw * my + mw * gy + (gz * mx - gx * mz);
+        rz += gw * mz + mw * gz + (gx * my - gy * mx);
+        rw += gw * mw - (gx * mx + gy * my + gz * mz);
+#else
+        const float8 sn = sqrt8(cx * cx + cy * cy + cz * cz);
+        const float8 l = lp * (sn > 0.0f ? atan2pos8(sn, cs) / sn : (float8)0.0f);
+#ifdef NORMALISE_LEVERS
+        lsum += lp;
 #endif
         rx += l * cx;
         ry += l * cy;
         rz += l * cz;
+#endif
     }
-#ifdef DERIVED_LEVER
+#ifdef NORMALISE_LEVERS
     const float8 inv = lsum > 0.0f ? 1.0f / lsum : (float8)0.0f;
     rx *= inv;
     ry *= inv;
     rz *= inv;
 #endif
 
+    const float8 ux = LOAD8(0, u), uy = LOAD8(1, u), uz = LOAD8(2, u);
+#ifdef QUAT_BLEND
+    /* v' = R(r) u + q*, R(r) the rotation of the quaternion sum r = (rx, ry, rz, rw)
+     * (normalised by n2 = |r|^2): u + (2 / n2) (rw (r x u) + r x (r x u)).
+     * Where the levers all vanish (|r| <= 1e-6), R = R_ref. */
+    const float8 n2 = rx * rx + ry * ry + rz * rz + rw * rw;
+    const int8 low = n2 <= 1e-12f;
+    if (or8(low)) {
+        LOAD_QREF();
+        rx = low ? gx : rx; ry = low ? gy : ry; rz = low ? gz : rz; rw = low ? gw : rw;
+    }
+    const float8 s2 = 2.0f / (low ? (float8)1.0f : n2);
+    const float8 kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
+    const float8 jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
+    const float8 ox = ux + s2 * (rw * kx + jx) + qx;
+    const float8 oy = uy + s2 * (rw * ky + jy) + qy;
+    const float8 oz = uz + s2 * (rw * kz + jz) + qz;
+#else
     /* w = exp(r) u, Rodrigues with a = sin(th)/th, b = (1-cos th)/th^2 written
      * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
      * sinc and cos are Taylor polynomials in x = h^2 (|r| <= pi, so h <= pi/2:
      * truncation < 5e-8); no sqrt, no division, no transcendental call. */
-    const float8 ux = LOAD8(0, u), uy = LOAD8(1, u), uz = LOAD8(2, u);
     const float8 x = 0.25f * (rx * rx + ry * ry + rz * rz);
     const float8 sinc = 1.0f + x * (-1.0f / 6 + x * (1.0f / 120 + x * (-1.0f / 5040 + x * (1.0f / 362880
                       + x * (-1.0f / 39916800 + x * (1.0f / 6227020800.0f))))));
@@ -303,6 +386,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     const float8 ox = m00 * wx + m01 * wy + m02 * wz + qx;
     const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
     const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
+#endif
     const int8 o = LOADI8(1, ints);
     STORE_ROWS(ox, oy, oz, out, o);
     }

@@ -188,7 +188,7 @@ def cmd_pose(args) -> None:
                               "write .npz or a directory")
         local = clip.sample(times)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
-                           backend=args.backend)
+                           backend=args.backend, blend=args.blend)
     frames = poser.pose(local, progress=_progress)
     if not np.isfinite(frames.positions).all():
         raise NrposeError("posing produced non-finite coordinates; please report this input")
@@ -335,6 +335,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=METHODS, default="nrmls", help="posing method (default nrmls)")
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
+    p.add_argument("--blend", choices=BLENDS, default="relative",
+                   help="nrmls rotation blend (default: relative; quaternion is continuous at joints)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
     p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")

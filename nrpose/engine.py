@@ -34,7 +34,8 @@ class Deformer:
     """A point set bound to rest handles.
 
     points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
-    blend: "relative" (default, equivariant) or "paper"; lever: "weight"
+    blend: "relative" (default, equivariant), "quaternion" (equivariant and
+    continuous where the dominant handle changes) or "paper"; lever: "weight"
     (default), "length" or "paper" (see :mod:`nrpose.blend`); distances / weights:
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
     k: keep the k most influential handles of each point (None: all, dense).
@@ -80,9 +81,11 @@ class Deformer:
         del frec, irec, arrays
         self._npos = 3 * (P + 2 * S)
         self._pose_stride = self._npos + 9 * (S + 1)       # floats per frame: positions, rotations
-        self._derived_stride = 9 * (S + 1) + 3 * (S + 1) * S
-        self._needs_global = blend == "relative" and bool((T.ref == S).any())
-        options = (("-DSPARSE",) if K < S else ()) + (("-DDERIVED_LEVER",) if self.lever != "paper" else ())
+        quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
+        self._derived_stride = 9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
+        self._needs_global = blend != "paper" and bool((T.ref == S).any())
+        options = ((("-DSPARSE",) if K < S else ()) + (("-DDERIVED_LEVER",) if self.lever != "paper" else ())
+                   + (("-DQUAT_BLEND",) if quat else ()))
         prg = device.program("nrmls.cl", options)
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
         self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),

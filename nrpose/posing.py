@@ -66,10 +66,12 @@ class CharacterPoser:
     """A character bound for posing. See the module docstring for the options.
 
     k: segment slots per vertex for nrmls (default: all bones up to 8, else 8).
+    blend: the nrmls rotation blend (:data:`nrpose.blend.BLENDS`; "quaternion" is
+    continuous where the dominant bone changes, at hips and shoulders).
     """
 
     def __init__(self, character: Character, method: str = "nrmls", weights: str = "authored",
-                 alpha: float = 1.0, k: int | None = None, backend: str = "opencl"):
+                 alpha: float = 1.0, k: int | None = None, backend: str = "opencl", blend: str = "relative"):
         if method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {method!r}")
         if weights not in WEIGHTS:
@@ -104,9 +106,10 @@ class CharacterPoser:
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
                 if weights == "authored":
                     W = _joint_to_bone_weights(joint_w, V, self.bones, skel.parents)
-                    self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend)
+                    self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
                 else:
-                    self._deformer = Deformer(V, rest, alpha=alpha, distances=D, k=kk, backend=backend)
+                    self._deformer = Deformer(V, rest, alpha=alpha, distances=D, k=kk, backend=backend,
+                                              blend=blend)
             else:
                 from . import skinning
                 offset = np.zeros(len(V), np.int64)

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["Rotation", "minimal_rotvec", "kabsch", "relative_rotvec_table"]
+__all__ = ["Rotation", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "relative_rotvec_table"]
 
 
 def minimal_rotvec(a: np.ndarray, b: np.ndarray, opposite: str = "zero") -> np.ndarray:
@@ -49,6 +49,29 @@ def minimal_rotvec(a: np.ndarray, b: np.ndarray, opposite: str = "zero") -> np.n
             perp = np.pi * perp / np.linalg.norm(perp, axis=-1, keepdims=True)
             out = np.where(flip[..., None], perp, out)
     return out
+
+
+def minimal_quat(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Unit quaternions (..., 4), (x, y, z, w) with w >= 0, of the smallest rotations
+    taking direction ``a`` to ``b`` (..., 3): ``(a×b, |a||b| + a·b)`` normalised, the
+    half-angle form of :func:`minimal_rotvec`. Zero vectors and exactly opposite
+    directions give the identity (as ``minimal_rotvec(opposite="zero")``)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    w = np.sqrt(np.sum(a * a, axis=-1) * np.sum(b * b, axis=-1)) + np.sum(a * b, axis=-1)
+    q = np.concatenate([np.cross(a, b), w[..., None]], axis=-1)
+    n = np.linalg.norm(q, axis=-1, keepdims=True)
+    identity = np.broadcast_to(np.array([0.0, 0.0, 0.0, 1.0]), q.shape)
+    return np.where(n > 0, q / np.where(n > 0, n, 1.0), identity)
+
+
+def quat_multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Hamilton products p ⊗ q of (..., 4) quaternions (x, y, z, w), broadcasting."""
+    p = np.asarray(p, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    pv, pw, qv, qw = p[..., :3], p[..., 3:], q[..., :3], q[..., 3:]
+    return np.concatenate([pw * qv + qw * pv + np.cross(pv, qv), pw * qw - np.sum(pv * qv, -1, keepdims=True)],
+                          axis=-1)
 
 
 def kabsch(P: np.ndarray, Q: np.ndarray, centre: bool = True) -> np.ndarray:

@@ -10,9 +10,11 @@ import numpy as np
 import pytest
 
 from nrpose import Deformer, DeviceError
+from nrpose.character import load_character
 from nrpose.cli import main
 from nrpose.handles import handles_document
 from nrpose.meshio import read_geometry, write_geometry
+from nrpose.posing import CharacterPoser
 from nrpose.rigs import box, cylinder
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -50,7 +52,8 @@ def test_deform_writes_mesh_matching_the_api(cylinder_case, tmp_path, capsys, ba
     assert (tmp_path / "p.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-def test_deform_point_cloud_and_alpha_override(tmp_path, capsys):
+@pytest.mark.parametrize("blend", ["paper", "quaternion"])
+def test_deform_point_cloud_and_alpha_override(tmp_path, capsys, blend):
     pts = box.box_points()
     src = tmp_path / "box.xyz"
     write_geometry(src, pts)
@@ -58,9 +61,9 @@ def test_deform_point_cloud_and_alpha_override(tmp_path, capsys):
     handles = tmp_path / "h.json"
     handles.write_text(json.dumps(handles_document(box.rest_handles(), pose, alpha=1.0)))
     out = tmp_path / "posed.xyz"
-    code, _, _ = run(["deform", src, "-H", handles, "-o", out, "--alpha", "2", "--blend", "paper"], capsys)
+    code, _, _ = run(["deform", src, "-H", handles, "-o", out, "--alpha", "2", "--blend", blend], capsys)
     assert code == 0
-    expect = Deformer(pts, box.rest_handles(), alpha=2.0, blend="paper").pose(pose)
+    expect = Deformer(pts, box.rest_handles(), alpha=2.0, blend=blend).pose(pose)
     assert np.abs(read_geometry(out).vertices - expect).max() <= 1e-4
 
 
@@ -125,6 +128,15 @@ def test_pose_clip_to_npz_and_directory(tmp_path, capsys):
                       "-o", tmp_path / "frames", "--format", "obj"], capsys)
     assert code == 0 and sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_0000.obj",
                                                                                       "frame_0001.obj"]
+    # --blend reaches the poser: the quaternion blend's frames are those of the API's
+    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "quaternion",
+                      "-o", tmp_path / "walk_q.npz"], capsys)
+    assert code == 0
+    character = load_character(fox)
+    clip = next(c for c in character.clips if c.name == "Walk")
+    expect = CharacterPoser(character, blend="quaternion").pose(clip.sample(np.arange(4) * 2 / 24)).positions
+    got = np.load(tmp_path / "walk_q.npz")["positions"]
+    assert np.abs(got - expect).max() <= 1e-5 and np.abs(got - z["positions"]).max() > 0
 
 
 @needs_data
