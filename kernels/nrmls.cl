@@ -56,9 +56,9 @@
 #define TW 4      /* floats per rotation-table entry */
 #else
 #define TW 3
-#if defined(DERIVED_LEVER)
-#define NORMALISE_LEVERS  /* derived levers are normalised per point (the quaternion blend normalises Q) */
 #endif
+#ifdef DERIVED_LEVER
+#define NORMALISE_LEVERS  /* derived levers are normalised per point (stored ones already are) */
 #endif
 
 /* Q_ref, the unit quaternion of each lane's reference rotation (QUAT_BLEND), into gx..gw */
@@ -146,7 +146,9 @@ static float3 quat_log(float4 q)
     return k * q.xyz;
 }
 
-/* Per-pose rotation data. Work-item g < npairs writes table[j][i] for the
+/* Per-pose rotation data. QUAT_BLEND: work-item g < npairs writes table[j][i] =
+ * Q_i in the hemisphere of Q_j, and work-items npairs + j write quats[j] = Q_j
+ * beside refs[j]. Otherwise: work-item g < npairs writes table[j][i] for the
  * g-th (j, i) pair that some point uses (listed at bind):
  * log(R_j^-1 R_i), or log(R_i) for the paper blend. Work-items npairs + j,
  * j in [0, S], write refs[j]: the reference's matrix (identity for the paper
@@ -230,8 +232,9 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         m20 = GATHER8(refs, r9 + 6); m21 = GATHER8(refs, r9 + 7); m22 = GATHER8(refs, r9 + 8);
     }
 
-    /* q* (weighted posed centroid, linear in the posed handle positions) and the
-     * blended rotation vector relative to the reference */
+    /* q* (weighted posed centroid, linear in the posed handle positions) and r: the
+     * blended rotation vector relative to the reference, or (QUAT_BLEND) the
+     * lever-weighted quaternion sum */
     float8 qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
 #ifdef QUAT_BLEND
     float8 rw = 0.0f;                    /* r: the lever-weighted quaternion sum */
@@ -317,6 +320,9 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
 #else
         const float8 lp = LOAD8(p, lever);
 #endif
+#ifdef NORMALISE_LEVERS
+        lsum += lp;
+#endif
 #ifdef QUAT_BLEND
         /* m = (c, |phat||y| + phat.y) / |.|, the half-angle quaternion of the minimal
          * rotation (identity for opposite or zero vectors); r += lp Q_ref (x) m */
@@ -332,9 +338,6 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
 #else
         const float8 sn = sqrt8(cx * cx + cy * cy + cz * cz);
         const float8 l = lp * (sn > 0.0f ? atan2pos8(sn, cs) / sn : (float8)0.0f);
-#ifdef NORMALISE_LEVERS
-        lsum += lp;
-#endif
         rx += l * cx;
         ry += l * cy;
         rz += l * cz;
@@ -345,13 +348,16 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     rx *= inv;
     ry *= inv;
     rz *= inv;
+#ifdef QUAT_BLEND
+    rw *= inv;   /* so that the floor below is relative, as in the reference */
+#endif
 #endif
 
     const float8 ux = LOAD8(0, u), uy = LOAD8(1, u), uz = LOAD8(2, u);
 #ifdef QUAT_BLEND
     /* v' = R(r) u + q*, R(r) the rotation of the quaternion sum r = (rx, ry, rz, rw)
      * (normalised by n2 = |r|^2): u + (2 / n2) (rw (r x u) + r x (r x u)).
-     * Where the levers all vanish (|r| <= 1e-6), R = R_ref. */
+     * Where the levers all vanish (|r| <= 1e-6 with levers summing to 1), R = R_ref. */
     const float8 n2 = rx * rx + ry * ry + rz * rz + rw * rw;
     const int8 low = n2 <= 1e-12f;
     if (or8(low)) {

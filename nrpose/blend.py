@@ -50,8 +50,10 @@ handles with different rotations meet with comparable levers (its reference is
 discrete). ``"quaternion"`` is continuous there: R is the normalised
 lever-weighted sum of the handles' unit quaternions, ``R = Σ λ̃_i s_i Q_i /
 |Σ λ̃_i s_i Q_i|``, each sign s_i chosen so that Q_i lies in the hemisphere of the
-dominant handle's Q_ref (the sign choice changes only where two rotations differ
-by a half turn, not where the dominant handle changes). A point handle
+dominant handle's Q_ref. Where the handles sharing a point have rotations
+pairwise less than 90° apart, every Q_ref gives the same signs, so the blend is
+continuous where the dominant handle changes; beyond that the signs can flip
+with the dominant handle (and the relative blend jumps there too). A point handle
 contributes Q_ref ⊗ m_i, m_i the minimal rotation taking p̂_i onto R_ref⁻¹ q̂_i.
 It is as equivariant as the relative blend, agrees with it to second order in
 the spread of the rotations (the chordal mean of rotations), and costs less on

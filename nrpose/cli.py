@@ -336,7 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
     p.add_argument("--blend", choices=BLENDS, default="relative",
-                   help="nrmls rotation blend (default: relative; quaternion is continuous at joints)")
+                   help="nrmls rotation blend (default: relative; quaternion is continuous where the "
+                        "dominant bone changes, for bones less than 90 degrees apart)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
     p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")

@@ -8,8 +8,9 @@ uploads them once (float32) to the device; the kernel objects and buffers
 live as long as the deformer. A pose writes (P + 2S)·3 + 9(S + 1) floats of
 per-handle data (posed positions, the segments' rotations and the global
 rotation) into memory shared with the device and runs two kernels:
-``nrmls_prepare`` turns the rotations into the table of relative rotation
-vectors the points use, ``nrmls_pose`` poses the points. ``pose_frames``
+``nrmls_prepare`` turns the rotations into the table the points use (relative
+rotation vectors, or sign-aligned quaternions for the quaternion blend),
+``nrmls_pose`` poses the points. ``pose_frames``
 does the same for F poses in one launch of each.
 
 ``backend="numpy"`` runs :func:`nrpose.blend.pose_reference` instead (float64);

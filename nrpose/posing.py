@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .blend import BLENDS
 from .character import Character
 from .engine import Deformer
 from .errors import InputError
@@ -76,6 +77,10 @@ class CharacterPoser:
             raise InputError(f"method must be one of {METHODS}, got {method!r}")
         if weights not in WEIGHTS:
             raise InputError(f"weights must be one of {WEIGHTS}, got {weights!r}")
+        if blend not in BLENDS:
+            raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
+        if blend != "relative" and method != "nrmls":
+            raise InputError(f"blend {blend!r} applies to the nrmls method only; drop --blend or use --method nrmls")
         if not character.meshes:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
                              "give a mesh and pass the skeleton with --skeleton")

@@ -106,6 +106,25 @@ def test_kernel_matches_reference_tiny_and_huge_models(scale, lever):
     assert np.abs(dev.pose(scaled) - ref.pose(scaled)).max() <= TOL * diag(points * scale)
 
 
+@pytest.mark.parametrize("scale", [1e-4, 1e8])
+@pytest.mark.parametrize("n_pts,n_segs", [(0, 4), (3, 0), (2, 5)])
+@pytest.mark.parametrize("blend", ["relative", "quaternion"])
+def test_kernel_matches_reference_at_any_scale(scale, n_pts, n_segs, blend):
+    """Models 1e-4 and 1e8 across: the derived levers scale with length², so the kernel
+    must normalise them before any absolute threshold (the quaternion blend's floor)."""
+    rng = np.random.default_rng(n_pts * 10 + n_segs)
+    rest = random_rest(rng, n_pts, n_segs)
+    pose = random_pose(rng, rest)
+    big = HandleSet.make(rest.points * scale, rest.segments * scale)
+    points = rng.uniform(-1.5, 1.5, (301, 3)) * scale
+    scaled = Pose.make(big, pose.handles.points * scale, pose.handles.segments * scale,
+                       rotations=pose.rotations if n_segs else None)
+    dev, ref = both(points, big, blend=blend)
+    out = dev.pose(scaled)
+    assert np.isfinite(out).all()
+    assert np.abs(out - ref.pose(scaled)).max() <= TOL * diag(points)
+
+
 @pytest.mark.parametrize("lever", ["weight", "length", "paper"])
 def test_kernel_matches_reference_levers(lever):
     rng = np.random.default_rng(7)

@@ -171,6 +171,21 @@ def test_character_of_rigid_meshes_only(method):
     assert np.abs(frames.positions[0] - ch.meshes[1].vertices).max() <= 1e-6
 
 
+def test_blend_option_reaches_nrmls_and_is_refused_elsewhere():
+    from nrpose.errors import InputError
+
+    ch = two_bone_character()
+    rot = np.array([0.0, 0.0, np.sin(np.pi / 6), np.cos(np.pi / 6)])
+    pose = LocalPose(ch.skeleton.translation, np.array([[0, 0, 0, 1.0], rot, [0, 0, 0, 1.0]]), ch.skeleton.scale)
+    q = CharacterPoser(ch, blend="quaternion").pose(pose).positions
+    q_ref = CharacterPoser(ch, blend="quaternion", backend="numpy").pose(pose).positions
+    assert np.abs(q - q_ref).max() <= 1e-5
+    with pytest.raises(InputError, match="nrmls method only"):
+        CharacterPoser(ch, method="lbs", blend="quaternion")
+    with pytest.raises(InputError, match="blend must be one of"):
+        CharacterPoser(ch, blend="slerp")
+
+
 def test_skeleton_only_character_is_an_error():
     from nrpose.errors import InputError
 
