@@ -88,11 +88,25 @@ def polar_rotation(A: np.ndarray) -> np.ndarray:
     """Rotation part of (..., 3, 3) linear maps (polar decomposition), (..., 3, 3).
 
     For ``A = R @ S`` with S symmetric positive (uniform or axis scale) this is R.
+    Maps within 1e-3 of a rotation times a uniform scale s (nearly every joint of a
+    character, float32 data included) take a fast path: three Newton–Schulz steps
+    ``X ← X (3I − XᵀX) / 2`` from X = A / s, which converge quadratically to the
+    polar factor (error 1e-3 → ~1e-6 → ~1e-12 → rounding). The others take an SVD.
+    (The batched SVD was ~40 % of posing a Mannequin clip.)
     """
-    U, _, Vt = np.linalg.svd(A)
-    d = np.sign(np.linalg.det(U @ Vt))
-    U[..., :, 2] *= d[..., None]
-    return U @ Vt
+    A = np.asarray(A, dtype=np.float64)
+    s2 = np.einsum("...ij,...ij->...", A, A) / 3.0                     # mean squared column norm
+    X = A / np.sqrt(np.where(s2 > 0, s2, 1.0))[..., None, None]
+    off = np.abs(np.swapaxes(X, -1, -2) @ X - np.eye(3)).max(axis=(-2, -1))
+    near = (off <= 1e-3) & (np.linalg.det(X) > 0)
+    for _ in range(3):
+        X = X @ (1.5 * np.eye(3) - 0.5 * np.swapaxes(X, -1, -2) @ X)
+    if not near.all():
+        U, _, Vt = np.linalg.svd(A[~near])
+        d = np.sign(np.linalg.det(U @ Vt))
+        U[..., :, 2] *= d[..., None]
+        X[~near] = U @ Vt
+    return X
 
 
 def _match_hint(name: str, names) -> str:

@@ -148,3 +148,25 @@ def test_posed_bones_carry_rest_direction_and_twist():
                     ("translation", "rotation", "scale")))))
     np.testing.assert_allclose(segs_batch[0], bones.segments, atol=1e-12)
     np.testing.assert_allclose(R_batch[1], R, atol=1e-12)
+
+
+def test_polar_rotation_fast_path_matches_the_svd():
+    """Near-rotations times a uniform scale (float32 data, 1e-3 noise) take polar_rotation's
+    Newton–Schulz fast path; the rest (axis scales, reflections) the SVD: both give the
+    polar factor, orthonormal to rounding."""
+    from scipy.spatial.transform import Rotation as Rot
+
+    from nrpose.skeleton import polar_rotation
+
+    def by_svd(A):
+        U, _, Vt = np.linalg.svd(A)
+        U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+        return U @ Vt
+
+    R = Rot.random(70, random_state=3).as_matrix()
+    A = np.concatenate([R[:20] * 2.5, R[20:30] @ np.diag([1.0, 2.0, 3.0]), R[30:40] @ np.diag([1.0, 1.0, -1.0]),
+                        R[40:50] + 1e-3 * np.random.default_rng(0).normal(size=(10, 3, 3)), R[50:60] * 1e-4,
+                        (R[60:] + 1e-7 * np.random.default_rng(1).normal(size=(10, 3, 3))).astype(np.float32)])
+    out = polar_rotation(A.reshape(7, 10, 3, 3)).reshape(70, 3, 3)
+    assert np.abs(out - by_svd(A)).max() <= 1e-12
+    assert np.abs(out @ np.swapaxes(out, 1, 2) - np.eye(3)).max() <= 1e-12 and (np.linalg.det(out) > 0).all()
