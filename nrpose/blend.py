@@ -65,6 +65,9 @@ float64 reference of the device's pose kernel.
 """
 from __future__ import annotations
 
+import concurrent.futures
+import contextlib
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -182,17 +185,24 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
                              "every point needs at least one influencing handle")
     elif distances is not None:
         d_all = _check_matrix(distances, (n, H), "distances")
-    out: dict[str, np.ndarray] = {}
-    for a in range(0, n, BLOCK):   # bounded memory: (block, H, 3) temporaries, results filled in place
+    def block(a: int) -> tuple[slice, RestTerms]:
         b = slice(a, min(a + BLOCK, n))
         given = w_all[b] if weights is not None else None
         dist = d_all[b] if distances is not None else None
-        blk = _rest_block(v[b], rest, alpha, lever, dist, given, k)
-        for f in RestTerms.__dataclass_fields__:
-            part = getattr(blk, f)
-            if f not in out:
-                out[f] = np.empty((n,) + part.shape[1:], part.dtype)
-            out[f][b] = part
+        return b, _rest_block(v[b], rest, alpha, lever, dist, given, k)
+
+    # bounded memory: (block, H, 3) temporaries, results filled in place; blocks run on
+    # the machine's cores (numpy releases the GIL in the array operations)
+    out: dict[str, np.ndarray] = {}
+    starts = range(0, n, BLOCK)
+    workers = min(len(starts), os.cpu_count() or 1)
+    with concurrent.futures.ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
+        for b, blk in (pool.map(block, starts) if pool is not None else map(block, starts)):
+            for f in RestTerms.__dataclass_fields__:
+                part = getattr(blk, f)
+                if f not in out:
+                    out[f] = np.empty((n,) + part.shape[1:], part.dtype)
+                out[f][b] = part
     return RestTerms(**out)
 
 
