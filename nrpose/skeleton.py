@@ -99,8 +99,10 @@ def polar_rotation(A: np.ndarray) -> np.ndarray:
     X = A / np.sqrt(np.where(s2 > 0, s2, 1.0))[..., None, None]
     off = np.abs(np.swapaxes(X, -1, -2) @ X - np.eye(3)).max(axis=(-2, -1))
     near = (off <= 1e-3) & (np.linalg.det(X) > 0)
+    Y = X[near]                      # iterate only where it converges (elsewhere it may overflow)
     for _ in range(3):
-        X = X @ (1.5 * np.eye(3) - 0.5 * np.swapaxes(X, -1, -2) @ X)
+        Y = Y @ (1.5 * np.eye(3) - 0.5 * np.swapaxes(Y, -1, -2) @ Y)
+    X[near] = Y
     if not near.all():
         U, _, Vt = np.linalg.svd(A[~near])
         d = np.sign(np.linalg.det(U @ Vt))
