@@ -328,7 +328,7 @@ def _timed(fn):
 
 
 def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, n_ref: int,
-            repeat: int, bind_repeat: int) -> dict:
+            repeat: int, bind_repeat: int, blend: str = BLEND) -> dict:
     """All figures of one (model, handle kind) cell; backends interleaved."""
     diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     rng = np.random.default_rng(seed)
@@ -342,9 +342,9 @@ def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, 
 
     bind_cl, bind_np = [], []
     for _ in range(bind_repeat):  # interleaved binds; the last ones are kept
-        dt, dcl = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=BLEND, lever=LEVER, backend="opencl"))
+        dt, dcl = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER, backend="opencl"))
         bind_cl.append(dt)
-        dt, dnp = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=BLEND, lever=LEVER, backend="numpy"))
+        dt, dnp = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER, backend="numpy"))
         bind_np.append(dt)
 
     for p in poses[:WARMUP]:  # warm-up (first enqueues, page faults, caches)
@@ -432,8 +432,9 @@ def _cpu_model() -> str:
 
 
 def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = None,
-        log=None) -> dict:
-    """Run the benchmark; return the result document (see bench/README.md)."""
+        log=None, blend: str = BLEND) -> dict:
+    """Run the benchmark; return the result document (see bench/README.md).
+    blend: the rotation blend of both backends (default: the package default)."""
     data = pathlib.Path(data) if data is not None else DEFAULT_DATA
     repeat = max(int(repeat), 1)
     n_poses = 3 if quick else 20
@@ -453,7 +454,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
         for kind in KINDS:
             rest = chain_handles(v, h) if kind == "segments" else fps_handles(v, h)
             seed = zlib.crc32(f"{model}/{kind}".encode())
-            cell = measure(v, rest, kind, seed, n_poses, n_ref, repeat, bind_repeat)
+            cell = measure(v, rest, kind, seed, n_poses, n_ref, repeat, bind_repeat, blend)
             row = {"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                    "paper_points": count, "paper_ms": paper_ms,
                    "paper_ms_per_point_handle": paper_ms / (count * h), "source": src, **cell}
@@ -481,7 +482,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
         "git_dirty": dirty.splitlines(),
         "options": {"repeat": repeat, "quick": quick, "poses": n_poses, "reference_poses_per_round": n_ref,
                     "bind_repeat": bind_repeat, "warmup_poses": WARMUP,
-                    "alpha": ALPHA, "k": None, "blend": BLEND, "lever": LEVER,
+                    "alpha": ALPHA, "k": None, "blend": blend, "lever": LEVER,
                     "max_rotation_deg": round(float(np.degrees(MAX_BEND)), 6), "data": str(data),
                     "points_override": QUICK_POINTS if quick else None},
         "environment": environment(),
@@ -557,8 +558,10 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=str(DEFAULT_JSON), help="output JSON path")
     ap.add_argument("--png", default=str(DEFAULT_PNG), help="output PNG path ('' to skip)")
     ap.add_argument("--data", default=str(DEFAULT_DATA), help="shared data folder (meshes/...)")
+    ap.add_argument("--blend", default=BLEND, choices=("relative", "quaternion", "paper"),
+                    help=f"rotation blend of both backends (default {BLEND})")
     a = ap.parse_args(argv)
-    doc = run(a.repeat, a.quick, a.data, log=lambda s: print(s, flush=True))
+    doc = run(a.repeat, a.quick, a.data, log=lambda s: print(s, flush=True), blend=a.blend)
     write_json(doc, pathlib.Path(a.json))
     if a.png:
         write_png(doc, pathlib.Path(a.png))
