@@ -536,7 +536,8 @@ def write_png(doc: dict, path: pathlib.Path) -> None:
     ax.set_ylabel("pose time per frame (ms, log scale)")
     ax.set_xticks(x, labels, fontsize=8)
     dev = doc["environment"]["device"]
-    ax.set_title(f"Table 1 rows: pose time (medians; PoCL bars p10–p90)\n{dev['device']}, "
+    ax.set_title(f"Table 1 rows: pose time, {doc['options'].get('blend', BLEND)} blend "
+                 f"(medians; PoCL bars p10–p90)\n{dev['device']}, "
                  f"{dev['compute_units']} compute units, {doc['timestamp']}, "
                  f"commit {doc['git_commit'][:8]}{' + uncommitted changes' if doc['git_dirty'] else ''}"
                  f"{' (quick)' if doc['options']['quick'] else ''}",
