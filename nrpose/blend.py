@@ -195,7 +195,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     # the machine's cores (numpy releases the GIL in the array operations)
     out: dict[str, np.ndarray] = {}
     starts = range(0, n, BLOCK)
-    workers = min(len(starts), os.cpu_count() or 1)
+    workers = min(len(starts), os.cpu_count() or 1, MAX_WORKERS)
     with concurrent.futures.ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
         for b, blk in (pool.map(block, starts) if pool is not None else map(block, starts)):
             for f in RestTerms.__dataclass_fields__:
@@ -208,6 +208,9 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
 
 #: points per block of rest_terms' computation
 BLOCK = 16384
+#: blocks computed at once (each holds ~25 H float64 values per point of temporaries:
+#: ~200 MB per block in flight for 65 handles)
+MAX_WORKERS = 4
 
 
 def _rest_block(v, rest: HandleSet, alpha, lever, distances, weights, k) -> RestTerms:
