@@ -14,13 +14,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
 import re
 import sys
-import tempfile
 
 HERE = pathlib.Path(__file__).resolve().parent
+if str(HERE.parent) not in sys.path:  # allow `python bench/report.py` from a checkout
+    sys.path.insert(0, str(HERE.parent))
+
+from nrpose.meshio import atomic_path  # noqa: E402
 
 
 def _ms(x: float) -> str:
@@ -151,10 +153,8 @@ def main(argv=None) -> int:
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"bench/report.py: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
-    fd, tmp = tempfile.mkstemp(dir=pathlib.Path(a.readme).parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as f:
-        f.write(text)
-    os.replace(tmp, a.readme)
+    with atomic_path(a.readme) as tmp:
+        tmp.write_text(text)
     print(f"wrote {a.readme}")
     return 0
 

@@ -258,15 +258,16 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
 #endif
         const float8 ca = LOAD8(P + 2 * k, coef);
         const float8 cb = LOAD8(P + 2 * k + 1, coef);
-        if (uniform && SAME8(h)) {
+        const int shared = uniform && SAME8(h);   /* the 8 lanes read one table entry */
 #ifdef DERIVED_LEVER
-            const float8 l = (ca + cb) * len2[h.s0];
+        const float8 l = (ca + cb) * (shared ? (float8)len2[h.s0] : GATHER8(len2, h));
 #else
-            const float8 l = LOAD8(P + k, lever);
+        const float8 l = LOAD8(P + k, lever);
 #endif
 #ifdef NORMALISE_LEVERS
-            lsum += l;
+        lsum += l;
 #endif
+        if (shared) {
             __global const float *e = qpos + 3 * (P + 2 * h.s0);
             __global const float *t = table + TW * (S * rf.s0 + h.s0);
             qx += ca * e[0] + cb * e[3];
@@ -279,14 +280,6 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
             rw += l * t[3];
 #endif
         } else {
-#ifdef DERIVED_LEVER
-            const float8 l = (ca + cb) * GATHER8(len2, h);
-#else
-            const float8 l = LOAD8(P + k, lever);
-#endif
-#ifdef NORMALISE_LEVERS
-            lsum += l;
-#endif
             const int8 e = 3 * (P + 2 * h), t = TW * (S * rf + h);
             qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
             qy += ca * GATHER8(qpos, e + 1) + cb * GATHER8(qpos, e + 4);
