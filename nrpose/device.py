@@ -4,13 +4,15 @@ Default device: the first PoCL CPU device. ``PYOPENCL_CTX`` (pyopencl's own
 variable, e.g. ``PYOPENCL_CTX=0`` or ``0:0``) overrides the choice. Programs are
 built once per (context, kernel file, build options) and kept for the life of
 the process; callers keep their ``cl.Kernel`` objects and buffers alive.
+
+PoCL's worker threads are pinned one per CPU (``POCL_AFFINITY=1``) unless the
+environment already says otherwise; see :func:`pin_workers`.
 """
 from __future__ import annotations
 
 import functools
 import os
 import re
-import time
 from importlib import resources
 
 import numpy as np
@@ -31,6 +33,30 @@ def _cl():
     return cl
 
 
+def pin_workers() -> bool:
+    """Set ``POCL_AFFINITY=1`` (PoCL pins worker thread i to CPU i) before PoCL starts,
+    unless ``POCL_AFFINITY`` is already set or this process may not run on every
+    CPU (PoCL would then pin a worker to a CPU outside the allowed set and abort).
+    Returns whether it set the variable.
+
+    Why (measured on the 2-core VM, bench/README.md): unpinned, the kernel's
+    broadcast wakes both workers onto the same idle CPU, and the second one
+    waits there behind the first for the whole of a sub-millisecond kernel: a
+    single Table-1 pose ran on one thread (its kernel took the same time with
+    ``POCL_MAX_PTHREAD_COUNT=1``); pinned, both threads take part.
+    """
+    if "POCL_AFFINITY" in os.environ:
+        return False
+    try:
+        allowed = os.sched_getaffinity(0)
+    except (AttributeError, OSError):   # not Linux
+        return False
+    if allowed != set(range(os.cpu_count() or 0)):
+        return False
+    os.environ["POCL_AFFINITY"] = "1"
+    return True
+
+
 @functools.lru_cache(maxsize=None)
 def context():
     """Return the shared ``(cl.Context, cl.CommandQueue)`` pair.
@@ -38,6 +64,7 @@ def context():
     Raises DeviceError with an installation hint when no platform exists.
     """
     cl = _cl()
+    pin_workers()
     try:
         platforms = cl.get_platforms()
     except cl.Error:
@@ -114,7 +141,7 @@ class HostArray:
     """A float32 array that the host writes or reads and a kernel uses as an argument.
 
     On devices with fine-grained SVM the host array *is* the device memory:
-    no copies, a pose is only kernel enqueues and a wait (:func:`wait`). Elsewhere a
+    no copies, a pose is only kernel enqueues and a wait (:meth:`download`). Elsewhere a
     device buffer shadows it and :meth:`upload` / :meth:`download` copy.
 
     size: number of float32 elements; svm: force (True) or refuse (False)
@@ -140,36 +167,17 @@ class HostArray:
         if not self.svm:
             _cl().enqueue_copy(self._queue, self.arg, self.host, is_blocking=False)
 
-    def download(self, last=None) -> None:
+    def download(self) -> None:
         """Wait for the queue and make kernel writes visible in ``host``.
 
-        last: the event of the last command enqueued (optional); with SVM it is
-        awaited by :func:`wait` rather than ``finish``."""
+        The host thread blocks (``finish``) rather than polling: PoCL's workers
+        are pinned one per CPU (:func:`pin_workers`), and a polling host thread
+        takes a worker's CPU. Measured on the 2-core VM with pinned workers,
+        polling for up to 0.3 ms before blocking was slower than blocking on
+        every Table-1 row (box segments p25 0.14 vs 0.12 ms, box points median
+        1.04-1.09 vs 0.80-0.94 ms); unpinned it had been 2x faster on the box.
+        """
         if self.svm:
-            wait(self._queue, last)
+            self._queue.finish()
         else:
             _cl().enqueue_copy(self._queue, self.host, self.arg, is_blocking=True)
-
-
-SPIN_S = 3e-4   # poll a command's status this long before blocking on it
-
-
-def wait(queue, event=None) -> None:
-    """Wait until ``event`` (None: everything enqueued on ``queue``) completes.
-
-    The event is polled, yielding the core between polls, for up to SPIN_S
-    seconds before blocking. Measured on the 2-core VM (bench/README.md): the host
-    thread's wake-up after a blocking ``finish`` costs ~0.1 ms, half the posing
-    time of the 6,006-point box; polling longer than ~0.3 ms slowed kernels that
-    keep both cores busy (point handles: +10 %), so longer commands block.
-    """
-    if event is not None:
-        cl = _cl()
-        queue.flush()
-        done = cl.command_execution_status.COMPLETE
-        deadline = time.perf_counter() + SPIN_S
-        while time.perf_counter() < deadline:
-            if event.command_execution_status == done:
-                return
-            os.sched_yield()
-    queue.finish()

@@ -181,8 +181,8 @@ class Deformer:
             self._kernel.set_arg(11, np.int32(F))
             self._batch = F
         cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
-        done = cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
-        self._out.download(done)
+        cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
+        self._out.download()
         return self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]
 
 

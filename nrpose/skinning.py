@@ -335,9 +335,9 @@ class Deformer:
             self._joints_bound = j
         arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
         arr_in.upload()
-        done = self._cl.enqueue_nd_range_kernel(self._queue, self._kernel, (self._global0, f),
-                                                (self._local, 1))
-        arr_out.download(done)
+        self._cl.enqueue_nd_range_kernel(self._queue, self._kernel, (self._global0, f),
+                                         (self._local, 1))
+        arr_out.download()
         out = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
         return out.astype(np.float64)
 
