@@ -10,7 +10,8 @@ Rows (paper figures, Intel Core 2 Quad 2.4 GHz, C++):
 For each row and each handle kind ("segments": a PCA chain; "points":
 farthest-point samples) this measures, in one run and alternating the two
 backends (rounds of 20 consecutive PoCL poses, then 3 numpy poses): bind time (``Deformer`` construction), ``Pose.make`` time,
-``Deformer.pose`` on PoCL (OpenCL) over >= 20 distinct poses, the float64 numpy
+``Deformer.pose`` on PoCL (OpenCL) over >= 20 distinct poses, each written into an
+array the caller owns (``out=``; also timed returning a new array), the float64 numpy
 reference pose, their ratio, the time per point per handle, the ratio to the
 paper, and the largest PoCL-vs-numpy error relative to the bounding-box diagonal.
 
@@ -71,6 +72,7 @@ MAX_BEND = np.radians(60.0)        # per-segment rotation of the chain poses
 ALPHA, BLEND, LEVER = 1.0, "relative", "weight"
 QUICK_POINTS = 500
 WARMUP = 10                        # untimed PoCL poses before timing a cell
+NEW_ARRAY_POSES = 5                # per round: PoCL poses timed returning a new array
 
 
 # --------------------------------------------------------------------------- models
@@ -350,7 +352,11 @@ def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, 
     for p in poses[:WARMUP]:  # warm-up (first enqueues, page faults, caches)
         dcl.pose(p)
     dnp.pose(poses[0])
-    cl_s, np_s, err = [], [], 0.0
+    cl_s, alloc_s, np_s, err = [], [], [], 0.0
+    # PoCL poses write into arrays the caller owns (out=), one per pose, as a frame loop
+    # fills its clip buffer; pose() returning a fresh array is timed separately: on this
+    # VM the page faults of a fresh 430 KB result roughly doubled the dragon's pose
+    outs = np.zeros((len(poses), len(v), 3), np.float32)
     gc_was = gc.isenabled()
     gc.disable()
     try:
@@ -359,11 +365,15 @@ def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, 
             # with a few numpy poses (a different set each round), so both backends see the
             # same machine; poses of one backend are not split by the other's, whose ~100 ms
             # of host work would leave PoCL's worker threads asleep and its caches cold
-            outs = {}
             for i, p in enumerate(poses):
-                dt, out = _timed(lambda p=p: dcl.pose(p))
+                dt, _out = _timed(lambda p=p, i=i: dcl.pose(p, out=outs[i]))
                 cl_s.append(dt)
-                outs[i] = out
+            fresh = []
+            for p in poses[:NEW_ARRAY_POSES]:
+                dt, out = _timed(lambda p=p: dcl.pose(p))
+                alloc_s.append(dt)
+                fresh.append(out)
+            del fresh
             for i in sorted({(r * 7 + j * n_poses // n_ref) % n_poses for j in range(n_ref)}):
                 dt, ref = _timed(lambda p=poses[i]: dnp.pose(p))
                 np_s.append(dt)
@@ -381,7 +391,8 @@ def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, 
     pose_cl, pose_np = _stats(cl_s), _stats(np_s)
     batch = _stats(batch_s)
     return {"bbox_diagonal": diag, "bind_ms": _stats(bind_cl), "bind_numpy_ms": _stats(bind_np),
-            "pose_make_ms": _stats(make_s), "pocl_pose_ms": pose_cl, "numpy_pose_ms": pose_np,
+            "pose_make_ms": _stats(make_s), "pocl_pose_ms": pose_cl,
+            "pocl_pose_new_array_ms": _stats(alloc_s), "numpy_pose_ms": pose_np,
             "speedup_vs_numpy": pose_np["median"] / pose_cl["median"],
             "pocl_batched_per_frame_ms": batch, "batch_frames": len(poses),
             "batched_speedup_vs_numpy": pose_np["median"] / batch["median"],
@@ -464,6 +475,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
                 log(f"{model:9s} {kind:8s} N={len(v):6d} h={h:2d}  bind {cell['bind_ms']['median']:8.1f} ms"
                     f"  PoCL {cell['pocl_pose_ms']['median']:7.3f} ms"
                     f" [{cell['pocl_pose_ms']['p10']:.3f}, {cell['pocl_pose_ms']['p90']:.3f}]"
+                    f" (new array {cell['pocl_pose_new_array_ms']['median']:.3f})"
                     f"  numpy {cell['numpy_pose_ms']['median']:8.2f} ms"
                     f"  x{cell['speedup_vs_numpy']:6.1f}  paper/PoCL {row['paper_over_pocl']:6.1f}"
                     f"  batched {cell['pocl_batched_per_frame_ms']['median']:.3f} ms/frame"
