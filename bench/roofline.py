@@ -59,49 +59,50 @@ __kernel void empty(__global float *out)
 # --------------------------------------------------------------------------- counting
 
 #: flops per point of ``nrmls_pose`` (DERIVED_LEVER build, the default lever rule), by
-#: section, as (per point handle, per segment slot, fixed). Multiplies, adds and
+#: section, as (per point handle, per segment slot, fixed, once if P > 0). Multiplies, adds and
 #: subtractions are 1 each; constants folded by the compiler (-1.0f/6 ...) are not
 #: counted; integer index arithmetic, comparisons and select() are not counted.
 #: Calls and divisions (each counted as 1 flop in the totals) are listed apart.
 FLOP_COUNT = {
-    "point handle, q* term (3 mul + 3 add)": (6, 0, 0),
-    "segment slot: lever (ca+cb)*len2, lsum += (1 add + 1 mul + 1 add)": (0, 3, 0),
-    "segment slot: q* += ca*e + cb*e' (3 x (2 mul + 2 add))": (0, 12, 0),
-    "segment slot: r += l*table (3 x (1 mul + 1 add))": (0, 6, 0),
-    "point handle: qhat = q - q* (3 sub)": (3, 0, 0),
-    "point handle: y = R_ref^T qhat (3 x (3 mul + 2 add))": (15, 0, 0),
-    "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0),
-    "point handle: |c|^2 (3 mul + 2 add)": (5, 0, 0),
-    "point handle: sqrt8 (denormal pre-scale 1 mul, 3 Newton steps of 4 mul + 1 sub, x*y, post-scale 1 mul; "
-    "the bit-trick seed is integer)": (18, 0, 0),
-    "point handle: phat.y (3 mul + 2 add)": (5, 0, 0),
-    "point handle: atan2pos8 (lo/hi 1 div, a*a, degree-7 Horner 7 mul + 7 add, *a, 2 octant subs)": (19, 0, 0),
-    "point handle: angle / sn (1 div)": (1, 0, 0),
-    "point handle: lever coef*|phat|^2, lsum +=, *k (3 mul + 2 add + 1 mul + 1 add + 1 mul)": (8, 0, 0),
-    "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0),
-    "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4),
-    "Rodrigues: x = |r|^2/4 (3 mul + 2 add + 1 mul)": (0, 0, 6),
-    "Rodrigues: sinc Horner degree 6 in x (6 mul + 6 add)": (0, 0, 12),
-    "Rodrigues: cos Horner degree 8 in x (8 mul + 8 add)": (0, 0, 16),
-    "Rodrigues: a = sinc*cos, b = 0.5*sinc*sinc (3 mul)": (0, 0, 3),
-    "Rodrigues: k = r x u, j = r x k (2 x 3 x (2 mul + 1 sub))": (0, 0, 18),
-    "Rodrigues: w = u + a k + b j (3 x (2 mul + 2 add))": (0, 0, 12),
-    "output: R_ref w + q* (3 x (3 mul + 3 add))": (0, 0, 18),
+    "point handle, q* term (3 mul + 3 add)": (6, 0, 0, 0),
+    "segment slot: lever (ca+cb)*len2, lsum += (1 add + 1 mul + 1 add)": (0, 3, 0, 0),
+    "segment slot: q* += ca*e + cb*e' (3 x (2 mul + 2 add))": (0, 12, 0, 0),
+    "segment slot: r += l*table (3 x (1 mul + 1 add))": (0, 6, 0, 0),
+    "point handles: Y* = R_ref^T q* (3 x (3 mul + 2 add)), once per point": (0, 0, 0, 15),
+    "point handle: y = R_ref^T q_p - Y* (3 sub; R_ref^T q_p is per-pose table data)": (3, 0, 0, 0),
+    "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0, 0),
+    "point handle: |c|^2 (3 mul + 2 add)": (5, 0, 0, 0),
+    "point handle: 1/|c| by rsqrt8 (denormal pre-scale 1 mul, 3 Newton steps of 4 mul + 1 sub, "
+    "post-scale 1 mul; the bit-trick seed is integer), |c| = |c|^2 * that (1 mul)": (18, 0, 0, 0),
+    "point handle: phat.y (3 mul + 2 add)": (5, 0, 0, 0),
+    "point handle: atan2pos8 (lo/hi 1 div, a*a, degree-7 Horner 7 mul + 7 add, *a, 2 octant subs)":
+        (19, 0, 0, 0),
+    "point handle: angle * (1/|c|) (1 mul)": (1, 0, 0, 0),
+    "point handle: lever coef*|phat|^2, lsum +=, *k (3 mul + 2 add + 1 mul + 1 add + 1 mul)": (8, 0, 0, 0),
+    "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0, 0),
+    "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4, 0),
+    "Rodrigues: x = |r|^2/4 (3 mul + 2 add + 1 mul)": (0, 0, 6, 0),
+    "Rodrigues: sinc Horner degree 6 in x (6 mul + 6 add)": (0, 0, 12, 0),
+    "Rodrigues: cos Horner degree 8 in x (8 mul + 8 add)": (0, 0, 16, 0),
+    "Rodrigues: a = sinc*cos, b = 0.5*sinc*sinc (3 mul)": (0, 0, 3, 0),
+    "Rodrigues: k = r x u, j = r x k (2 x 3 x (2 mul + 1 sub))": (0, 0, 18, 0),
+    "Rodrigues: w = u + a k + b j (3 x (2 mul + 2 add))": (0, 0, 12, 0),
+    "output: R_ref w + q* (3 x (3 mul + 3 add))": (0, 0, 18, 0),
 }
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
-DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0), "angle / sn": (1, 0, 0), "1 / lsum": (0, 0, 1)}
+DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0, 0), "1 / lsum": (0, 0, 1, 0)}
 
 
 def _total(table: dict, P: int, K: int) -> int:
-    return int(sum(p * P + k * K + f for p, k, f in table.values()))
+    return int(sum(p * P + k * K + f + (g if P else 0) for p, k, f, g in table.values()))
 
 
 def pose_flops(P: int, K: int) -> dict:
     """Floating-point operations per point of ``nrmls_pose`` for P point handles and K
     segment slots (K = S dense, or k sparse): total and how it splits."""
     return {"per_point": _total(FLOP_COUNT, P, K),
-            "formula": "{} P + {} K + {} (P point handles, K segment slots)".format(
-                *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(3))),
+            "formula": "{} P + {} K + {} (+ {} when P > 0; P point handles, K segment slots)".format(
+                *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(4))),
             "divisions_per_point": _total(DIVISIONS, P, K),
             "rule": "mul/add/sub = 1 flop (an FMA is 2); divisions counted as 1 each (listed under "
                     "divisions_per_point); sqrt and atan2 are inline polynomials, counted by their "
@@ -134,7 +135,7 @@ def pose_work(deformer) -> dict:
     n = deformer.n
     fl = pose_flops(P, K)
     by = pose_bytes(P, K, sparse, deformer.lever != "paper")
-    per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 9 * (S + 1) + 3 * (S + 1) * S)
+    per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 9 * (S + 1) + 3 * (S + 1) * S + 3 * P * (S + 1))
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
             "flops_per_pose": fl["per_point"] * n,
@@ -384,7 +385,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
     best_batched = max(rows, key=lambda r: r["batched"]["fraction_arithmetic"])
     return {"roofs": ceilings, "roofs_before": before, "roofs_after": after, "method": roofs.describe(),
             "flop_count": {"table": {k: list(v) for k, v in FLOP_COUNT.items()},
-                           "columns": ["per point handle", "per segment slot", "fixed"],
+                           "columns": ["per point handle", "per segment slot", "fixed", "once per point when P > 0"],
                            "divisions": {k: list(v) for k, v in DIVISIONS.items()},
                            **{k: v for k, v in pose_flops(1, 1).items() if k in ("formula", "rule")}},
             "rows": rows, "poses_per_round": n_poses, "rounds": max(repeat, 1),

@@ -38,11 +38,15 @@
  *                         rest length ("length"), see nrpose/blend.py
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
  *          rotations of the segments and the global rotation R_g, row-major
- *   derived (written by nrmls_prepare from `rots`, once per pose)
- *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4]):
+ *   derived (written by nrmls_prepare from `pose`, once per pose)
+ *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4])
+ *          | ploc [(S+1)*P*3]:
  *          relative/paper blends, TW = 3: table[j][s] = log(R_ref_j^-1 R_s);
  *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j, and
- *          quats[j] = Q_j, unit quaternions (x, y, z, w) of the rotations
+ *          quats[j] = Q_j, unit quaternions (x, y, z, w) of the rotations;
+ *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
+ *          frame (built with -DPOINT_HANDLES, i.e. P > 0, the pose kernel reads it
+ *          where a chunk's 8 lanes share their reference)
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order
  *
  * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
@@ -77,6 +81,12 @@
 #else
 #define FREC(P, K) (8 * (3 + 5 * (P) + 3 * (K)))
 #endif
+/* offset of ploc in a frame's derived block (after refs, table and quats) */
+#ifdef QUAT_BLEND
+#define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S) + 4 * ((S) + 1))
+#else
+#define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
+#endif
 #ifdef SPARSE
 #define IREC(K) (8 * (2 + (K)))
 #else
@@ -104,13 +114,14 @@ static float4 quat_of(__global const float *m)
     return normalize(q);
 }
 
-/* sqrt(x) for finite x >= 0 without PoCL's out-of-line sqrt call: the inverse
- * square root from the exponent-halving bit trick, three Newton steps
- * (relative error 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding), times x.
- * The seed needs a normal float: denormal x (< 2^-126; |c|^2 of a point handle
- * on a model ~1e-19 across) is scaled by 2^64 first and the result by 2^-32.
- * sqrt8(0) = 0; infinite x gives a wrong value (callers only use finite x > 0). */
-static inline float8 sqrt8(const float8 x)
+/* 1/sqrt(x) and sqrt(x) for finite x >= 0 without PoCL's out-of-line sqrt call:
+ * the inverse square root from the exponent-halving bit trick, three Newton
+ * steps (relative error 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding); sqrt(x)
+ * is x times it. The seed needs a normal float: denormal x (< 2^-126; |c|^2 of
+ * a point handle on a model ~1e-19 across) is scaled by 2^64 first and the
+ * results by 2^32 (inverse) and 2^-32. rsqrt8(0) is large but finite (~1.3e19),
+ * sqrt8(0) = 0; infinite x gives wrong values (callers only use finite x). */
+static inline float8 rsqrt8(const float8 x)
 {
     const int8 tiny = x < 1.17549435e-38f;
     const float8 xs = tiny ? x * 18446744073709551616.0f : x;          /* 2^64 */
@@ -118,7 +129,12 @@ static inline float8 sqrt8(const float8 x)
     y = y * (1.5f - 0.5f * xs * y * y);
     y = y * (1.5f - 0.5f * xs * y * y);
     y = y * (1.5f - 0.5f * xs * y * y);
-    return (tiny ? (float8)2.3283064365386963e-10f : (float8)1.0f) * (xs * y);    /* 2^-32 */
+    return (tiny ? (float8)4294967296.0f : (float8)1.0f) * y;                    /* 2^32 */
+}
+
+static inline float8 sqrt8(const float8 x)
+{
+    return x * rsqrt8(x);
 }
 
 /* atan2(s, c) for s >= 0 (an angle in [0, pi]) without the out-of-line call:
@@ -168,6 +184,14 @@ __kernel void nrmls_prepare(const int P, const int S, const int paper, const int
         if (j <= S) {
             for (int k = 0; k < 9; ++k)
                 refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : rots[9 * j + k];
+            /* ploc[j][p] = R_j^T q_p: the posed point handles in reference j's frame */
+            __global const float *qp = pose + f * pose_stride;
+            __global float *ploc = refs + PLOC_OFFSET(S) + 3 * P * j;
+            for (int p = 0; p < P; ++p)
+                for (int k = 0; k < 3; ++k)
+                    ploc[3 * p + k] = paper ? qp[3 * p + k]
+                        : rots[9 * j + k] * qp[3 * p] + rots[9 * j + 3 + k] * qp[3 * p + 1]
+                          + rots[9 * j + 6 + k] * qp[3 * p + 2];
 #ifdef QUAT_BLEND
             vstore4(quat_of(rots + 9 * j), j, table + TW * (S + 1) * S);
 #endif
@@ -296,12 +320,31 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     if (P > 0)
         LOAD_QREF();
 #endif
+    /* y = R_ref^-1 qhat = R_ref^T q_p - R_ref^T q*: with a shared reference, R_ref^T q_p
+     * comes from the per-pose table ploc and only R_ref^T q* is computed per point */
+#ifdef POINT_HANDLES
+    __global const float *ploc = refs + PLOC_OFFSET(S) + 3 * P * rf.s0;
+    float8 Yx = 0.0f, Yy = 0.0f, Yz = 0.0f;
+    if (uniform) {
+        Yx = m00 * qx + m10 * qy + m20 * qz;
+        Yy = m01 * qx + m11 * qy + m21 * qz;
+        Yz = m02 * qx + m12 * qy + m22 * qz;
+    }
+#endif
     for (int p = 0; p < P; ++p) {
-        /* minimal rotation taking phat onto R_ref^-1 qhat */
-        const float8 hx = qpos[3 * p] - qx, hy = qpos[3 * p + 1] - qy, hz = qpos[3 * p + 2] - qz;
-        const float8 yx = m00 * hx + m10 * hy + m20 * hz;
-        const float8 yy = m01 * hx + m11 * hy + m21 * hz;
-        const float8 yz = m02 * hx + m12 * hy + m22 * hz;
+        /* minimal rotation taking phat onto y */
+        float8 yx, yy, yz;
+#ifdef POINT_HANDLES
+        if (uniform) {
+            yx = ploc[3 * p] - Yx; yy = ploc[3 * p + 1] - Yy; yz = ploc[3 * p + 2] - Yz;
+        } else
+#endif
+        {
+            const float8 hx = qpos[3 * p] - qx, hy = qpos[3 * p + 1] - qy, hz = qpos[3 * p + 2] - qz;
+            yx = m00 * hx + m10 * hy + m20 * hz;
+            yy = m01 * hx + m11 * hy + m21 * hz;
+            yz = m02 * hx + m12 * hy + m22 * hz;
+        }
         const float8 px = LOAD8(3 * p, phat);
         const float8 py = LOAD8(3 * p + 1, phat);
         const float8 pz = LOAD8(3 * p + 2, phat);
@@ -320,17 +363,18 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         /* m = (c, |phat||y| + phat.y) / |.|, the half-angle quaternion of the minimal
          * rotation (identity for opposite or zero vectors); r += lp Q_ref (x) m */
         const float8 w0 = sqrt8(pp * (yx * yx + yy * yy + yz * yz)) + cs;
-        const float8 mn = sqrt8(w0 * w0 + cx * cx + cy * cy + cz * cz);
-        const float8 k = mn > 0.0f ? lp / mn : (float8)0.0f;
+        const float8 mn2 = w0 * w0 + cx * cx + cy * cy + cz * cz;
+        const float8 k = mn2 > 0.0f ? lp * rsqrt8(mn2) : (float8)0.0f;
         const float8 mx = k * cx, my = k * cy, mz = k * cz;
-        const float8 mw = mn > 0.0f ? k * w0 : lp;
+        const float8 mw = mn2 > 0.0f ? k * w0 : lp;
         rx += gw * mx + mw * gx + (gy * mz - gz * my);
         ry += gw * my + mw * gy + (gz * mx - gx * mz);
         rz += gw * mz + mw * gz + (gx * my - gy * mx);
         rw += gw * mw - (gx * mx + gy * my + gz * mz);
 #else
-        const float8 sn = sqrt8(cx * cx + cy * cy + cz * cz);
-        const float8 l = lp * (sn > 0.0f ? atan2pos8(sn, cs) / sn : (float8)0.0f);
+        const float8 sn2 = cx * cx + cy * cy + cz * cz;
+        const float8 isn = rsqrt8(sn2);                 /* 1/|c|: no division */
+        const float8 l = lp * (sn2 > 0.0f ? atan2pos8(sn2 * isn, cs) * isn : (float8)0.0f);
         rx += l * cx;
         ry += l * cy;
         rz += l * cz;

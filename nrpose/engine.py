@@ -83,10 +83,11 @@ class Deformer:
         self._npos = 3 * (P + 2 * S)
         self._pose_stride = self._npos + 9 * (S + 1)       # floats per frame: positions, rotations
         quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
-        self._derived_stride = 9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
+        self._derived_stride = (9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
+                                + 3 * P * (S + 1))
         self._needs_global = blend != "paper" and bool((T.ref == S).any())
         options = ((("-DSPARSE",) if K < S else ()) + (("-DDERIVED_LEVER",) if self.lever != "paper" else ())
-                   + (("-DQUAT_BLEND",) if quat else ()))
+                   + (("-DQUAT_BLEND",) if quat else ()) + (("-DPOINT_HANDLES",) if P else ()))
         prg = device.program("nrmls.cl", options)
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
         self._prepare.set_args(np.int32(P), np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),

@@ -75,6 +75,26 @@ def test_kernel_matches_reference_random(n_pts, n_segs, alpha, blend):
         assert np.abs(out - expect).max() <= TOL * diag(points)
 
 
+@pytest.mark.parametrize("blend", ["relative", "paper", "quaternion"])
+def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
+    """The kernel takes R_ref^T q_p from the per-pose table where a chunk's 8 points share
+    their reference rotation and rotates q_p - q* per lane where they do not: both paths
+    against the reference, on a layout that has both kinds of chunk."""
+    from nrpose.engine import LANES, device_layout
+
+    rng = np.random.default_rng(7)
+    rest = random_rest(rng, 3, 4)
+    points = rng.uniform(-1.5, 1.5, (2001, 3))
+    dev, ref = both(points, rest, blend=blend)
+    arrays, _ = device_layout(dev.terms, rest, None, dev.lever)
+    chunks = arrays["ref"].reshape(-1, LANES)
+    shared = (chunks == chunks[:, :1]).all(axis=1)
+    assert shared.any() and not shared.all()
+    for _ in range(2):
+        pose = random_pose(rng, rest)
+        assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
+
+
 @pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
 def test_kernel_matches_reference_large_point_handle_angles(angle):
     """Point-handle minimal rotations of every size up to nearly pi, where the kernel's
