@@ -1,17 +1,22 @@
 /* 8-lane helpers shared by the kernels (pasted in place of `#include "lanes.h"`
  * by nrpose/device.py, so that PoCL's kernel cache sees the whole source).
  *
- * PoCL's builtins vload8, vstore3, all, any and select are out-of-line calls
- * in the binary it builds here, and each call spills every live float8
- * register around it: the dragon pose kernel spent half its time on them.
- * These macros do the same with pointer casts, scalar stores and bit
- * operations, which compile inline. Vector selects are written `c ? a : b`.
+ * PoCL's builtins vload8, vstore3, all, any, select, fabs, sqrt, rsqrt and atan2
+ * are out-of-line calls in the binary it builds here, and each call spills
+ * every live float8 register around it: the dragon pose kernel spent half its
+ * time on them. These macros and functions do the same with pointer casts,
+ * scalar stores, bit operations and Newton steps, which compile inline. Vector
+ * selects are written `c ? a : b`. Check a build with
+ * `objdump -d ~/.cache/pocl/kcache/<xx>/<hash>/<kernel>/<local size>/<kernel>.so | grep call`.
  */
 
 /* Chunk g (8 consecutive floats / ints starting at p + 8g); p + 8g must be
  * 32-byte aligned: rows of a multiple of 8 elements in an OpenCL buffer are. */
 #define LOAD8(g, p) (*(__global const float8 *)((p) + 8 * (g)))
 #define LOADI8(g, p) (*(__global const int8 *)((p) + 8 * (g)))
+
+/* |x| of the 8 lanes (clears the sign bits). */
+#define ABS8(x) as_float8(as_int8(x) & (int8)0x7fffffff)
 
 /* OR of the 8 lanes. */
 static inline int or8(const int8 v)
@@ -43,3 +48,20 @@ static inline int or8(const int8 v)
 /* float8 of p[i.s0], ..., p[i.s7]. */
 #define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
                                 (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
+
+/* 1/sqrt(x) for finite x >= 0 without PoCL's out-of-line rsqrt/sqrt calls: the
+ * exponent-halving bit trick, then three Newton steps (relative error 3.4e-2 ->
+ * 1.7e-3 -> 4.4e-6 -> float rounding). The seed needs a normal float: denormal x
+ * (< 2^-126; |c|^2 of a point handle on a model ~1e-19 across) is scaled by 2^64
+ * first and the result by 2^32. rsqrt8(0) is large but finite (~1.9e29, so that
+ * 0 * rsqrt8(0) = 0); infinite x gives a wrong value (callers use finite x). */
+static inline float8 rsqrt8(const float8 x)
+{
+    const int8 tiny = x < 1.17549435e-38f;
+    const float8 xs = tiny ? x * 18446744073709551616.0f : x;          /* 2^64 */
+    float8 y = as_float8((int8)0x5f375a86 - (as_int8(xs) >> 1));
+    y = y * (1.5f - 0.5f * xs * y * y);
+    y = y * (1.5f - 0.5f * xs * y * y);
+    y = y * (1.5f - 0.5f * xs * y * y);
+    return (tiny ? (float8)4294967296.0f : (float8)1.0f) * y;                    /* 2^32 */
+}

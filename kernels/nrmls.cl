@@ -114,24 +114,7 @@ static float4 quat_of(__global const float *m)
     return normalize(q);
 }
 
-/* 1/sqrt(x) and sqrt(x) for finite x >= 0 without PoCL's out-of-line sqrt call:
- * the inverse square root from the exponent-halving bit trick, three Newton
- * steps (relative error 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding); sqrt(x)
- * is x times it. The seed needs a normal float: denormal x (< 2^-126; |c|^2 of
- * a point handle on a model ~1e-19 across) is scaled by 2^64 first and the
- * results by 2^32 (inverse) and 2^-32. rsqrt8(0) is large but finite (~1.3e19),
- * sqrt8(0) = 0; infinite x gives wrong values (callers only use finite x). */
-static inline float8 rsqrt8(const float8 x)
-{
-    const int8 tiny = x < 1.17549435e-38f;
-    const float8 xs = tiny ? x * 18446744073709551616.0f : x;          /* 2^64 */
-    float8 y = as_float8((int8)0x5f375a86 - (as_int8(xs) >> 1));
-    y = y * (1.5f - 0.5f * xs * y * y);
-    y = y * (1.5f - 0.5f * xs * y * y);
-    y = y * (1.5f - 0.5f * xs * y * y);
-    return (tiny ? (float8)4294967296.0f : (float8)1.0f) * y;                    /* 2^32 */
-}
-
+/* sqrt(x) for finite x >= 0 (rsqrt8: lanes.h); sqrt8(0) = 0. */
 static inline float8 sqrt8(const float8 x)
 {
     return x * rsqrt8(x);
@@ -143,7 +126,7 @@ static inline float8 sqrt8(const float8 x)
  * atan2pos8(0, 0) = 0. */
 static inline float8 atan2pos8(const float8 s, const float8 c)
 {
-    const float8 ac = fabs(c);
+    const float8 ac = ABS8(c);
     const float8 hi = s > ac ? s : ac, lo = s > ac ? ac : s;
     const float8 a = hi > 0.0f ? lo / hi : (float8)0.0f;
     const float8 t = a * a;
@@ -224,7 +207,8 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
                          const int F, const int pose_stride, const int derived_stride)
 {
     const int chunks = np / 8;
-    for (int g = get_global_id(0) * per_item; g < min(chunks, (int)(get_global_id(0) + 1) * per_item); ++g) {
+    const int g_end = (int)(get_global_id(0) + 1) * per_item;
+    for (int g = get_global_id(0) * per_item; g < (g_end < chunks ? g_end : chunks); ++g) {
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
     /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */

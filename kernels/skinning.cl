@@ -116,7 +116,7 @@ __kernel void dqs(__global const float *restrict rest,
     }
 
     /* Normalise by the blended real part's norm. */
-    const float8 inv = rsqrt(rx * rx + ry * ry + rz * rz + rw * rw);
+    const float8 inv = rsqrt8(rx * rx + ry * ry + rz * rz + rw * rw);
     rx *= inv; ry *= inv; rz *= inv; rw *= inv;
     dx *= inv; dy *= inv; dz *= inv; dw *= inv;
 
