@@ -65,6 +65,20 @@
 #define NORMALISE_LEVERS  /* derived levers are normalised per point (stored ones already are) */
 #endif
 
+/* R_ref, each lane's reference rotation matrix (row-major), into m00..m22 */
+#define LOAD_REF() do {                                                                     \
+        if (uniform) {                                                                      \
+            __global const float *m = refs + 9 * rf.s0;                                     \
+            m00 = m[0]; m01 = m[1]; m02 = m[2]; m10 = m[3]; m11 = m[4]; m12 = m[5];         \
+            m20 = m[6]; m21 = m[7]; m22 = m[8];                                             \
+        } else {                                                                            \
+            const int8 r9 = rf * 9;                                                         \
+            m00 = GATHER8(refs, r9);     m01 = GATHER8(refs, r9 + 1); m02 = GATHER8(refs, r9 + 2); \
+            m10 = GATHER8(refs, r9 + 3); m11 = GATHER8(refs, r9 + 4); m12 = GATHER8(refs, r9 + 5); \
+            m20 = GATHER8(refs, r9 + 6); m21 = GATHER8(refs, r9 + 7); m22 = GATHER8(refs, r9 + 8); \
+        }                                                                                   \
+    } while (0)
+
 /* Q_ref, the unit quaternion of each lane's reference rotation (QUAT_BLEND), into gx..gw */
 #define LOAD_QREF() do {                                                                    \
         __global const float *qt = table + TW * (S + 1) * S;                                \
@@ -225,20 +239,12 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     __global const float *table = refs + 9 * (S + 1);
     __global float *out = out_frames + (size_t)f * 3 * np;
 
-    /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered */
+    /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered;
+     * its matrix is loaded where it is used (LOAD_REF), not held in 9 registers
+     * across the slot loop, where they were spilled */
     const int8 rf = LOADI8(0, ints);
     const int uniform = SAME8(rf);
     float8 m00, m01, m02, m10, m11, m12, m20, m21, m22;
-    if (uniform) {
-        __global const float *m = refs + 9 * rf.s0;
-        m00 = m[0]; m01 = m[1]; m02 = m[2]; m10 = m[3]; m11 = m[4]; m12 = m[5];
-        m20 = m[6]; m21 = m[7]; m22 = m[8];
-    } else {
-        const int8 r9 = rf * 9;
-        m00 = GATHER8(refs, r9);     m01 = GATHER8(refs, r9 + 1); m02 = GATHER8(refs, r9 + 2);
-        m10 = GATHER8(refs, r9 + 3); m11 = GATHER8(refs, r9 + 4); m12 = GATHER8(refs, r9 + 5);
-        m20 = GATHER8(refs, r9 + 6); m21 = GATHER8(refs, r9 + 7); m22 = GATHER8(refs, r9 + 8);
-    }
 
     /* q* (weighted posed centroid, linear in the posed handle positions) and r: the
      * blended rotation vector relative to the reference, or (QUAT_BLEND) the
@@ -304,6 +310,8 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     if (P > 0)
         LOAD_QREF();
 #endif
+    if (P > 0)
+        LOAD_REF();
     /* y = R_ref^-1 qhat = R_ref^T q_p - R_ref^T q*: with a shared reference, R_ref^T q_p
      * comes from the per-pose table ploc and only R_ref^T q* is computed per point */
 #ifdef POINT_HANDLES
@@ -410,6 +418,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
     const float8 wz = uz + a * kz + b * jz;
 
     /* v' = R_ref w + q* */
+    LOAD_REF();
     const float8 ox = m00 * wx + m01 * wy + m02 * wz + qx;
     const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
     const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
