@@ -568,12 +568,16 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=5, help="timing rounds over the 20 poses (default 5)")
     ap.add_argument("--quick", action="store_true", help="500 points, 3 poses per row (smoke test)")
-    ap.add_argument("--json", default=str(DEFAULT_JSON), help="output JSON path")
-    ap.add_argument("--png", default=str(DEFAULT_PNG), help="output PNG path ('' to skip)")
+    ap.add_argument("--json", help="output JSON path (default results/table1.json, "
+                                   "results/table1_<blend>.json for another blend)")
+    ap.add_argument("--png", help="output PNG path ('' to skip; default beside the JSON)")
     ap.add_argument("--data", default=str(DEFAULT_DATA), help="shared data folder (meshes/...)")
     ap.add_argument("--blend", default=BLEND, choices=("relative", "quaternion", "paper"),
                     help=f"rotation blend of both backends (default {BLEND})")
     a = ap.parse_args(argv)
+    suffix = "" if a.blend == BLEND else f"_{a.blend}"     # one blend's run never overwrites another's
+    a.json = a.json or str(DEFAULT_JSON.with_name(f"table1{suffix}.json"))
+    a.png = str(DEFAULT_PNG.with_name(f"table1{suffix}.png")) if a.png is None else a.png
     doc = run(a.repeat, a.quick, a.data, log=lambda s: print(s, flush=True), blend=a.blend)
     write_json(doc, pathlib.Path(a.json))
     if a.png:
