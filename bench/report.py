@@ -73,8 +73,10 @@ def table1_block(doc: dict) -> str:
 def suites_block(doc: dict) -> str:
     """Markdown for one suites document (bench/suites.py)."""
     s = doc["suites"]
+    steal = doc.get("cpu_steal_percent")
     out = [f"`results/suites.json`: {_header(doc)}, load {doc.get('load_start')} → {doc.get('load_end')}, "
-           f"{doc.get('seconds', 0) / 60:.1f} min, peak RSS {doc.get('peak_rss_gb', 0):.1f} GB.", "",
+           + ("" if steal is None else f"CPU steal {steal} %, ")
+           + f"{doc.get('seconds', 0) / 60:.1f} min, peak RSS {doc.get('peak_rss_gb', 0):.1f} GB.", "",
            "Targets (medians, same run):", ""]
     for t in doc.get("targets", []):
         m = t["measured"]

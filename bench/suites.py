@@ -44,13 +44,13 @@ def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=No
            "git_commit": common.git("rev-parse", "HEAD"),
            "options": {"suites": chosen, "repeat": repeat, "quick": quick, "data": str(data)},
            "environment": common.environment(), "load_start": common.load(), "suites": {}}
-    t_all = time.perf_counter()
+    t_all, cpu_all = time.perf_counter(), common.cpu_times()
     roofs = None
     if "roofline" in chosen or "scaling" in chosen:
         import roofline
         roofs = roofline.Roofs(quick)
     for name in chosen:
-        t0 = time.perf_counter()
+        t0, cpu0 = time.perf_counter(), common.cpu_times()
         if name == "table1":
             t = table1.run(repeat, quick, data, log=log)
             res = {k: t[k] for k in ("rows", "targets", "options", "source", "device_setup_ms")}
@@ -75,9 +75,13 @@ def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=No
             res = clips.run(repeat, quick, data, log=log)
         res["seconds"] = time.perf_counter() - t0
         res["load_end"] = common.load()
+        res["cpu_steal_percent"] = common.steal_percent(cpu0, common.cpu_times())
+        if log:
+            log(f"{name}: {res['seconds']:.0f} s, CPU steal {res['cpu_steal_percent']} %")
         doc["suites"][name] = res
     doc["seconds"] = time.perf_counter() - t_all
     doc["load_end"] = common.load()
+    doc["cpu_steal_percent"] = common.steal_percent(cpu_all, common.cpu_times())
     doc["git_commit_end"] = common.git("rev-parse", "HEAD")
     doc["git_dirty"] = common.git("diff", "--name-only", "HEAD", "--", "nrpose", "kernels", "rigs").splitlines()
     doc["peak_rss_gb"] = common.peak_rss_gb()

@@ -55,6 +55,8 @@ def test_document(quick):
     assert env["compute_units"] >= 1
     assert doc["options"]["quick"] is True and doc["options"]["repeat"] == 1
     assert len(doc["load_start"]) == 3 and len(doc["load_end"]) == 3
+    for steal in [doc["cpu_steal_percent"]] + [s["cpu_steal_percent"] for s in doc["suites"].values()]:
+        assert steal is None or 0.0 <= steal <= 100.0
     assert isinstance(doc["git_commit"], str) and isinstance(doc["git_dirty"], list)
     assert _finite_positive(doc["seconds"]) and _finite_positive(doc["peak_rss_gb"])
     assert (out / "s.png").stat().st_size > 10_000
@@ -122,11 +124,19 @@ def test_bad_options(tmp_path):
         _parser().parse_args(["bench", "--suite", "nope"])
 
 
+def _bench_module(name: str):
+    """A module of bench/ (not a package: imported with bench/ on sys.path, as the suites run)."""
+    import importlib
+    import sys
+
+    if str(benchcli.bench_dir()) not in sys.path:
+        sys.path.insert(0, str(benchcli.bench_dir()))
+    return importlib.import_module(name)
+
+
 def test_report_renders_the_documents(quick, tmp_path):
     """bench/report.py puts every row and target of the documents between the README markers."""
-    import sys
-    sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent.parent / "bench"))
-    import report
+    report = _bench_module("report")
 
     doc, _ = quick
     t1 = dict(doc["suites"]["table1"], timestamp=doc["timestamp"], git_commit=doc["git_commit"],
@@ -148,3 +158,14 @@ def test_report_renders_the_documents(quick, tmp_path):
     assert report.main(["--table1", str(tmp_path / "t1.json"), "--suites", str(tmp_path / "s.json"),
                         "--readme", str(readme)]) == 2
     assert readme.read_text() == "no markers"
+
+
+def test_steal_percent_from_cpu_time_counters():
+    common = _bench_module("common")
+
+    before = [100, 0, 50, 800, 0, 0, 0, 50]
+    after = [200, 0, 100, 950, 0, 0, 0, 150]          # 400 ticks, 100 of them stolen
+    assert common.steal_percent(before, after) == 25.0
+    assert common.steal_percent(None, after) is None and common.steal_percent(before, before) is None
+    now = common.cpu_times()
+    assert now is None or (len(now) == 8 and all(x >= 0 for x in now))
