@@ -63,9 +63,18 @@ def keep_top_k(W: np.ndarray, k: int | None) -> np.ndarray:
         return W
     if isinstance(k, bool) or int(k) != k or k < 1:
         raise InputError(f"k must be a positive integer, got {k!r}")
-    drop = np.argsort(-W, axis=1, kind="stable")[:, int(k):]
-    W = W.copy()
-    np.put_along_axis(W, drop, 0.0, axis=1)
+    k = int(k)
+    # the k-th largest value of each row by partition (O(H), not a sort), then every
+    # larger entry and, of the entries equal to it, the lowest-index ones up to k
+    kth = -np.partition(-W, k - 1, axis=1)[:, k - 1:k]
+    above = W > kth
+    tied = W == kth
+    keep = above | tied
+    over = keep.sum(axis=1) > k                   # rows with more ties than room (few)
+    if over.any():
+        t, a = tied[over], above[over]
+        keep[over] = a | (t & (np.cumsum(t, axis=1) <= k - a.sum(axis=1, keepdims=True)))
+    W = np.where(keep, W, 0.0)
     return W / W.sum(axis=1, keepdims=True)
 
 
