@@ -301,9 +301,8 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
             kernel_bound = "latency"
             reasons.append(f"kernel reaches neither roof ({100 * f_arith:.0f} % arithmetic, {100 * f_bw:.0f} % "
                            f"{'L3' if fits_l3 else 'DRAM'} bandwidth): scattered scalar stores of the output "
-                           f"(xyz by row), per-slot scalar/gathered loads of handle data, divisions and "
-                           f"register spills: instruction throughput of one thread (single poses of Table-1 "
-                           f"size end before PoCL's second worker joins) rather than a bandwidth or "
+                           f"(xyz by row), per-slot scalar/gathered loads of handle data and divisions: "
+                           f"instruction throughput of the two worker threads rather than a bandwidth or "
                            f"arithmetic limit")
     return {"gflops": gflops, "gbs": gbs, "fraction_arithmetic": f_arith,
             "fraction_bandwidth": f_bw, "bandwidth_roof": "l3" if fits_l3 else "dram",
