@@ -55,7 +55,6 @@ from nrpose.rotation import Rotation  # noqa: E402
 SCHEMA = "nrpose-bench-table1/1"
 DEFAULT_DATA = PROJECT.parent / "shared" / "data"
 DEFAULT_JSON = HERE / "results" / "table1.json"
-DEFAULT_PNG = HERE / "results" / "table1.png"
 CACHE = pathlib.Path(os.environ.get("XDG_CACHE_HOME", pathlib.Path.home() / ".cache")) / "nrpose" / "bench"
 
 # model, points, handles, paper ms, mesh file under the data folder (None: the box grid)
@@ -577,7 +576,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     suffix = "" if a.blend == BLEND else f"_{a.blend}"     # one blend's run never overwrites another's
     a.json = a.json or str(DEFAULT_JSON.with_name(f"table1{suffix}.json"))
-    a.png = str(DEFAULT_PNG.with_name(f"table1{suffix}.png")) if a.png is None else a.png
+    a.png = str(pathlib.Path(a.json).with_suffix(".png")) if a.png is None else a.png
     doc = run(a.repeat, a.quick, a.data, log=lambda s: print(s, flush=True), blend=a.blend)
     write_json(doc, pathlib.Path(a.json))
     if a.png:

@@ -5,11 +5,12 @@ variable, e.g. ``PYOPENCL_CTX=0`` or ``0:0``) overrides the choice. Programs are
 built once per (context, kernel file, build options) and kept for the life of
 the process; callers keep their ``cl.Kernel`` objects and buffers alive.
 
-PoCL's worker threads are pinned one per CPU (``POCL_AFFINITY=1``) unless the
-environment already says otherwise; see :func:`pin_workers`.
+PoCL's worker threads are pinned one per CPU (``POCL_AFFINITY=1`` while PoCL
+starts) unless the environment already says otherwise; see :func:`worker_pinning`.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import re
@@ -33,11 +34,25 @@ def _cl():
     return cl
 
 
-def pin_workers() -> bool:
-    """Set ``POCL_AFFINITY=1`` (PoCL pins worker thread i to CPU i) before PoCL starts,
-    unless ``POCL_AFFINITY`` is already set or this process may not run on every
-    CPU (PoCL would then pin a worker to a CPU outside the allowed set and abort).
-    Returns whether it set the variable.
+def may_pin_workers() -> bool:
+    """True when nrpose should ask PoCL to pin its worker threads: ``POCL_AFFINITY``
+    is not set by the user, and this process may run on every CPU (PoCL pins worker
+    i to CPU i, which may be outside a restricted set)."""
+    if "POCL_AFFINITY" in os.environ:
+        return False
+    try:
+        allowed = os.sched_getaffinity(0)
+    except (AttributeError, OSError):   # not Linux
+        return False
+    return allowed == set(range(os.cpu_count() or 0))
+
+
+@contextlib.contextmanager
+def worker_pinning():
+    """While PoCL starts inside the block, ``POCL_AFFINITY=1`` (PoCL pins worker thread
+    i to CPU i) where :func:`may_pin_workers`; the variable is removed after the block,
+    so that child processes, perhaps restricted to fewer CPUs, decide for themselves.
+    Yields whether it pinned.
 
     Why (measured on the 2-core VM, bench/README.md): unpinned, the kernel's
     broadcast wakes both workers onto the same idle CPU, and the second one
@@ -45,16 +60,14 @@ def pin_workers() -> bool:
     single Table-1 pose ran on one thread (its kernel took the same time with
     ``POCL_MAX_PTHREAD_COUNT=1``); pinned, both threads take part.
     """
-    if "POCL_AFFINITY" in os.environ:
-        return False
+    pin = may_pin_workers()
+    if pin:
+        os.environ["POCL_AFFINITY"] = "1"
     try:
-        allowed = os.sched_getaffinity(0)
-    except (AttributeError, OSError):   # not Linux
-        return False
-    if allowed != set(range(os.cpu_count() or 0)):
-        return False
-    os.environ["POCL_AFFINITY"] = "1"
-    return True
+        yield pin
+    finally:
+        if pin:
+            os.environ.pop("POCL_AFFINITY", None)
 
 
 @functools.lru_cache(maxsize=None)
@@ -64,7 +77,13 @@ def context():
     Raises DeviceError with an installation hint when no platform exists.
     """
     cl = _cl()
-    pin_workers()
+    with worker_pinning():        # PoCL starts its worker threads in here
+        ctx = _new_context(cl)
+    return ctx, cl.CommandQueue(ctx)
+
+
+def _new_context(cl):
+    """The cl.Context of PYOPENCL_CTX's choice, else of the first PoCL (or other) CPU device."""
     try:
         platforms = cl.get_platforms()
     except cl.Error:
@@ -90,7 +109,7 @@ def context():
                 break
         if ctx is None:
             raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
-    return ctx, cl.CommandQueue(ctx)
+    return ctx
 
 
 def describe() -> dict:
@@ -171,7 +190,7 @@ class HostArray:
         """Wait for the queue and make kernel writes visible in ``host``.
 
         The host thread blocks (``finish``) rather than polling: PoCL's workers
-        are pinned one per CPU (:func:`pin_workers`), and a polling host thread
+        are pinned one per CPU (:func:`worker_pinning`), and a polling host thread
         takes a worker's CPU. Measured on the 2-core VM with pinned workers,
         polling for up to 0.3 ms before blocking was slower than blocking on
         every Table-1 row (box segments p25 0.14 vs 0.12 ms, box points median

@@ -208,15 +208,16 @@ def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> t
     w, t, ws = T.weights, T.t, T.weights[:, P:]
     K = S if k is None or k >= S else int(k)
     if K < S:
-        # the K heaviest segments of each point, listed by segment index: rest_terms kept
-        # at most k = K non-zero weights per point, so these are its non-zero segments and,
-        # to fill K slots, its lowest-index zero ones (a per-row sort only where it has fewer)
+        # the K heaviest segments of each point (ties: lower index), listed by segment
+        # index. rest_terms keeps at most k = K non-zero weights per point, so nearly every
+        # row's are its non-zero segments: taken from the non-zero pattern; rows with fewer
+        # (filled with their lowest-index zero ones) or more are sorted
         nz = ws != 0
         full = nz.sum(axis=1) == K
         slots = np.empty((n, K), np.int64)
         slots[full] = np.nonzero(nz[full])[1].reshape(-1, K)
         if not full.all():
-            slots[~full] = np.sort(np.argsort(~nz[~full], axis=1, kind="stable")[:, :K], axis=1)
+            slots[~full] = np.sort(np.argsort(-ws[~full], axis=1, kind="stable")[:, :K], axis=1)
         order = np.lexsort(tuple(slots.T[::-1]) + (T.ref,))
     else:
         slots = np.broadcast_to(np.arange(S), (n, S))
