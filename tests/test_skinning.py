@@ -6,6 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from nrpose.errors import InputError
+from nrpose.rotation import quat_multiply
 from nrpose.skinning import (DqsDeformer, LbsDeformer, Deformer, dqs_reference,
                              dqs_reference_dq, dual_quaternions, lbs_reference)
 
@@ -215,6 +216,28 @@ def test_dual_quaternions_encode_the_rigid_transform():
     for j in range(7):
         got = dqs_reference(p[j], one, np.ones((1, 1)), mats[j:j + 1])
         np.testing.assert_allclose(got, p[j] @ mats[j, :3, :3].T + mats[j, :3, 3], atol=1e-12)
+
+
+@pytest.mark.parametrize("kind", ["uniform scale", "float32 noise", "axis scale and shear"])
+def test_dual_quaternions_take_the_nearest_rotation(kind):
+    """Scaled, noisy or sheared blocks: the rotation is the polar factor (nearest rotation,
+    from an SVD here), whichever path the matrix takes; the translation is kept."""
+    rng = np.random.default_rng(12)
+    mats = rigid(rng, 40)
+    rot = mats[:, :3, :3].copy()
+    if kind == "uniform scale":
+        mats[:, :3, :3] = rot * rng.uniform(0.5, 2.0, (40, 1, 1))
+    elif kind == "float32 noise":
+        mats[:, :3, :3] = (rot + rng.normal(scale=2e-6, size=rot.shape)).astype(np.float32)
+    else:
+        mats[:, :3, :3] = rot @ np.diag([1.0, 1.4, 0.6]) + rng.normal(scale=0.05, size=rot.shape)
+    U, _, Vt = np.linalg.svd(mats[:, :3, :3])
+    nearest = U @ Vt
+    dq = dual_quaternions(mats)
+    got = Rotation.from_quat(dq[:, :4]).as_matrix()
+    np.testing.assert_allclose(got, nearest, atol=1e-9)
+    t = 2.0 * quat_multiply(dq[:, 4:], dq[:, :4] * [-1, -1, -1, 1])[:, :3]     # t = 2 qd conj(qr)
+    np.testing.assert_allclose(t, mats[:, :3, 3], atol=1e-12)
 
 
 # --------------------------------------------------------------------------- errors
