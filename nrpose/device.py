@@ -38,7 +38,7 @@ def may_pin_workers() -> bool:
     """True when nrpose should ask PoCL to pin its worker threads: ``POCL_AFFINITY``
     is not set by the user, and this process may run on every CPU (PoCL pins worker
     i to CPU i, which may be outside a restricted set)."""
-    if "POCL_AFFINITY" in os.environ:
+    if os.environ.get("POCL_AFFINITY"):     # empty counts as unset, as PYOPENCL_CTX's does
         return False
     try:
         allowed = os.sched_getaffinity(0)
@@ -60,14 +60,16 @@ def worker_pinning():
     single Table-1 pose ran on one thread (its kernel took the same time with
     ``POCL_MAX_PTHREAD_COUNT=1``); pinned, both threads take part.
     """
-    pin = may_pin_workers()
+    pin, before = may_pin_workers(), os.environ.get("POCL_AFFINITY")
     if pin:
         os.environ["POCL_AFFINITY"] = "1"
     try:
         yield pin
     finally:
-        if pin:
+        if pin and before is None:
             os.environ.pop("POCL_AFFINITY", None)
+        elif pin:
+            os.environ["POCL_AFFINITY"] = before
 
 
 @functools.lru_cache(maxsize=None)

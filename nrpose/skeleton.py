@@ -97,6 +97,8 @@ def polar_rotation(A: np.ndarray) -> np.ndarray:
     ~14x more than these element-wise products.
     """
     A = np.asarray(A, dtype=np.float64)
+    if A.ndim < 2 or A.shape[-2:] != (3, 3):
+        raise InputError(f"polar_rotation needs (..., 3, 3) matrices, got shape {A.shape}")
     flat = A.reshape(-1, 3, 3)
     C = np.ascontiguousarray(np.moveaxis(flat, 0, -1))                 # (3, 3, n)
     s2 = np.einsum("ijn,ijn->n", C, C) / 3.0                           # mean squared column norm

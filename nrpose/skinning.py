@@ -16,9 +16,9 @@ on column vectors, quaternions are ``(x, y, z, w)``):
 LBS: ``x' = (sum_k w_k M_{j_k}) x``; scale and shear in ``M_j`` are honoured.
 
 DQS (Kavan et al. 2007): each ``M_j`` is reduced to its rigid part -- the
-rotation :meth:`scipy.spatial.transform.Rotation.from_matrix` extracts from
-the 3x3 block (exact for a rotation times a uniform scale) and the
-translation column -- and converted to a unit dual quaternion. **Scale and
+nearest rotation to the 3x3 block (its polar factor; exact for a rotation
+times a uniform scale) and the translation column -- and converted to a unit
+dual quaternion. **Scale and
 shear in M_j are ignored by DQS.** Per vertex, each joint's dual quaternion
 is sign-flipped to lie in the hemisphere of the vertex's dominant (largest
 weight, first on ties) joint's rotation quaternion, the weighted sum is
@@ -144,10 +144,11 @@ def _check_mats(mats, max_joint: int, *, frames: bool = False) -> np.ndarray:
 def dual_quaternions(mats) -> np.ndarray:
     """Unit dual quaternions (..., 8) = (qr.xyzw, qd.xyzw) of the rigid parts of mats (..., 4, 4).
 
-    The rotation is the polar factor of the 3x3 block (the nearest rotation:
-    scale and shear are dropped; :func:`nrpose.skeleton.polar_rotation`);
-    ``qd = 0.5 (t, 0) qr`` with t the translation column. Reflections
-    (det <= 0) are rejected.
+    The rotation is the nearest rotation to the 3x3 block, scale and shear
+    dropped: the block divided by det^(1/3) where that is a rotation to 1e-6
+    (a rotation times a uniform scale; float rounding left in), else its polar
+    factor (:func:`nrpose.skeleton.polar_rotation`). ``qd = 0.5 (t, 0) qr``
+    with t the translation column. Reflections (det <= 0) are rejected.
     """
     mats = np.asarray(mats, dtype=np.float64)
     lead = mats.shape[:-2]

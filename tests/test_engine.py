@@ -95,6 +95,28 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
         assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
 
 
+def test_sparse_slots_are_the_heaviest_segments():
+    """device_layout's K slots per point are its K heaviest segments (ties: lower index),
+    listed by index, for rows with exactly K, fewer (points on a handle) and more (dense
+    rest terms laid out sparse) non-zero segment weights."""
+    from nrpose.engine import device_layout
+
+    rng = np.random.default_rng(8)
+    rest = random_rest(rng, 2, 7)
+    points = rng.uniform(-1.2, 1.2, (400, 3))
+    points[:10] = rest.segments[2, 0]                        # one-hot weights
+    seen = set()
+    for k in (1, 3, 5):
+        for terms in (rest_terms(points, rest, k=k), rest_terms(points, rest)):
+            arrays, K = device_layout(terms, rest, k, "weight")
+            ws = terms.weights[:, 2:]
+            expect = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
+            stored = arrays["slot"][:, :len(points)].T
+            assert K == k and np.array_equal(stored, expect[arrays["row"][:len(points)]])
+            seen |= set(np.sign(np.count_nonzero(ws, axis=1) - K))
+    assert seen == {-1, 0, 1}                                # fewer, exactly and more than K
+
+
 @pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
 def test_kernel_matches_reference_large_point_handle_angles(angle):
     """Point-handle minimal rotations of every size up to nearly pi, where the kernel's

@@ -170,3 +170,26 @@ def test_polar_rotation_fast_path_matches_the_svd():
     out = polar_rotation(A.reshape(7, 10, 3, 3)).reshape(70, 3, 3)
     assert np.abs(out - by_svd(A)).max() <= 1e-12
     assert np.abs(out @ np.swapaxes(out, 1, 2) - np.eye(3)).max() <= 1e-12 and (np.linalg.det(out) > 0).all()
+
+
+def test_polar_rotation_shapes_layouts_and_input_untouched():
+    """One matrix, empty and one-element batches, strided and transposed views (the fast
+    path works on component-major copies): same polar factor, input unchanged; other
+    shapes are refused."""
+    from scipy.spatial.transform import Rotation as Rot
+
+    from nrpose.skeleton import polar_rotation
+
+    R = Rot.random(12, random_state=5).as_matrix() * 1.7
+    big = np.zeros((12, 3, 6))
+    big[:, :, ::2] = R                                       # strided view of R
+    for A in (R[0], R[:0], R[:1], big[:, :, ::2], np.swapaxes(R, 1, 2), np.asfortranarray(R[3])):
+        before = np.array(A, copy=True)
+        out = polar_rotation(A)
+        assert out.shape == A.shape and np.array_equal(A, before)
+        expect = np.stack([u @ vt for u, _, vt in (np.linalg.svd(m) for m in A.reshape(-1, 3, 3))]) \
+            if A.size else np.zeros((0, 3, 3))
+        np.testing.assert_allclose(out.reshape(-1, 3, 3), expect, atol=1e-12)
+    for bad in (np.zeros(9), np.zeros((3, 6)), np.zeros((6, 3)), np.zeros(0)):
+        with pytest.raises(InputError, match="3, 3"):
+            polar_rotation(bad)

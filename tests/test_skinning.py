@@ -220,8 +220,8 @@ def test_dual_quaternions_encode_the_rigid_transform():
 
 @pytest.mark.parametrize("kind", ["uniform scale", "float32 noise", "axis scale and shear"])
 def test_dual_quaternions_take_the_nearest_rotation(kind):
-    """Scaled, noisy or sheared blocks: the rotation is the polar factor (nearest rotation,
-    from an SVD here), whichever path the matrix takes; the translation is kept."""
+    """Scaled (taken as is, divided by the scale), float32-noisy and sheared blocks (polar
+    factor): the rotation is the nearest one (from an SVD here); the translation is kept."""
     rng = np.random.default_rng(12)
     mats = rigid(rng, 40)
     rot = mats[:, :3, :3].copy()
