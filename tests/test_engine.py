@@ -95,6 +95,18 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
         assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
 
 
+def test_opencl_deformer_recomputes_its_dropped_rest_terms():
+    """The OpenCL deformer does not hold its host copy of the rest terms after binding;
+    ``terms`` recomputes them, equal to the numpy deformer's kept ones."""
+    rng = np.random.default_rng(4)
+    rest = random_rest(rng, 2, 5)
+    points = rng.uniform(-1.2, 1.2, (300, 3))
+    dev, ref = both(points, rest, k=3, alpha=2.0, lever="length")
+    assert dev._terms is None and ref._terms is not None
+    for name in ("weights", "t", "p_star", "u", "lever", "ref", "phat"):
+        np.testing.assert_array_equal(getattr(dev.terms, name), getattr(ref.terms, name))
+
+
 def test_sparse_slots_are_the_heaviest_segments():
     """device_layout's K slots per point are its K heaviest segments (ties: lower index),
     listed by index, for rows with exactly K, fewer (points on a handle) and more (dense
