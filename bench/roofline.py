@@ -24,7 +24,7 @@ import time
 import numpy as np
 
 from nrpose import device
-from nrpose.engine import LANES, device_layout
+from nrpose.engine import LANES
 
 ACCS = 8          # independent float8 accumulators per work-item
 ITERS = 2048      # updates of each accumulator
@@ -251,14 +251,13 @@ def lane_divergence(deformer) -> dict:
     A chunk of 8 points whose reference rotations differ, or (sparse) a segment slot whose
     8 segment indices differ, takes the gathered path (9 scalar loads per float8 value
     instead of broadcasts)."""
-    arrays, K = device_layout(deformer.terms, deformer.rest, deformer.k, deformer.lever)
-    S = len(deformer.rest.segments)
-    ref = arrays["ref"]
+    ref, slots = deformer.bound_indices()
+    K = deformer.slots
     chunks = ref.reshape(-1, LANES)
     uni = (chunks == chunks[:, :1]).all(axis=1)
     out = {"chunks": int(len(chunks)), "ref_uniform_fraction": float(uni.mean())}
-    if K and K < S:
-        sl = arrays["slot"].reshape(K, -1, LANES)
+    if slots is not None:
+        sl = slots.reshape(K, -1, LANES)
         both = uni[None] & (sl == sl[:, :, :1]).all(axis=2)
         out["gathered_slot_fraction"] = float(1 - both.mean())
     else:

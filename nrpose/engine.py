@@ -170,6 +170,26 @@ class Deformer:
         out[...] = result
         return out
 
+    def bound_indices(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """The kernel's per-point indices in stored order (points sorted by reference, padded
+        to a multiple of 8): ref (Npad,) int32, each point's reference rotation (segment s,
+        or S for the global one), and slots (K, Npad) int32, its segment slots (None when
+        dense). On OpenCL they are read back from the bound device buffer (diagnostics:
+        bench/roofline.py counts the chunks whose 8 lanes disagree)."""
+        if self.backend == "numpy":
+            arrays, K = device_layout(self._terms, self.rest, self.k, self.lever)
+            return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
+        import pyopencl as cl
+
+        S, K = len(self.rest.segments), self.slots
+        rows = 2 + K if K < S else 2                 # IREC rows: ref, row, then the slots
+        ints = np.empty(self._npad * rows, np.int32)
+        cl.enqueue_copy(self._queue, ints, self._bufs["irec"])
+        rec = ints.reshape(-1, rows, LANES)          # (chunks, rows, 8)
+        ref = rec[:, 0].ravel()
+        slots = np.ascontiguousarray(rec[:, 2:].transpose(1, 0, 2)).reshape(K, -1) if K < S else None
+        return ref, slots
+
     def launches(self) -> list[tuple]:
         """The last posing's kernel launches, ``[(kernel, global_size, local_size), ...]``
         (prepare, then pose), for profiling with OpenCL events: re-enqueueing them

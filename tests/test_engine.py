@@ -105,6 +105,13 @@ def test_opencl_deformer_recomputes_its_dropped_rest_terms():
     assert dev._terms is None and ref._terms is not None
     for name in ("weights", "t", "p_star", "u", "lever", "ref", "phat"):
         np.testing.assert_array_equal(getattr(dev.terms, name), getattr(ref.terms, name))
+    # the indices the kernel sees, read back from the device, are the layout's
+    (r_dev, s_dev), (r_ref, s_ref) = dev.bound_indices(), ref.bound_indices()
+    np.testing.assert_array_equal(r_dev, r_ref)
+    np.testing.assert_array_equal(s_dev, s_ref)
+    assert s_dev.shape == (3, len(r_dev)) and len(r_dev) % 8 == 0
+    dense = both(points, rest)[0]
+    assert dense.bound_indices()[1] is None
 
 
 def test_sparse_slots_are_the_heaviest_segments():
