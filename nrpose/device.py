@@ -67,8 +67,8 @@ def worker_pinning():
         yield pin
     finally:
         if pin and before is None:
-            os.environ.pop("POCL_AFFINITY", None)
-        elif pin:
+            del os.environ["POCL_AFFINITY"]
+        elif pin:                   # the empty value that counted as unset
             os.environ["POCL_AFFINITY"] = before
 
 

@@ -181,14 +181,12 @@ class Deformer:
             return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
         import pyopencl as cl
 
-        S, K = len(self.rest.segments), self.slots
-        rows = 2 + K if K < S else 2                 # IREC rows: ref, row, then the slots
-        ints = np.empty(self._npad * rows, np.int32)
-        cl.enqueue_copy(self._queue, ints, self._bufs["irec"])
-        rec = ints.reshape(-1, rows, LANES)          # (chunks, rows, 8)
-        ref = rec[:, 0].ravel()
-        slots = np.ascontiguousarray(rec[:, 2:].transpose(1, 0, 2)).reshape(K, -1) if K < S else None
-        return ref, slots
+        buf = self._bufs["irec"]
+        ints = np.empty(buf.size // 4, np.int32)
+        cl.enqueue_copy(self._queue, ints, buf)
+        rec = ints.reshape(self._npad // LANES, -1, LANES)   # chunk records: ref, row, then any slots
+        slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
+        return rec[:, 0].ravel(), slots
 
     def launches(self) -> list[tuple]:
         """The last posing's kernel launches, ``[(kernel, global_size, local_size), ...]``

@@ -176,7 +176,6 @@ def dual_quaternions(mats) -> np.ndarray:
     return out.reshape(lead + (8,))
 
 
-
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Row-wise cross product of (M, 3) arrays (np.cross is slow on small arrays)."""
     out = np.empty(np.broadcast_shapes(a.shape, b.shape))
