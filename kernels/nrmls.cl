@@ -31,9 +31,9 @@
  *                         of a work-item nearly always share it (scalar loads
  *                         instead of gathers)
  *   row    [1]            output row of each stored point (undoes the sort)
- *   slot   [K]            (SPARSE only) segment held by each slot
- *   K                     segment slots per point: S (dense) or k (built with
- *                         -DSPARSE: the k most influential segments of each point)
+ *   slot   [K]            (sparse only, K < S) segment held by each slot
+ *   K                     segment slots per point: S (dense) or k < S (sparse:
+ *                         the k most influential segments of each point)
  *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
  *                         rest length ("length"), see nrpose/blend.py
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
@@ -45,8 +45,8 @@
  *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j, and
  *          quats[j] = Q_j, unit quaternions (x, y, z, w) of the rotations;
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
- *          frame (built with -DPOINT_HANDLES, i.e. P > 0, the pose kernel reads it
- *          where a chunk's 8 lanes share their reference)
+ *          frame (when P > 0; the pose kernel reads it where a chunk's 8
+ *          lanes share their reference)
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order
  *
  * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
@@ -55,6 +55,28 @@
  */
 
 #include "lanes.h"
+
+/* The handle counts are build-time constants (nrpose/engine.py builds one program
+ * per (P, S, K) and blend options): P point handles, S segments, K segment slots
+ * per point. Then the slot and point-handle loops unroll and the index arithmetic
+ * folds: measured against runtime arguments, kernel events interleaved in one
+ * process, dragon segments -17 to -19 %, point rows -14 to -17 %. Loops longer
+ * than UNROLL_MAX are left to the compiler (full unrolling of 65 bones or 128
+ * handles would only grow the code). */
+#define P NPOINTS
+#define S NSEGS
+#define K NSLOTS
+#define UNROLL_MAX 16
+#if P <= UNROLL_MAX
+#define UNROLL_P _Pragma("unroll")
+#else
+#define UNROLL_P
+#endif
+#if K <= UNROLL_MAX
+#define UNROLL_K _Pragma("unroll")
+#else
+#define UNROLL_K
+#endif
 
 #ifdef QUAT_BLEND
 #define TW 4      /* floats per rotation-table entry */
@@ -101,7 +123,7 @@
 #else
 #define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
 #endif
-#ifdef SPARSE
+#if K < S
 #define IREC(K) (8 * (2 + (K)))
 #else
 #define IREC(K) 16
@@ -167,7 +189,7 @@ static float3 quat_log(float4 q)
  * j in [0, S], write refs[j]: the reference's matrix (identity for the paper
  * blend). The relative table is exactly antisymmetric, T[j][i] = -T[i][j],
  * so that blends seen from either handle agree even at an angle of exactly pi. */
-__kernel void nrmls_prepare(const int P, const int S, const int paper, const int npairs,
+__kernel void nrmls_prepare(const int paper, const int npairs,
                             __global const int *pairs, __global const float *pose,
                             __global float *derived, const int pose_stride, const int derived_stride)
 {
@@ -213,8 +235,7 @@ __kernel void nrmls_prepare(const int P, const int S, const int paper, const int
     vstore3(r, j * S + i, table);
 }
 
-__kernel void nrmls_pose(const int np, const int P, const int S, const int K,
-                         __global const float *frec, __global const int *irec,
+__kernel void nrmls_pose(const int np, __global const float *frec, __global const int *irec,
                          __global const float *len2,
                          __global const float *pose, __global const float *derived,
                          __global float *out_frames, const int per_item,
@@ -257,15 +278,17 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
 #ifdef NORMALISE_LEVERS
     float8 lsum = 0.0f;                  /* normaliser of the derived levers */
 #endif
+    UNROLL_P
     for (int p = 0; p < P; ++p) {
         const float8 c = LOAD8(p, coef);
         qx += c * qpos[3 * p];
         qy += c * qpos[3 * p + 1];
         qz += c * qpos[3 * p + 2];
     }
+    UNROLL_K
     for (int k = 0; k < K; ++k) {
-        /* segment slot k: dense, slot k is segment k; SPARSE, slot[k] names it per point */
-#ifdef SPARSE
+        /* segment slot k: dense, slot k is segment k; sparse, slot[k] names it per point */
+#if K < S
         const int8 h = LOADI8(2 + k, ints);
 #else
         const int8 h = (int8)k;
@@ -314,7 +337,7 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         LOAD_REF();
     /* y = R_ref^-1 qhat = R_ref^T q_p - R_ref^T q*: with a shared reference, R_ref^T q_p
      * comes from the per-pose table ploc and only R_ref^T q* is computed per point */
-#ifdef POINT_HANDLES
+#if P > 0
     __global const float *ploc = refs + PLOC_OFFSET(S) + 3 * P * rf.s0;
     float8 Yx = 0.0f, Yy = 0.0f, Yz = 0.0f;
     if (uniform) {
@@ -323,10 +346,11 @@ __kernel void nrmls_pose(const int np, const int P, const int S, const int K,
         Yz = m02 * qx + m12 * qy + m22 * qz;
     }
 #endif
+    UNROLL_P
     for (int p = 0; p < P; ++p) {
         /* minimal rotation taking phat onto y */
         float8 yx, yy, yz;
-#ifdef POINT_HANDLES
+#if P > 0
         if (uniform) {
             yx = ploc[3 * p] - Yx; yy = ploc[3 * p + 1] - Yy; yz = ploc[3 * p + 2] - Yz;
         } else
