@@ -18,7 +18,7 @@ pytest.importorskip("pymeshlab")
 BENCH = pathlib.Path(__file__).resolve().parent.parent / "bench" / "table1.py"
 
 ROW_FIELDS = {"model", "kind", "points", "handles", "paper_points", "paper_ms", "paper_ms_per_point_handle",
-              "source", "bbox_diagonal", "bind_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms",
+              "source", "bbox_diagonal", "bind_ms", "bind_first_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms",
               "pocl_pose_new_array_ms", "numpy_pose_ms", "speedup_vs_numpy", "pocl_ms_per_point_handle", "numpy_ms_per_point_handle",
               "paper_over_pocl", "max_error_rel_bbox", "handles_rest"}
 STATS = {"median", "p10", "p90", "min", "max", "n"}
@@ -74,6 +74,7 @@ def test_rows(quick_run):
             assert set(r[key]) == STATS
             assert r[key]["n"] >= 1
             assert all(_positive(r[key][s]) for s in STATS - {"n"}), (r["model"], key, r[key])
+        assert _positive(r["bind_first_ms"]), r["bind_first_ms"]
         assert r["pocl_pose_ms"]["n"] == 3 and r["pocl_pose_ms"]["p10"] <= r["pocl_pose_ms"]["p90"]
         for key in ("paper_ms", "bbox_diagonal", "speedup_vs_numpy", "pocl_ms_per_point_handle",
                     "numpy_ms_per_point_handle", "paper_over_pocl", "paper_ms_per_point_handle"):
