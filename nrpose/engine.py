@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import device
-from .blend import BLENDS, RestTerms, global_rotation, pose_reference, rest_terms, segment_levers
+from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers
 from .errors import InputError
 from .handles import HandleSet, Pose
 
@@ -101,7 +101,8 @@ class Deformer:
         quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
         self._derived_stride = (9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
                                 + 3 * P * (S + 1))
-        self._needs_global = blend != "paper" and bool((T.ref == S).any())
+        # R_g per pose, when some point takes the global rotation as its reference
+        self._global = GlobalRotation(self.rest) if blend != "paper" and bool((T.ref == S).any()) else None
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, S, K) and blend, compiled at the first bind of that configuration
         options = ((f"-DNPOINTS={P}", f"-DNSEGS={S}", f"-DNSLOTS={K}")
@@ -209,8 +210,8 @@ class Deformer:
             rows[: 3 * len(h.points)] = h.points.ravel()
             rows[3 * len(h.points): k] = h.segments.ravel()
             rows[k: k + pose.rotations.size] = pose.rotations.ravel()
-            if self._needs_global:
-                rows[k + pose.rotations.size:] = global_rotation(self.rest, pose).ravel()
+            if self._global is not None:
+                rows[k + pose.rotations.size:] = self._global(pose).ravel()
         self._pose.upload()
         S = len(self.rest.segments)
         q = self._queue

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["Rotation", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "relative_rotvec_table"]
+__all__ = ["Rotation", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "covariance_rotation",
+           "relative_rotvec_table"]
 
 
 def minimal_rotvec(a: np.ndarray, b: np.ndarray, opposite: str = "zero") -> np.ndarray:
@@ -89,12 +90,20 @@ def kabsch(P: np.ndarray, Q: np.ndarray, centre: bool = True) -> np.ndarray:
     Q = np.asarray(Q, dtype=np.float64)
     Pc = P - P.mean(axis=0) if centre else P
     Qc = Q - Q.mean(axis=0) if centre else Q
-    C = Qc.T @ Pc  # maximise trace(R^T C)
-    scale = max(np.abs(C).max(), np.abs(Pc).max() ** 2, 1e-300)
-    C = C + 1e-9 * scale * np.eye(3)
-    U, _, Vt = np.linalg.svd(C)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
+    return covariance_rotation(Qc.T @ Pc, np.abs(Pc).max() ** 2)
+
+
+def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
+    """The rotation R (3, 3) maximising trace(Rᵀ C) for a covariance C = Σ q pᵀ
+    (3, 3) of point pairs with R p ≈ q: the Kabsch step of :func:`kabsch`, for
+    callers that keep the centred p side. p_scale2: max |p|² component of the
+    (centred) p, the scale of the tie-breaking regularisation (a 1e-9 relative
+    multiple of the identity added to C, see :func:`kabsch`)."""
+    scale = max(np.abs(C).max(), p_scale2, 1e-300)
+    U, _, Vt = np.linalg.svd(C + 1e-9 * scale * np.eye(3))
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:   # a reflection: flip the weakest axis
+        U[:, 2] = -U[:, 2]
+    return U @ Vt
 
 
 def relative_rotvec_table(quats: np.ndarray) -> np.ndarray:

@@ -475,3 +475,44 @@ def test_minimal_rotation_conventions():
     assert np.isclose(np.linalg.norm(h[1]), np.pi) and abs(h[1] @ a[1]) < 1e-12
     assert np.allclose(Rotation.from_rotvec(h).apply(a / np.linalg.norm(a, axis=1, keepdims=True)),
                        b / np.linalg.norm(b, axis=1, keepdims=True))
+
+
+def _svd_fit(P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, float]:
+    """Oracle: the proper rotation maximising trace(Rᵀ C), C = Σ (q - q̄)(p - p̄)ᵀ, by SVD,
+    and a tolerance for fits that break ties with a 1e-9 relative regularisation: its
+    effect on R grows as the two smaller singular values shrink (100x margin)."""
+    C = (Q - Q.mean(0)).T @ (P - P.mean(0))
+    U, sv, Vt = np.linalg.svd(C)
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt, 1e-12 + 1e-7 * sv[0] / (sv[1] + sv[2])
+
+
+@pytest.mark.parametrize("shape", ["general", "noisy", "coplanar", "mirrored"])
+def test_global_rotation_fit(shape):
+    """R_g (kabsch, and GlobalRotation's centred-once form) against an SVD oracle:
+    random rotations, noise, coplanar handles (rank-2 covariance), and a target
+    that is the mirror image (the best proper rotation, not the reflection); also
+    far from the origin, where GlobalRotation does not centre the posed side."""
+    from nrpose.blend import GlobalRotation, global_rotation
+    from nrpose.rotation import kabsch
+
+    rng = np.random.default_rng(["general", "noisy", "coplanar", "mirrored"].index(shape))
+    for trial in range(20):
+        rest = random_rest(rng, int(rng.integers(1, 5)), int(rng.integers(1, 4)))
+        if shape == "coplanar":
+            rest = HandleSet.make(points=rest.points * [1, 1, 0], segments=rest.segments * [1, 1, 0])
+        P = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
+        R = Rotation.random(random_state=rng).as_matrix()
+        far = rng.normal(size=3) * (1e4 if trial % 2 else 1.0)
+        Q = P @ R.T + far
+        if shape == "noisy":
+            Q = Q + rng.normal(scale=0.2, size=Q.shape)
+        if shape == "mirrored":
+            Q = (P * [-1, 1, 1]) @ R.T + far
+        pose = Pose.make(rest, points=Q[: len(rest.points)], segments=Q[len(rest.points):].reshape(-1, 2, 3))
+        want, tol = _svd_fit(P, Q)
+        fit = GlobalRotation(rest)
+        for got in (kabsch(P, Q), global_rotation(rest, pose), fit(pose)):
+            assert np.allclose(got @ got.T, np.eye(3), atol=1e-12) and np.linalg.det(got) > 0
+            assert np.abs(got - want).max() < tol, (shape, trial)
+        if shape in ("general", "coplanar"):    # exact rigid motions: R itself
+            assert np.abs(fit(pose) - R).max() < tol
