@@ -56,23 +56,32 @@
 
 #include "lanes.h"
 
-/* The handle counts are build-time constants (nrpose/engine.py builds one program
- * per (P, S, K) and blend options): P point handles, S segments, K segment slots
- * per point. Then the slot and point-handle loops unroll and the index arithmetic
- * folds: measured against runtime arguments, kernel events interleaved in one
- * process, dragon segments -17 to -19 %, point rows -14 to -17 %. Loops longer
- * than UNROLL_MAX are left to the compiler (full unrolling of 65 bones or 128
- * handles would only grow the code). */
+/* Handle counts known at build time (nrpose/engine.py builds one program per
+ * configuration): P point handles (-DNPOINTS) and K segment slots per point
+ * (-DNSLOTS). Dense (K = S) the segment count is K too and the slot loop unrolls;
+ * sparse (-DSPARSE, K < S, skeletons with top-k weights) S stays a kernel
+ * argument, so that every skeleton with the same k shares one program, and the
+ * slot loop is not unrolled (that tripled the ~1.2 s build of a k = 8 program
+ * and was no faster). Against P, S, K as arguments (kernel events, interleaved in
+ * one process): dense segment rows -16 to -27 %, point rows -16 to -18 %.
+ * Loops longer than UNROLL_MAX are left to the compiler. */
+#ifndef NPOINTS
+#error "build with -DNPOINTS=<point handles> -DNSLOTS=<segment slots per point> (nrpose/engine.py)"
+#endif
 #define P NPOINTS
-#define S NSEGS
 #define K NSLOTS
+#ifdef SPARSE
+#define S nsegs      /* the kernels' argument */
+#else
+#define S K
+#endif
 #define UNROLL_MAX 16
 #if P <= UNROLL_MAX
 #define UNROLL_P _Pragma("unroll")
 #else
 #define UNROLL_P
 #endif
-#if K <= UNROLL_MAX
+#if K <= UNROLL_MAX && !defined(SPARSE)
 #define UNROLL_K _Pragma("unroll")
 #else
 #define UNROLL_K
@@ -123,7 +132,7 @@
 #else
 #define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
 #endif
-#if K < S
+#ifdef SPARSE
 #define IREC(K) (8 * (2 + (K)))
 #else
 #define IREC(K) 16
@@ -189,7 +198,7 @@ static float3 quat_log(float4 q)
  * j in [0, S], write refs[j]: the reference's matrix (identity for the paper
  * blend). The relative table is exactly antisymmetric, T[j][i] = -T[i][j],
  * so that blends seen from either handle agree even at an angle of exactly pi. */
-__kernel void nrmls_prepare(const int paper, const int npairs,
+__kernel void nrmls_prepare(const int nsegs, const int paper, const int npairs,
                             __global const int *pairs, __global const float *pose,
                             __global float *derived, const int pose_stride, const int derived_stride)
 {
@@ -235,7 +244,7 @@ __kernel void nrmls_prepare(const int paper, const int npairs,
     vstore3(r, j * S + i, table);
 }
 
-__kernel void nrmls_pose(const int np, __global const float *frec, __global const int *irec,
+__kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
                          __global const float *len2,
                          __global const float *pose, __global const float *derived,
                          __global float *out_frames, const int per_item,
@@ -288,7 +297,7 @@ __kernel void nrmls_pose(const int np, __global const float *frec, __global cons
     UNROLL_K
     for (int k = 0; k < K; ++k) {
         /* segment slot k: dense, slot k is segment k; sparse, slot[k] names it per point */
-#if K < S
+#ifdef SPARSE
         const int8 h = LOADI8(2 + k, ints);
 #else
         const int8 h = (int8)k;

@@ -269,7 +269,10 @@ class GlobalRotation:
     (centred positions) computed once.
 
     The posed positions need no centring: with the rest positions p_k centred,
-    Σ (q_k − q̄) p_kᵀ = Σ q_k p_kᵀ. Per pose that leaves two (3, M) products and
+    Σ (q_k − q̄) p_kᵀ = Σ (q_k − o) p_kᵀ for any o. They are taken relative to one
+    posed handle o (not the origin: the rest side sums to zero only to rounding,
+    and far from the origin that rounding times |q| would reach the fit).
+    Per pose that leaves two (3, M) products and
     :func:`nrpose.rotation.covariance_rotation`, which a point-handle rig (every
     point's reference is R_g) pays on every frame: with both changes its pose wall
     time fell 11-27 % (Table-1 point rows, A/B interleaved).
@@ -283,9 +286,11 @@ class GlobalRotation:
 
     def __call__(self, pose: Pose) -> np.ndarray:
         h = pose.handles
-        C = h.points.T @ self._points
-        if len(self._ends):
-            C = C + h.segments.reshape(-1, 3).T @ self._ends
+        ends = h.segments.reshape(-1, 3)
+        o = h.points[0] if len(h.points) else ends[0]
+        C = (h.points - o).T @ self._points
+        if len(ends):
+            C = C + (ends - o).T @ self._ends
         return covariance_rotation(C, self._scale2)
 
 

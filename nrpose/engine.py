@@ -104,12 +104,13 @@ class Deformer:
         # R_g per pose, when some point takes the global rotation as its reference
         self._global = GlobalRotation(self.rest) if blend != "paper" and bool((T.ref == S).any()) else None
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
-        # program per (P, S, K) and blend, compiled at the first bind of that configuration
-        options = ((f"-DNPOINTS={P}", f"-DNSEGS={S}", f"-DNSLOTS={K}")
+        # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
+        # it on disk) at the first bind of that configuration in a process
+        options = ((f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
                    + (("-DDERIVED_LEVER",) if self.lever != "paper" else ()) + (("-DQUAT_BLEND",) if quat else ()))
         prg = device.program("nrmls.cl", options)
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
-        self._prepare.set_args(np.int32(blend == "paper"), np.int32(self._npairs),
+        self._prepare.set_args(np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),
                                self._bufs["pairs"], None, None, np.int32(self._pose_stride),
                                np.int32(self._derived_stride))
         self._kernel = cl.Kernel(prg, "nrmls_pose")
@@ -117,7 +118,7 @@ class Deformer:
         local = max(1, min(local, limit))          # beyond ~2M points: more groups, not bigger ones
         self._launch = ((-(-items // local) * local,), (local,))
         b = self._bufs
-        self._kernel.set_args(np.int32(npad), b["frec"], b["irec"],
+        self._kernel.set_args(np.int32(npad), np.int32(S), b["frec"], b["irec"],
                               b["len2"], None, None, None, np.int32(PER_ITEM), np.int32(1), np.int32(self._pose_stride),
                               np.int32(self._derived_stride))
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
@@ -138,11 +139,11 @@ class Deformer:
         blocks[:, -9:] = np.eye(3).ravel()                      # R_g until a pose needs it
         self._derived = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * frames * self._derived_stride)
         self._out = device.HostArray(frames * 3 * self._npad)
-        self._prepare.set_arg(3, self._pose.arg)
-        self._prepare.set_arg(4, self._derived)
-        self._kernel.set_arg(4, self._pose.arg)
-        self._kernel.set_arg(5, self._derived)
-        self._kernel.set_arg(6, self._out.arg)
+        self._prepare.set_arg(4, self._pose.arg)
+        self._prepare.set_arg(5, self._derived)
+        self._kernel.set_arg(5, self._pose.arg)
+        self._kernel.set_arg(6, self._derived)
+        self._kernel.set_arg(7, self._out.arg)
         self._frames = frames
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
@@ -216,7 +217,7 @@ class Deformer:
         S = len(self.rest.segments)
         q = self._queue
         if F != self._batch:
-            self._kernel.set_arg(8, np.int32(F))
+            self._kernel.set_arg(9, np.int32(F))
             self._batch = F
         cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
         cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)

@@ -79,12 +79,12 @@ def kabsch(P: np.ndarray, Q: np.ndarray, centre: bool = True) -> np.ndarray:
     """Best rotation R (3,3) with ``R @ (p - p̄) ≈ (q - q̄)`` for the rows of P, Q (M,3)
     (``centre=False``: ``R @ p ≈ q``, e.g. for directions).
 
-    Unweighted least squares (Kabsch). Where the fit is not unique (a single
-    point, collinear points: the covariance is rank-deficient) a tiny multiple
-    of the identity added to the covariance picks, among the optimal
-    rotations, the one closest to the identity (the minimal rotation).
-    The result is equivariant (R -> G R when Q -> G Q) whenever the fit is
-    unique, up to the ~1e-9 relative effect of that regularisation.
+    Unweighted least squares (Kabsch), solved by :func:`covariance_rotation`.
+    Where the fit is not unique (a single point, collinear points: the
+    covariance is rank-deficient) it takes, among the optimal rotations (to
+    1e-9 relative), the one closest to the identity (for collinear points, the
+    minimal rotation between the two lines). The result is equivariant
+    (R -> G R when Q -> G Q) whenever the fit is unique.
     """
     P = np.asarray(P, dtype=np.float64)
     Q = np.asarray(Q, dtype=np.float64)
@@ -97,23 +97,31 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     """The rotation R (3, 3) maximising trace(Rᵀ C) for a covariance C = Σ q pᵀ
     (3, 3) of point pairs with R p ≈ q: the Kabsch step of :func:`kabsch`, for
     callers that keep the centred p side. p_scale2: max |p|² component of the
-    (centred) p, the scale of the tie-breaking regularisation (a 1e-9 relative
-    multiple of the identity added to C, see :func:`kabsch`).
+    (centred) p; with max |C| it sets the scale of the tie tolerance.
 
     Solved as Horn's quaternion eigenproblem: trace(R(q)ᵀ C) = qᵀ N q for unit
     q = (w, x, y, z) and a symmetric 4×4 N built from C, so the best proper
-    rotation is the top eigenvector of N (no reflection case to repair, unlike
-    an SVD of C). The regulariser adds ε(4w² − 1): ties go to the rotation
-    nearest the identity. One 4×4 ``eigh`` instead of an SVD and two
-    determinants: measured right after a pose kernel, R_g took ~70 µs against
-    ~120 µs."""
+    rotations are the top eigenvectors of N (no reflection case to repair, unlike
+    an SVD of C). Ties: eigenvalues within 1e-9 of the scale of the top one
+    count as optimal (collinear pairs leave a circle of optimal rotations, one
+    pair a sphere), and the one nearest the identity is taken: the identity
+    quaternion projected onto their eigenspace. That is exact, where the old
+    regularised SVD (C + εI) resolved it only to ~1e-5. One 4×4 ``eigh``
+    instead of an SVD and two determinants: measured right after a pose
+    kernel, R_g took ~70 µs against ~120 µs.
+    """
     scale = max(np.abs(C).max(), p_scale2, 1e-300)
-    (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = (C + 1e-9 * scale * np.eye(3)).tolist()
+    (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = C.tolist()
     N = np.array([[xx + yy + zz, zy - yz, xz - zx, yx - xy],
                   [zy - yz, xx - yy - zz, yx + xy, xz + zx],
                   [xz - zx, yx + xy, yy - xx - zz, zy + yz],
                   [yx - xy, xz + zx, zy + yz, zz - xx - yy]])
-    w, x, y, z = np.linalg.eigh(N)[1][:, 3].tolist()     # eigenvalues ascending: the largest
+    vals, vecs = np.linalg.eigh(N)                    # ascending
+    best = vecs[:, vals >= vals[3] - 1e-9 * scale]
+    q = best @ best[0]                                 # identity quaternion (1, 0, 0, 0) projected
+    norm = float(np.linalg.norm(q))
+    # every optimal rotation a half turn (w = 0: e.g. collinear pairs reversed): any of them
+    w, x, y, z = (q / norm).tolist() if norm > 1e-6 else vecs[:, 3].tolist()
     return np.array([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
                      [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
                      [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]])

@@ -477,42 +477,67 @@ def test_minimal_rotation_conventions():
                        b / np.linalg.norm(b, axis=1, keepdims=True))
 
 
-def _svd_fit(P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, float]:
+def _svd_fit(P: np.ndarray, Q: np.ndarray, mirrored: bool) -> tuple[np.ndarray, float]:
     """Oracle: the proper rotation maximising trace(Rᵀ C), C = Σ (q - q̄)(p - p̄)ᵀ, by SVD,
-    and a tolerance for fits that break ties with a 1e-9 relative regularisation: its
-    effect on R grows as the two smaller singular values shrink (100x margin)."""
+    and a tolerance: rounding amplified by the fit's conditioning (the gap that
+    matters is σ1 + σ2, or σ1 - σ2 where the best rotation fits a reflection)."""
     C = (Q - Q.mean(0)).T @ (P - P.mean(0))
     U, sv, Vt = np.linalg.svd(C)
-    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt, 1e-12 + 1e-7 * sv[0] / (sv[1] + sv[2])
+    gap = sv[1] - sv[2] if mirrored else sv[1] + sv[2]
+    return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt, 1e-12 + 1e-9 * sv[0] / gap
 
 
 @pytest.mark.parametrize("shape", ["general", "noisy", "coplanar", "mirrored"])
 def test_global_rotation_fit(shape):
     """R_g (kabsch, and GlobalRotation's centred-once form) against an SVD oracle:
     random rotations, noise, coplanar handles (rank-2 covariance), and a target
-    that is the mirror image (the best proper rotation, not the reflection); also
-    far from the origin, where GlobalRotation does not centre the posed side."""
+    that is the mirror image (the best proper rotation, not the reflection); rest
+    and pose far from the origin too (GlobalRotation does not centre the posed side)."""
     from nrpose.blend import GlobalRotation, global_rotation
     from nrpose.rotation import kabsch
 
     rng = np.random.default_rng(["general", "noisy", "coplanar", "mirrored"].index(shape))
-    for trial in range(20):
+    for trial in range(24):
         rest = random_rest(rng, int(rng.integers(1, 5)), int(rng.integers(1, 4)))
-        if shape == "coplanar":
-            rest = HandleSet.make(points=rest.points * [1, 1, 0], segments=rest.segments * [1, 1, 0])
+        offset = rng.normal(size=3) * [1.0, 1e3, 1e6][trial % 3]
+        flat = [1, 1, 0] if shape == "coplanar" else [1, 1, 1]
+        rest = HandleSet.make(points=rest.points * flat + offset, segments=rest.segments * flat + offset)
         P = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
         R = Rotation.random(random_state=rng).as_matrix()
-        far = rng.normal(size=3) * (1e4 if trial % 2 else 1.0)
-        Q = P @ R.T + far
+        Q = ((P * [-1, 1, 1]) if shape == "mirrored" else P) @ R.T + rng.normal(size=3) * [1.0, 1e6][trial % 2]
         if shape == "noisy":
             Q = Q + rng.normal(scale=0.2, size=Q.shape)
-        if shape == "mirrored":
-            Q = (P * [-1, 1, 1]) @ R.T + far
         pose = Pose.make(rest, points=Q[: len(rest.points)], segments=Q[len(rest.points):].reshape(-1, 2, 3))
-        want, tol = _svd_fit(P, Q)
+        want, tol = _svd_fit(P, Q, shape == "mirrored")
         fit = GlobalRotation(rest)
         for got in (kabsch(P, Q), global_rotation(rest, pose), fit(pose)):
             assert np.allclose(got @ got.T, np.eye(3), atol=1e-12) and np.linalg.det(got) > 0
             assert np.abs(got - want).max() < tol, (shape, trial)
         if shape in ("general", "coplanar"):    # exact rigid motions: R itself
             assert np.abs(fit(pose) - R).max() < tol
+
+
+def test_global_rotation_ties():
+    """Fits that are not unique take the optimal rotation nearest the identity: for
+    collinear handles (two point handles, one segment) the minimal rotation between
+    the two lines, for a single point handle the identity; also far from the origin."""
+    from nrpose.blend import GlobalRotation
+    from nrpose.rotation import kabsch, minimal_rotvec
+
+    rng = np.random.default_rng(5)
+    for trial in range(30):
+        a, b = rng.normal(size=3), rng.normal(size=3)
+        offset = rng.normal(size=3) * [1.0, 1e4][trial % 2]
+        move = rng.normal(size=3) * [1.0, 1e4][trial % 2]
+        s = rng.uniform(0.1, 3.0, size=2)
+        line_p = np.array([[0.0, 0, 0], s[0] * a]) + offset
+        line_q = np.array([[0.0, 0, 0], s[0] * b / np.linalg.norm(b) * np.linalg.norm(a)]) + move
+        want = Rotation.from_rotvec(minimal_rotvec(a, b)).as_matrix()
+        two_points = HandleSet.make(points=line_p)
+        one_segment = HandleSet.make(segments=line_p[None])
+        for rest, pose in ((two_points, Pose.make(two_points, points=line_q)),
+                           (one_segment, Pose.make(one_segment, segments=line_q[None]))):
+            assert np.abs(GlobalRotation(rest)(pose) - want).max() < 1e-9, trial
+        assert np.abs(kabsch(line_p, line_q) - want).max() < 1e-9
+        single = HandleSet.make(points=offset[None])
+        assert np.abs(GlobalRotation(single)(Pose.make(single, points=(offset + move)[None])) - np.eye(3)).max() < 1e-12
