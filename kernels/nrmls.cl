@@ -63,7 +63,7 @@
  * argument, so that every skeleton with the same k shares one program, and the
  * slot loop is not unrolled (that tripled the ~1.2 s build of a k = 8 program
  * and was no faster). Against P, S, K as arguments (kernel events, interleaved in
- * one process): dense segment rows -16 to -27 %, point rows -16 to -18 %.
+ * one process): dense segment rows -19 to -27 %, point rows -16 to -18 %.
  * Loops longer than UNROLL_MAX are left to the compiler. */
 #ifndef NPOINTS
 #error "build with -DNPOINTS=<point handles> -DNSLOTS=<segment slots per point> (nrpose/engine.py)"
