@@ -338,15 +338,13 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #endif
         }
     }
-#ifdef QUAT_BLEND
-    if (P > 0)
-        LOAD_QREF();
-#endif
-    if (P > 0)
-        LOAD_REF();
     /* y = R_ref^-1 qhat = R_ref^T q_p - R_ref^T q*: with a shared reference, R_ref^T q_p
      * comes from the per-pose table ploc and only R_ref^T q* is computed per point */
 #if P > 0
+#ifdef QUAT_BLEND
+    LOAD_QREF();
+#endif
+    LOAD_REF();
     __global const float *ploc = refs + PLOC_OFFSET(S) + 3 * P * rf.s0;
     float8 Yx = 0.0f, Yy = 0.0f, Yz = 0.0f;
     if (uniform) {

@@ -122,6 +122,8 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     norm = float(np.linalg.norm(q))
     # every optimal rotation a half turn (w = 0: e.g. collinear pairs reversed): any of them
     w, x, y, z = (q / norm).tolist() if norm > 1e-6 else vecs[:, 3].tolist()
+    # the matrix of (w, x, y, z) written out: scipy's from_quat(...).as_matrix() gives the
+    # same to 1e-16 but costs ~27 µs against ~3.5 µs, on a path run once per pose
     return np.array([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
                      [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
                      [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]])
