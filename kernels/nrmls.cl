@@ -55,6 +55,7 @@
  */
 
 #include "lanes.h"
+#include "share.h"
 
 /* Handle counts known at build time (nrpose/engine.py builds one program per
  * configuration): P point handles (-DNPOINTS) and K segment slots per point
@@ -247,12 +248,15 @@ __kernel void nrmls_prepare(const int nsegs, const int paper, const int npairs,
 __kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
                          __global const float *len2,
                          __global const float *pose, __global const float *derived,
-                         __global float *out_frames, const int per_item,
-                         const int F, const int pose_stride, const int derived_stride)
+                         __global float *out_frames, const int block,
+                         const int F, const int pose_stride, const int derived_stride,
+                         volatile __global int *next)
 {
+    /* blocks of `block` chunks, shared by the devices of the launch (share.h) */
     const int chunks = np / 8;
-    const int g_end = (int)(get_global_id(0) + 1) * per_item;
-    for (int g = get_global_id(0) * per_item; g < (g_end < chunks ? g_end : chunks); ++g) {
+    FOR_EACH_BLOCK(b, next, (chunks + block - 1) / block) {
+    const int g_end = (b + 1) * block;
+    for (int g = b * block; g < (g_end < chunks ? g_end : chunks); ++g) {
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
     /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */
@@ -458,6 +462,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #endif
     const int8 o = LOADI8(1, ints);
     STORE_ROWS(ox, oy, oz, out, o);
+    }
     }
     }
 }

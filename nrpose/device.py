@@ -1,12 +1,19 @@
-"""OpenCL device selection and program cache.
+"""OpenCL device selection, program cache and shared launches.
 
-Default device: the first PoCL CPU device. ``PYOPENCL_CTX`` (pyopencl's own
-variable, e.g. ``PYOPENCL_CTX=0`` or ``0:0``) overrides the choice. Programs are
-built once per (context, kernel file, build options) and kept for the life of
-the process; callers keep their ``cl.Kernel`` objects and buffers alive.
+Default: PoCL's CPU devices. ``PYOPENCL_CTX`` (pyopencl's own variable, e.g.
+``PYOPENCL_CTX=0`` or ``0:0``) overrides the choice. Programs are built once
+per (context, kernel file, build options) and kept for the life of the process;
+callers keep their ``cl.Kernel`` objects and buffers alive.
 
-PoCL's worker threads are pinned one per CPU (``POCL_AFFINITY=1`` while PoCL
-starts) unless the environment already says otherwise; see :func:`worker_pinning`.
+How a launch uses the CPUs (see :func:`pocl_environment`): unless the
+environment says otherwise, PoCL starts two devices, ``pthread`` with one
+worker thread per CPU but one (each pinned to its CPU) and ``basic``, which
+runs a kernel in the thread that waits for it. The pose kernels are
+enqueued on both at once (:func:`launch_shared`): the workers and the calling
+thread take blocks of points from one counter until none are left. The
+calling thread computes instead of sleeping until a worker wakes it, and
+nobody waits for a worker that woke late: on the 2-core VM a Table-1 pose took
+~0.1 ms of launch and wake-up latency with two workers, ~3 us this way.
 """
 from __future__ import annotations
 
@@ -25,13 +32,20 @@ _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
                 "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
 
-
 def _cl():
     try:
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - dependency is declared
         raise DeviceError(f"pyopencl is not importable ({exc}); {INSTALL_HINT}") from None
     return cl
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity set where the OS tells, else all)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):   # not Linux
+        return os.cpu_count() or 1
 
 
 def may_pin_workers() -> bool:
@@ -47,45 +61,79 @@ def may_pin_workers() -> bool:
     return allowed == set(range(os.cpu_count() or 0))
 
 
-@contextlib.contextmanager
-def worker_pinning():
-    """While PoCL starts inside the block, ``POCL_AFFINITY=1`` (PoCL pins worker thread
-    i to CPU i) where :func:`may_pin_workers`; the variable is removed after the block,
-    so that child processes, perhaps restricted to fewer CPUs, decide for themselves.
-    Yields whether it pinned.
+def pocl_settings() -> dict[str, str]:
+    """The PoCL variables nrpose sets while PoCL starts; a variable the user has set
+    (to anything but the empty string) is left alone, and the worker count only goes
+    with nrpose's own device list.
 
-    Why (measured on the 2-core VM, bench/README.md): unpinned, the kernel's
-    broadcast wakes both workers onto the same idle CPU, and the second one
-    waits there behind the first for the whole of a sub-millisecond kernel: a
-    single Table-1 pose ran on one thread (its kernel took the same time with
-    ``POCL_MAX_PTHREAD_COUNT=1``); pinned, both threads take part.
+    * ``POCL_DEVICES="pthread basic"`` (``"basic"`` on a single CPU): the worker-thread
+      device and the device that runs kernels in the calling thread (:func:`launch_shared`).
+    * ``POCL_MAX_PTHREAD_COUNT`` = usable CPUs - 1: the calling thread is the last worker.
+    * ``POCL_AFFINITY=1`` where :func:`may_pin_workers`: worker i pinned to CPU i, so the
+      last CPU is the calling thread's. Unpinned (measured on the 2-core VM, bench/README.md),
+      a woken worker often lands on the CPU of the thread that woke it and waits there.
     """
-    pin, before = may_pin_workers(), os.environ.get("POCL_AFFINITY")
-    if pin:
-        os.environ["POCL_AFFINITY"] = "1"
+    out = {}
+    if not os.environ.get("POCL_DEVICES"):
+        cpus = usable_cpus()
+        out["POCL_DEVICES"] = "pthread basic" if cpus >= 2 else "basic"
+        if cpus >= 2 and not os.environ.get("POCL_MAX_PTHREAD_COUNT"):
+            out["POCL_MAX_PTHREAD_COUNT"] = str(cpus - 1)
+    if may_pin_workers():
+        out["POCL_AFFINITY"] = "1"
+    return out
+
+
+@contextlib.contextmanager
+def pocl_environment():
+    """Inside the block (while PoCL starts) the environment holds :func:`pocl_settings`;
+    after it, each variable is as it was, so that child processes, perhaps restricted to
+    fewer CPUs, decide for themselves. Yields the settings made."""
+    settings = pocl_settings()
+    before = {k: os.environ.get(k) for k in settings}
+    os.environ.update(settings)
     try:
-        yield pin
+        yield settings
     finally:
-        if pin and before is None:
-            del os.environ["POCL_AFFINITY"]
-        elif pin:                   # the empty value that counted as unset
-            os.environ["POCL_AFFINITY"] = before
+        for k, v in before.items():
+            if v is None:
+                del os.environ[k]
+            else:                   # the empty value that counted as unset
+                os.environ[k] = v
 
 
 @functools.lru_cache(maxsize=None)
 def context():
-    """Return the shared ``(cl.Context, cl.CommandQueue)`` pair.
+    """Return the shared ``(cl.Context, cl.CommandQueue)`` pair. The queue is the
+    calling thread's: PoCL's ``basic`` device where the context has it (kernels run
+    inside ``finish``), else the context's only device.
 
     Raises DeviceError with an installation hint when no platform exists.
     """
     cl = _cl()
-    with worker_pinning():        # PoCL starts its worker threads in here
+    with pocl_environment():        # PoCL reads it when it starts, here
         ctx = _new_context(cl)
-    return ctx, cl.CommandQueue(ctx)
+    host = [d for d in ctx.devices if _is_basic(d)]
+    return ctx, cl.CommandQueue(ctx, (host or ctx.devices)[0])
+
+
+@functools.lru_cache(maxsize=None)
+def worker_queue():
+    """Queue of PoCL's worker-thread device when the context also has the ``basic``
+    device (:func:`launch_shared` uses both), else None."""
+    ctx, q = context()
+    if len(ctx.devices) < 2:
+        return None
+    return _cl().CommandQueue(ctx, [d for d in ctx.devices if d != q.device][0])
+
+
+def _is_basic(dev) -> bool:
+    return dev.name.startswith("basic")
 
 
 def _new_context(cl):
-    """The cl.Context of PYOPENCL_CTX's choice, else of the first PoCL (or other) CPU device."""
+    """The cl.Context of PYOPENCL_CTX's choice; else PoCL's pthread and basic devices
+    together, when it offers both; else the first PoCL (or other) CPU device."""
     try:
         platforms = cl.get_platforms()
     except cl.Error:
@@ -94,24 +142,95 @@ def _new_context(cl):
         raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
     if os.environ.get("PYOPENCL_CTX"):
         try:
-            ctx = cl.create_some_context(interactive=False)
+            return cl.create_some_context(interactive=False)
         except (cl.Error, RuntimeError, ValueError, IndexError) as exc:
             raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no usable "
                               f"device ({exc}); unset it to use PoCL") from None
-    else:
-        ctx = None
-        ordered = sorted(platforms, key=lambda p: "Portable Computing Language" not in p.name)
-        for plat in ordered:
-            try:
-                devs = plat.get_devices(device_type=cl.device_type.CPU)
-            except cl.Error:
-                devs = []
-            if devs:
-                ctx = cl.Context(devices=[devs[0]])
-                break
-        if ctx is None:
-            raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
-    return ctx
+    ordered = sorted(platforms, key=lambda p: "Portable Computing Language" not in p.name)
+    for plat in ordered:
+        try:
+            devs = plat.get_devices(device_type=cl.device_type.CPU)
+        except cl.Error:
+            devs = []
+        if not devs:
+            continue
+        workers = [d for d in devs if d.name.startswith("pthread")]
+        host = [d for d in devs if _is_basic(d)]
+        if "Portable Computing Language" in plat.name and workers and host:
+            return cl.Context(devices=[workers[0], host[0]])
+        return cl.Context(devices=[(workers or devs)[0]])
+    raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
+
+
+def work_items(queues=None) -> list[tuple]:
+    """``[(queue, work-items), ...]`` of a shared launch on ``queues`` (worker queue or
+    None, calling-thread queue; default the shared ones): the worker device's queue
+    with one work-item per worker thread, then the calling thread's queue with one; on
+    a single device, its queue with 4 work-items per compute unit."""
+    wq, q = queues if queues is not None else (worker_queue(), context()[1])
+    if wq is None:
+        return [(q, 4 * q.device.max_compute_units)]
+    return [(wq, wq.device.max_compute_units), (q, 1)]
+
+
+#: below this time of a kernel on the calling thread alone, waking the workers costs more
+#: than they save (2-core VM: a wake-up is 13-19 us of the calling thread's time and the
+#: worker starts 20-40 us later; the 6,006-point box, 0.03 ms alone, took 0.06 ms shared)
+SHARE_MIN_S = 60e-6
+
+
+def time_alone(run_alone, runs: int = 5) -> float:
+    """Seconds that ``run_alone()`` (a kernel launched on the calling thread only, waited
+    for) takes: the best of ``runs`` runs (the first ones after a bind run cold), stopping
+    early once one is 10x :data:`SHARE_MIN_S` or longer. A launch of F such units is worth
+    sharing with the workers when F times this reaches SHARE_MIN_S."""
+    import time
+    best = float("inf")
+    for _ in range(runs):
+        t = time.perf_counter()
+        run_alone()
+        best = min(best, time.perf_counter() - t)
+        if best >= 10 * SHARE_MIN_S:     # shared in any case: spare the bind the other runs
+            break
+    return best
+
+
+def launch_shared(kernel, counter: "HostArray", before=(), queues=None, workers: bool = True
+                  ) -> tuple[list, list]:
+    """Run ``kernel`` on every device of the context at once, and wait for it.
+
+    kernel: a ``cl.Kernel`` whose work-items take blocks of work from ``counter``
+    (``FOR_EACH_BLOCK``, kernels/share.h) until none are left; its arguments set,
+    ``counter`` (a 1-element int32 HostArray) among them. It is reset to 0 here.
+    workers: False runs it on the calling thread's queue only (small kernels, see
+    :func:`time_alone`). Without SVM (``counter.svm`` False) only that queue runs it
+    too: two devices may not write one ordinary buffer at once.
+    before: launches ``[(kernel, global_size, local_size), ...]`` that must complete
+    first (they run on the calling thread's queue). queues: ``(worker queue or None,
+    calling-thread queue)`` to use instead of the shared ones (profiling queues).
+
+    The calling thread enqueues the ``before`` launches and runs them (``finish``:
+    a few us on the basic device), wakes the workers, then takes blocks itself; a
+    worker that wakes after the last block finds none. Returns the events
+    ``(before, kernel)``.
+    """
+    cl = _cl()
+    plan = work_items(queues)
+    if not (workers and counter.svm):
+        plan = work_items((None, plan[-1][0]))
+    host_q = plan[-1][0]
+    counter.host[0] = 0
+    counter.upload()
+    pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
+    if len(plan) > 1 and pre:
+        host_q.finish()                 # the workers read what `before` wrote
+    events = []
+    for q, n in plan:
+        events.append(cl.enqueue_nd_range_kernel(q, kernel, (n,), (1,)))
+        q.flush()
+    for q, _ in reversed(plan):         # the calling thread's share first
+        q.finish()
+    return pre, events
 
 
 def describe() -> dict:
@@ -149,38 +268,42 @@ def _program(ctx, name: str, options: tuple[str, ...]):
 
 
 def fine_grain_svm() -> bool:
-    """True when the device shares fine-grained SVM buffers with the host (PoCL CPU does)."""
+    """True when the context's devices share fine-grained SVM buffers with the host (PoCL's do)."""
     cl = _cl()
     ctx, _ = context()
     try:
-        return bool(ctx.devices[0].svm_capabilities & cl.device_svm_capabilities.FINE_GRAIN_BUFFER)
+        return all(d.svm_capabilities & cl.device_svm_capabilities.FINE_GRAIN_BUFFER for d in ctx.devices)
     except (cl.Error, AttributeError):  # OpenCL 1.x device
         return False
 
 
 class HostArray:
-    """A float32 array that the host writes or reads and a kernel uses as an argument.
+    """An array that the host writes or reads and a kernel uses as an argument.
 
     On devices with fine-grained SVM the host array *is* the device memory:
-    no copies, a pose is only kernel enqueues and a wait (:meth:`download`). Elsewhere a
-    device buffer shadows it and :meth:`upload` / :meth:`download` copy.
+    no copies, a pose is only kernel enqueues and a wait. Elsewhere a device
+    buffer shadows it and :meth:`upload` / :meth:`download` copy.
 
-    size: number of float32 elements; svm: force (True) or refuse (False)
-    shared memory, default: whatever the device offers. ``host``: the
-    (size,) numpy view; ``arg``: what to pass to ``Kernel.set_arg``.
+    size: number of elements; svm: force (True) or refuse (False) shared
+    memory, default: whatever the device offers; dtype: float32 (default) or
+    int32; atomics: kernels on several devices update it atomically at once
+    (the counter of :func:`launch_shared`). ``host``: the (size,) numpy view;
+    ``arg``: what to pass to ``Kernel.set_arg``.
     """
 
-    def __init__(self, size: int, svm: bool | None = None):
+    def __init__(self, size: int, svm: bool | None = None, dtype=np.float32, atomics: bool = False):
         cl = _cl()
         ctx, self._queue = context()
         self.svm = fine_grain_svm() if svm is None else svm
         size = max(int(size), 1)
         if self.svm:
             flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER
-            self.host = cl.svm_empty(ctx, flags, (size,), np.float32)
+            if atomics:
+                flags |= cl.svm_mem_flags.SVM_ATOMICS
+            self.host = cl.svm_empty(ctx, flags, (size,), dtype)
             self.arg = cl.SVM(self.host)
         else:
-            self.host = np.zeros(size, np.float32)
+            self.host = np.zeros(size, dtype)
             self.arg = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.host.nbytes)
 
     def upload(self) -> None:
@@ -189,15 +312,9 @@ class HostArray:
             _cl().enqueue_copy(self._queue, self.arg, self.host, is_blocking=False)
 
     def download(self) -> None:
-        """Wait for the queue and make kernel writes visible in ``host``.
-
-        The host thread blocks (``finish``) rather than polling: PoCL's workers
-        are pinned one per CPU (:func:`worker_pinning`), and a polling host thread
-        takes a worker's CPU. Measured on the 2-core VM with pinned workers,
-        polling for up to 0.3 ms before blocking was slower than blocking on
-        every Table-1 row (box segments p25 0.14 vs 0.12 ms, box points median
-        1.04-1.09 vs 0.80-0.94 ms); unpinned it had been 2x faster on the box.
-        """
+        """Wait for the calling thread's queue and make kernel writes visible in ``host``
+        (after :func:`launch_shared`, which has waited for every device, only the copy
+        where there is no SVM)."""
         if self.svm:
             self._queue.finish()
         else:

@@ -27,8 +27,7 @@ from .handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
 LANES = 8      # points per float8 chunk
-PER_ITEM = 4   # chunks per work-item: fewer, longer work-items measured ~15 % faster on PoCL
-GROUPS = 16    # work-groups per launch: PoCL otherwise often makes one group (one thread)
+BLOCK = 32     # chunks (of 8 points) per block of work taken from the shared counter
 
 
 class Deformer:
@@ -87,8 +86,6 @@ class Deformer:
         arrays, K = device_layout(T, self.rest, self.k, self.lever)
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
-        items = -(-npad // (LANES * PER_ITEM))
-        local = -(-items // GROUPS)
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         mf = cl.mem_flags
         frec, irec = chunk_records(arrays, P, S, K, self.lever)
@@ -114,35 +111,34 @@ class Deformer:
                                self._bufs["pairs"], None, None, np.int32(self._pose_stride),
                                np.int32(self._derived_stride))
         self._kernel = cl.Kernel(prg, "nrmls_pose")
-        limit = self._kernel.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE, ctx.devices[0])
-        local = max(1, min(local, limit))          # beyond ~2M points: more groups, not bigger ones
-        self._launch = ((-(-items // local) * local,), (local,))
+        self._next = device.HostArray(1, dtype=np.int32, atomics=True)   # the shared block counter
         b = self._bufs
         self._kernel.set_args(np.int32(npad), np.int32(S), b["frec"], b["irec"],
-                              b["len2"], None, None, None, np.int32(PER_ITEM), np.int32(1), np.int32(self._pose_stride),
-                              np.int32(self._derived_stride))
+                              b["len2"], None, None, None, np.int32(BLOCK), np.int32(1), np.int32(self._pose_stride),
+                              np.int32(self._derived_stride), self._next.arg)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         self._batch = 1       # frames per launch, as last set on the pose kernel
-        # PoCL compiles a kernel's work-group function at its first launch
-        # (~0.5 s): pay that at bind, not in the first frame
+        # PoCL compiles a kernel's work-group function at its first launch on each
+        # device (~0.5 s): pay that at bind, not in the first frame
+        self._alone_s = float("inf")
         self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
+        # one frame's pose kernel on the calling thread alone: small launches are not shared
+        self._alone_s = device.time_alone(
+            lambda: device.launch_shared(self._kernel, self._next, workers=False))
 
     def _reserve(self, frames: int) -> None:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames."""
         if frames <= self._frames:
             return
-        import pyopencl as cl
-
-        ctx, _ = device.context()
         self._pose = device.HostArray(frames * self._pose_stride)
         blocks = self._pose.host.reshape(frames, self._pose_stride)
         blocks[:, -9:] = np.eye(3).ravel()                      # R_g until a pose needs it
-        self._derived = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4 * frames * self._derived_stride)
+        self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
         self._out = device.HostArray(frames * 3 * self._npad)
         self._prepare.set_arg(4, self._pose.arg)
-        self._prepare.set_arg(5, self._derived)
+        self._prepare.set_arg(5, self._derived.arg)
         self._kernel.set_arg(5, self._pose.arg)
-        self._kernel.set_arg(6, self._derived)
+        self._kernel.set_arg(6, self._derived.arg)
         self._kernel.set_arg(7, self._out.arg)
         self._frames = frames
 
@@ -192,17 +188,21 @@ class Deformer:
         slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
         return rec[:, 0].ravel(), slots
 
-    def launches(self) -> list[tuple]:
-        """The last posing's kernel launches, ``[(kernel, global_size, local_size), ...]``
-        (prepare, then pose), for profiling with OpenCL events: re-enqueueing them
-        repeats the last pose_frames call on the device."""
+    def relaunch(self, queues=None, workers: bool | None = None) -> tuple[list, list]:
+        """Run the last posing's kernels again (same inputs, same result) and return their
+        events ``(prepare, pose)`` (:func:`nrpose.device.launch_shared`); queues: as there,
+        e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
+        (default: when the launch's frames take at least ``device.SHARE_MIN_S`` alone, as
+        timed at bind)."""
         S = len(self.rest.segments)
-        return [(self._prepare, (self._npairs + S + 1, self._batch), None), (self._kernel, *self._launch)]
+        prepare = (self._prepare, (self._npairs + S + 1, self._batch), None)
+        if workers is None:
+            workers = self._batch * self._alone_s >= device.SHARE_MIN_S
+        return device.launch_shared(self._kernel, self._next, before=[prepare], queues=queues,
+                                    workers=workers)
 
     def _run(self, poses: list) -> np.ndarray:
         """Launch the prepare and pose kernels for the poses; a view of the output array."""
-        import pyopencl as cl
-
         F, k = len(poses), self._npos
         self._reserve(F)
         blocks = self._pose.host[: F * self._pose_stride].reshape(F, self._pose_stride)
@@ -214,13 +214,10 @@ class Deformer:
             if self._global is not None:
                 rows[k + pose.rotations.size:] = self._global(pose).ravel()
         self._pose.upload()
-        S = len(self.rest.segments)
-        q = self._queue
         if F != self._batch:
             self._kernel.set_arg(9, np.int32(F))
             self._batch = F
-        cl.enqueue_nd_range_kernel(q, self._prepare, (self._npairs + S + 1, F), None)
-        cl.enqueue_nd_range_kernel(q, self._kernel, *self._launch)
+        self.relaunch()
         self._out.download()
         return self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]
 

@@ -449,19 +449,52 @@ def test_pose_frames_batch_matches_single_poses(mixed):
     assert np.array_equal(dev.pose_frames(poses[:2]), single[:2])   # smaller batch after a larger one
 
 
-def test_more_work_items_than_one_group_allows(monkeypatch):
-    """Large inputs launch more work-groups instead of groups above the device limit."""
-    import nrpose.engine as engine
+@pytest.mark.parametrize("blocks", [1, 3])
+def test_shared_launch_any_split_same_points(blocks):
+    """The pose kernel's blocks of points (engine.BLOCK chunks of 8) may be taken by the
+    calling thread alone, by PoCL's workers alone or by both (device.launch_shared):
+    bitwise the same result each way, equal to the reference; a last block that is
+    partly filled and a padded last chunk included."""
+    from nrpose import device
+    from nrpose.engine import BLOCK, LANES
 
-    monkeypatch.setattr(engine, "GROUPS", 1)        # one group would need > the device limit
     rng = np.random.default_rng(3)
-    rest = random_rest(rng, 0, 2)
-    points = rng.uniform(-1, 1, (200_003, 3))
-    dev, ref = both(points[:1000], rest)
-    big = Deformer(points, rest)
-    assert big._launch[1][0] <= 4096
+    rest = random_rest(rng, 2, 3)
+    points = rng.uniform(-1, 1, (blocks * BLOCK * LANES + 5, 3))
+    dev, ref = both(points, rest)
     pose = random_pose(rng, rest)
-    assert np.abs(big.pose(pose)[:1000] - ref.pose(pose)).max() <= TOL * diag(points)
+    expected = ref.pose(pose)
+    shared = dev.pose(pose).copy()
+    assert np.abs(shared - expected).max() <= TOL * diag(points)
+    _, q = device.context()
+    wq = device.worker_queue()
+    runs = {"alone": {"workers": False}, "shared": {"workers": True}}
+    if wq is not None:
+        runs["workers only"] = {"queues": (None, wq)}
+    for name, kw in runs.items():
+        dev._out.host[:] = np.nan
+        dev.relaunch(**kw)
+        dev._out.download()
+        got = dev._out.host[: 3 * dev._npad].reshape(-1, 3)[: len(points)]
+        assert np.array_equal(got, shared), name
+
+
+def test_small_launches_stay_on_the_calling_thread(monkeypatch):
+    """A bind times one frame of the pose kernel on the calling thread alone; launches
+    whose frames take less than device.SHARE_MIN_S together are not shared."""
+    from nrpose import device
+
+    rng = np.random.default_rng(4)
+    rest = random_rest(rng, 0, 2)
+    dev = Deformer(rng.uniform(-1, 1, (40, 3)), rest)
+    assert 0 < dev._alone_s < float("inf")
+    calls = []
+    real = device.launch_shared
+    monkeypatch.setattr(device, "launch_shared", lambda *a, **kw: calls.append(kw["workers"]) or real(*a, **kw))
+    dev._alone_s = device.SHARE_MIN_S / 4
+    dev.pose_frames([random_pose(rng, rest)] * 3)
+    dev.pose_frames([random_pose(rng, rest)] * 4)
+    assert calls == [False, True]
 
 
 def test_minimal_rotation_conventions():
