@@ -110,7 +110,7 @@ def test_fresh_process_context():
         "    print('SKIP', e); raise SystemExit\n"
         "names = sorted(d.name.split('-')[0] for d in ctx.devices)\n"
         "print(','.join(names), q.device.name.split('-')[0], device.worker_queue() is not None,\n"
-        "      ','.join(sorted(k for k in os.environ if k in ("POCL_DEVICES", "POCL_MAX_PTHREAD_COUNT", "POCL_AFFINITY"))) or '-')\n"
+        "      ','.join(sorted(k for k in os.environ if k in ('POCL_DEVICES', 'POCL_MAX_PTHREAD_COUNT', 'POCL_AFFINITY'))) or '-')\n"
         "for t in os.listdir('/proc/self/task'):\n"
         "    line = [l for l in open(f'/proc/self/task/{t}/status') if l.startswith('Cpus_allowed_list')][0]\n"
         "    print(line.split(':')[1].strip())\n")
