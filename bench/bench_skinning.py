@@ -8,7 +8,9 @@ Reports medians (ms) of:
   * ``pose``          -- the full ``Deformer.pose(mats)`` call: validation,
                          float32 upload, one kernel launch, read-back to float64;
   * ``pose_frames``   -- ``pose_frames`` of F frames in one launch, per frame;
-  * ``kernel``        -- kernel execution alone (OpenCL profiling events);
+  * ``kernel``        -- kernel execution alone for one frame, launched as ``pose``
+                         launches it (OpenCL profiling events, first start to last
+                         end over the devices that ran it);
   * ``reference``     -- the numpy float64 reference on the same inputs.
 
 Writes bench/results/skinning.json. Usage: ``python bench/bench_skinning.py [--repeat R]``.
@@ -56,17 +58,27 @@ def median_ms(fn, repeat: int) -> float:
     return float(np.median(times) * 1e3)
 
 
-def kernel_ms(deformer: Deformer, repeat: int) -> float:
-    """Kernel execution time alone, from profiling events on a private queue."""
+def profiling_queues() -> tuple:
+    """``(worker queue or None, calling-thread queue)`` with profiling, on the devices of
+    the shared ones (device.launch_shared's ``queues``)."""
     import pyopencl as cl
-    ctx, _ = device.context()
-    q = cl.CommandQueue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
+    ctx, q = device.context()
+    wq = device.worker_queue()
+    prof = cl.command_queue_properties.PROFILING_ENABLE
+    return (None if wq is None else cl.CommandQueue(ctx, wq.device, properties=prof),
+            cl.CommandQueue(ctx, q.device, properties=prof))
+
+
+def kernel_ms(deformer: Deformer, frame_mats, repeat: int) -> float:
+    """Kernel execution time of one frame, launched as a pose launches it (shared with the
+    workers or not, device.launch_shared), from profiling events on private queues: the
+    first start to the last end over the devices that ran it."""
+    deformer.pose(frame_mats)                 # a launch of one frame to repeat
+    queues = profiling_queues()
     times = []
     for _ in range(repeat):
-        ev = cl.enqueue_nd_range_kernel(q, deformer._kernel, (deformer._global0, 1),
-                                        (deformer._local, 1))
-        ev.wait()
-        times.append((ev.profile.end - ev.profile.start) * 1e-6)
+        _, events = deformer.relaunch(queues=queues)
+        times.append((max(e.profile.end for e in events) - min(e.profile.start for e in events)) * 1e-6)
     return float(np.median(times))
 
 
@@ -74,8 +86,8 @@ def git_commit() -> str:
     try:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
                              text=True, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "kernels/skinning.cl",
-                                "nrpose/skinning.py"], cwd=ROOT.parent, capture_output=True,
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "kernels/skinning.cl", "kernels/share.h",
+                                "kernels/lanes.h", "nrpose/skinning.py", "nrpose/device.py"], cwd=ROOT.parent, capture_output=True,
                                text=True).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):
@@ -96,7 +108,7 @@ def main() -> None:
             "pose_ms": median_ms(lambda: d.pose(mats[next(frame) % FRAMES]), args.repeat),
             "pose_frames_ms_per_frame": median_ms(lambda: d.pose_frames(mats),
                                                   max(5, args.repeat // FRAMES)) / FRAMES,
-            "kernel_ms": kernel_ms(d, args.repeat),
+            "kernel_ms": kernel_ms(d, mats[0], args.repeat),
             "reference_ms": median_ms(lambda: ref(rest, joints, weights, mats[0]),
                                       max(5, args.repeat // 20)),
             "max_abs_error_vs_reference": float(err),

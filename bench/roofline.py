@@ -1,8 +1,11 @@
 """Roofline of the NR-MLS pose kernel on this device, measured in the same run.
 
-Two device ceilings, measured with OpenCL profiling events on a private queue:
+Two device ceilings, measured with OpenCL profiling events on private queues, each
+kernel launched as the pose kernels are (:func:`nrpose.device.launch_shared`: PoCL's
+worker threads and the calling thread take blocks of work from one counter; the
+time of a launch is from the first device's start to the last one's end):
 
-* **arithmetic**: ``peak_flops`` -- every work-item runs ``ACCS`` independent
+* **arithmetic**: ``peak_flops`` -- every block runs ``ACCS`` independent
   ``float8`` accumulators through ``a = a*m + c`` (plain multiply and add, no
   ``fma()``/``mad()``: those are ~10x slower on PoCL), ``ITERS`` times. FLOPs
   counted: 2 per lane per update (a multiply and an add).
@@ -13,9 +16,9 @@ Two device ceilings, measured with OpenCL profiling events on a private queue:
   in this CPU's 32 MB L3.
 
 The pose kernel's work is counted from ``kernels/nrmls.cl`` (:func:`pose_flops`,
-:func:`pose_bytes`); its time is the ``nrmls_pose`` profiling event of a bound
-:class:`nrpose.engine.Deformer` enqueued on the private queue. The bench reads
-the deformer's kernel launches (:meth:`nrpose.engine.Deformer.launches`).
+:func:`pose_bytes`); its time is that of the ``nrmls_pose`` launch of a bound
+:class:`nrpose.engine.Deformer`, re-run on the private queues
+(:meth:`nrpose.engine.Deformer.relaunch`), shared or not as the deformer decides.
 """
 from __future__ import annotations
 
@@ -32,26 +35,35 @@ PEAK_ITEMS = 4096  # work-items of the arithmetic kernel (many work-groups for b
 COPY_DRAM_MB = 256
 COPY_L3_MB = 4
 
+COPY_BLOCK = 4096  # float8 elements (128 KB) per block of the copy kernel
+
 ROOF_SOURCE = r"""
-__kernel void peak_flops(__global float8 *out, const float m, const float c, const int iters)
+#include "share.h"
+
+__kernel void peak_flops(__global float8 *out, const float m, const float c, const int iters,
+                         const int items, volatile __global int *next)
 {
-    const int g = get_global_id(0);
-    float8 a0 = (float8)(g), a1 = a0 + 1.0f, a2 = a0 + 2.0f, a3 = a0 + 3.0f,
-           a4 = a0 + 4.0f, a5 = a0 + 5.0f, a6 = a0 + 6.0f, a7 = a0 + 7.0f;
-    for (int i = 0; i < iters; ++i) {
-        a0 = a0 * m + c; a1 = a1 * m + c; a2 = a2 * m + c; a3 = a3 * m + c;
-        a4 = a4 * m + c; a5 = a5 * m + c; a6 = a6 * m + c; a7 = a7 * m + c;
+    FOR_EACH_BLOCK(g, next, items) {
+        float8 a0 = (float8)(g), a1 = a0 + 1.0f, a2 = a0 + 2.0f, a3 = a0 + 3.0f,
+               a4 = a0 + 4.0f, a5 = a0 + 5.0f, a6 = a0 + 6.0f, a7 = a0 + 7.0f;
+        for (int i = 0; i < iters; ++i) {
+            a0 = a0 * m + c; a1 = a1 * m + c; a2 = a2 * m + c; a3 = a3 * m + c;
+            a4 = a4 * m + c; a5 = a5 * m + c; a6 = a6 * m + c; a7 = a7 * m + c;
+        }
+        out[g] = a0 + a1 + a2 + a3 + a4 + a5 + a6 + a7;
     }
-    out[g] = a0 + a1 + a2 + a3 + a4 + a5 + a6 + a7;
 }
 
-__kernel void copy8(__global const float8 *src, __global float8 *dst)
+__kernel void copy8(__global const float8 *src, __global float8 *dst, const int blocks,
+                    volatile __global int *next)
 {
-    const int g = get_global_id(0);
-    dst[g] = src[g];
+    FOR_EACH_BLOCK(b, next, blocks) {
+        for (int i = b * COPY_BLOCK; i < (b + 1) * COPY_BLOCK; ++i)
+            dst[i] = src[i];
+    }
 }
 
-__kernel void empty(__global float *out)
+__kernel void empty(volatile __global int *next)
 {
 }
 """
@@ -147,65 +159,63 @@ def pose_work(deformer) -> dict:
 # --------------------------------------------------------------------------- measuring
 
 class Roofs:
-    """Kernels measuring the device ceilings, on a private profiling queue."""
+    """Kernels measuring the device ceilings, on private profiling queues."""
 
     def __init__(self, quick: bool = False):
         import pyopencl as cl
         self.cl = cl
-        ctx, _ = device.context()
+        ctx, q = device.context()
         self.ctx = ctx
-        self.q = cl.CommandQueue(ctx, properties=cl.command_queue_properties.PROFILING_ENABLE)
-        prg = cl.Program(ctx, ROOF_SOURCE).build()
+        prof = cl.command_queue_properties.PROFILING_ENABLE
+        wq = device.worker_queue()
+        self.q = cl.CommandQueue(ctx, q.device, properties=prof)
+        self.queues = (cl.CommandQueue(ctx, wq.device, properties=prof) if wq is not None else None, self.q)
+        src = device.with_headers(ROOF_SOURCE)
+        prg = cl.Program(ctx, src).build(options=[f"-DCOPY_BLOCK={COPY_BLOCK}"])
         self.k_flops = cl.Kernel(prg, "peak_flops")
         self.k_copy = cl.Kernel(prg, "copy8")
         self.k_empty = cl.Kernel(prg, "empty")
+        self.next = device.HostArray(1, dtype=np.int32, atomics=True)
         self.quick = quick
         self.items = 512 if quick else PEAK_ITEMS
         self.iters = 256 if quick else ITERS
-        mf = cl.mem_flags
-        self.flops_out = cl.Buffer(ctx, mf.WRITE_ONLY, 32 * self.items)
-        self.k_flops.set_args(self.flops_out, np.float32(0.999), np.float32(1e-3), np.int32(self.iters))
+        self.flops_out = device.HostArray(8 * self.items)
+        self.k_flops.set_args(self.flops_out.arg, np.float32(0.999), np.float32(1e-3), np.int32(self.iters),
+                              np.int32(self.items), self.next.arg)
         self.copy = {}
         for name, mb in (("dram", 8 if quick else COPY_DRAM_MB), ("l3", 1 if quick else COPY_L3_MB)):
             nbytes = mb << 20
-            src = cl.Buffer(ctx, mf.READ_WRITE, nbytes)
-            dst = cl.Buffer(ctx, mf.READ_WRITE, nbytes)
-            cl.enqueue_fill_buffer(self.q, src, np.float32(1.0), 0, nbytes)
-            cl.enqueue_fill_buffer(self.q, dst, np.float32(0.0), 0, nbytes)
-            self.copy[name] = (src, dst, nbytes)
-        self.empty_out = cl.Buffer(ctx, mf.WRITE_ONLY, 4)
-        self.k_empty.set_args(self.empty_out)
-        self.q.finish()
+            src_, dst = device.HostArray(nbytes // 4), device.HostArray(nbytes // 4)
+            src_.host[:] = 1.0
+            dst.host[:] = 0.0
+            self.copy[name] = (src_, dst, nbytes)
+        self.k_empty.set_args(self.next.arg)
 
-    def _event_s(self, kernel, gsize, lsize=None) -> float:
-        gsize = gsize if isinstance(gsize, tuple) else (gsize,)
-        ev = self.cl.enqueue_nd_range_kernel(self.q, kernel, gsize, lsize)
-        ev.wait()
-        return (ev.profile.end - ev.profile.start) * 1e-9
+    def _launch_s(self, kernel, workers: bool = True) -> tuple[float, float]:
+        """(event seconds, wall seconds) of one shared launch of ``kernel``: from the first
+        device's start to the last one's end, and the caller's enqueue-to-return time."""
+        t = time.perf_counter()
+        _, events = device.launch_shared(kernel, self.next, queues=self.queues, workers=workers)
+        wall = time.perf_counter() - t
+        return span_s(events), wall
 
     def flops(self, n: int) -> list[float]:
         """n samples of the arithmetic kernel's rate, GFLOP/s."""
         work = 2 * 8 * ACCS * self.iters * self.items
-        self._event_s(self.k_flops, self.items)
-        return [work / self._event_s(self.k_flops, self.items) * 1e-9 for _ in range(n)]
+        self._launch_s(self.k_flops)
+        return [work / self._launch_s(self.k_flops)[0] * 1e-9 for _ in range(n)]
 
     def bandwidth(self, which: str, n: int) -> list[float]:
         """n samples of the copy kernel's read + write rate over buffer ``which``, GB/s."""
         src, dst, nbytes = self.copy[which]
-        self.k_copy.set_args(src, dst)
-        items = nbytes // 32
-        self._event_s(self.k_copy, items)
-        return [2 * nbytes / self._event_s(self.k_copy, items) * 1e-9 for _ in range(n)]
+        self.k_copy.set_args(src.arg, dst.arg, np.int32(nbytes // (32 * COPY_BLOCK)), self.next.arg)
+        self._launch_s(self.k_copy)
+        return [2 * nbytes / self._launch_s(self.k_copy)[0] * 1e-9 for _ in range(n)]
 
-    def empty_kernel(self, n: int, items: int = 1) -> dict:
-        """Launch floor: an empty kernel's profiling-event time and its enqueue + finish wall time (ms)."""
-        ev, wall = [], []
-        for _ in range(n):
-            t = time.perf_counter()
-            e = self.cl.enqueue_nd_range_kernel(self.q, self.k_empty, (items,), None)
-            e.wait()
-            wall.append(time.perf_counter() - t)
-            ev.append((e.profile.end - e.profile.start) * 1e-9)
+    def empty_kernel(self, n: int, workers: bool = True) -> dict:
+        """Launch floor: an empty kernel's launch time (events) and its enqueue-to-return wall
+        time (ms), shared with the workers or (workers=False) on the calling thread alone."""
+        ev, wall = zip(*(self._launch_s(self.k_empty, workers) for _ in range(n)))
         return {"event_ms": float(np.median(ev) * 1e3), "wall_ms": float(np.median(wall) * 1e3)}
 
     def measure(self, rounds: int) -> dict:
@@ -218,31 +228,31 @@ class Roofs:
         stat = lambda a: {"median": float(np.median(a)), "max": float(np.max(a)),  # noqa: E731
                           "min": float(np.min(a)), "n": len(a)}
         return {"gflops": stat(fl), "dram_gbs": stat(dram), "l3_gbs": stat(l3),
-                "launch": self.empty_kernel(5 * rounds)}
+                "launch": self.empty_kernel(5 * rounds),
+                "launch_alone": self.empty_kernel(5 * rounds, workers=False)}
 
     def describe(self) -> dict:
-        return {"arithmetic_kernel": f"peak_flops: {self.items} work-items x {ACCS} float8 accumulators x "
+        return {"arithmetic_kernel": f"peak_flops: {self.items} blocks x {ACCS} float8 accumulators x "
                                      f"{self.iters} updates a = a*m + c (no fma/mad); 16 flops per float8 update",
-                "copy_kernel": "copy8: dst[i] = src[i] over float8; bytes = read + written",
+                "copy_kernel": f"copy8: dst[i] = src[i] over float8, blocks of {COPY_BLOCK}; bytes = read + written",
                 "copy_buffers_mb": {k: v[2] >> 20 for k, v in self.copy.items()},
-                "timing": "OpenCL profiling events (end - start) on a private queue; medians"}
+                "launch": "every kernel launched as the pose kernels are (nrpose.device.launch_shared): "
+                          f"{', '.join(f'{q.device.name} x {n}' for q, n in device.work_items(self.queues))} "
+                          "work-items taking blocks from one counter",
+                "timing": "OpenCL profiling events on private queues, first start to last end over the "
+                          "devices of a launch; medians"}
 
     # ------------------------------------------------------------------ pose kernel
-    def pose_kernel(self, deformer, pose, n: int) -> dict:
-        """Profiling-event times (ms) of the deformer's prepare and pose kernels for ``pose``.
-
-        The pose is written by one ordinary ``deformer.pose`` call; the two kernels are then
-        re-enqueued on the private queue (same arguments, same inputs) n times."""
-        deformer.pose(pose)
-        self.pose_kernel_once(deformer)
-        prep, kern = zip(*(self.pose_kernel_once(deformer) for _ in range(n)))
-        return {"kernel_ms": float(np.median(kern) * 1e3), "kernel_ms_min": float(np.min(kern) * 1e3),
-                "prepare_ms": float(np.median(prep) * 1e3), "n": n}
-
     def pose_kernel_once(self, deformer) -> tuple[float, float]:
-        """(prepare, pose) kernel event times in seconds, re-running the deformer's last pose."""
-        (prep, gp, lp), (kern, gk, lk) = deformer.launches()
-        return self._event_s(prep, gp, lp), self._event_s(kern, gk, lk)
+        """(prepare, pose) kernel times in seconds, re-running the deformer's last posing
+        on the profiling queues (the pose kernel's time spans the devices it ran on)."""
+        pre, events = deformer.relaunch(queues=self.queues)
+        return span_s(pre), span_s(events)
+
+
+def span_s(events) -> float:
+    """Seconds from the first start to the last end of profiling events."""
+    return (max(e.profile.end for e in events) - min(e.profile.start for e in events)) * 1e-9
 
 
 def lane_divergence(deformer) -> dict:

@@ -1,10 +1,10 @@
 /* Linear blend skinning (LBS) and dual quaternion skinning (DQS).
  *
- * Layout (structure of arrays in blocks of 8 vertices, one block per
- * work-item, one vertex per float8 lane):
+ * Layout (structure of arrays in groups of 8 vertices, one vertex per
+ * float8 lane):
  *
- *   rest    (G, 3, 8) float : block g holds x[8], y[8], z[8] of vertices 8g..8g+7
- *   joints  (G, K, 8) int   : influence k of the 8 vertices of block g
+ *   rest    (G, 3, 8) float : group g holds x[8], y[8], z[8] of vertices 8g..8g+7
+ *   joints  (G, K, 8) int   : influence k of the 8 vertices of group g
  *   weights (G, K, 8) float : matching weights; rows sum to 1; within a vertex
  *                             the influences are sorted by decreasing weight
  *                             (so k = 0 is the dominant joint) and padding has
@@ -19,10 +19,16 @@
  *   dqs: dq   (F, J, 8) float: unit dual quaternion (qr.xyzw, qd.xyzw) per
  *        joint, scalar last, qd = 0.5 (t, 0) qr.
  *
- * global size (>= G, F): dimension 0 is the block, dimension 1 the frame.
+ * Launch (nrpose/device.py launch_shared): any number of work-items, local
+ * size 1, on PoCL's worker threads and the calling thread at once. Each takes
+ * the next block of `block` groups from the shared counter `next` (share.h;
+ * zeroed by the host) until none are left, and poses every group of its block
+ * for the F frames, frames innermost: a group's bound data (rest, joints,
+ * weights) is read from memory once and reused from L1 for every frame. Which
+ * work-item takes a block does not change its result.
  *
  * Because influences are sorted by decreasing weight, once every lane of a
- * block has weight 0 at influence k all later influences are 0 too: the loop
+ * group has weight 0 at influence k all later influences are 0 too: the loop
  * stops there.
  *
  * Per the PoCL notes: no fma()/mad() builtins, explicit float8 lanes; no
@@ -30,8 +36,9 @@
  */
 
 #include "lanes.h"
+#include "share.h"
 
-/* rows 0..7 of an 8-vertex block */
+/* rows 0..7 of an 8-vertex group */
 #define BLOCK_ROWS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
 
 __kernel void lbs(__global const float *restrict rest,
@@ -39,11 +46,13 @@ __kernel void lbs(__global const float *restrict rest,
                   __global const float *restrict weights,
                   __global const float *restrict mats,
                   __global float *restrict out,
-                  const int K, const int J, const int G)
+                  const int K, const int J, const int G, const int F,
+                  const int block, volatile __global int *next)
 {
-    const int g = get_global_id(0);
-    const int f = get_global_id(1);
-    if (g >= G) return;
+    FOR_EACH_BLOCK(b, next, (G + block - 1) / block) {
+    const int g_end = (b + 1) * block;
+    for (int g = b * block; g < (g_end < G ? g_end : G); ++g) {
+    for (int f = 0; f < F; ++f) {
     __global const float *M = mats + (size_t)f * (size_t)J * 12;
 
     float8 a0 = 0.0f, a1 = 0.0f, a2 = 0.0f, a3 = 0.0f;
@@ -76,6 +85,9 @@ __kernel void lbs(__global const float *restrict rest,
     const float8 oy = a4 * x + a5 * y + a6  * z + a7;
     const float8 oz = a8 * x + a9 * y + a10 * z + a11;
     STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
+    }   /* f */
+    }   /* g */
+    }   /* b */
 }
 
 __kernel void dqs(__global const float *restrict rest,
@@ -83,16 +95,18 @@ __kernel void dqs(__global const float *restrict rest,
                   __global const float *restrict weights,
                   __global const float *restrict dq,
                   __global float *restrict out,
-                  const int K, const int J, const int G)
+                  const int K, const int J, const int G, const int F,
+                  const int block, volatile __global int *next)
 {
-    const int g = get_global_id(0);
-    const int f = get_global_id(1);
-    if (g >= G) return;
+    FOR_EACH_BLOCK(b, next, (G + block - 1) / block) {
+    const int g_end = (b + 1) * block;
+    for (int g = b * block; g < (g_end < G ? g_end : G); ++g) {
+    /* dominant joint (influence 0) of each lane, for the hemisphere test */
+    const int8 j0 = LOADI8(0, joints + (size_t)g * K * 8) * 8;
+    for (int f = 0; f < F; ++f) {
     __global const float *D = dq + (size_t)f * (size_t)J * 8;
 
-    /* Dominant joint's rotation quaternion (influence 0) for the
-     * hemisphere test. */
-    const int8 j0 = LOADI8(0, joints + (size_t)g * K * 8) * 8;
+    /* Dominant joint's rotation quaternion for the hemisphere test. */
     const float8 px = GATHER8(D, j0), py = GATHER8(D, j0 + 1);
     const float8 pz = GATHER8(D, j0 + 2), pw = GATHER8(D, j0 + 3);
 
@@ -136,4 +150,7 @@ __kernel void dqs(__global const float *restrict rest,
     const float8 oy = y + 2.0f * ((rz * cx - rx * cz) + ty);
     const float8 oz = z + 2.0f * ((rx * cy - ry * cx) + tz);
     STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
+    }   /* f */
+    }   /* g */
+    }   /* b */
 }

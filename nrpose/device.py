@@ -179,6 +179,12 @@ def work_items(queues=None) -> list[tuple]:
 SHARE_MIN_S = 60e-6
 
 
+#: how long the calling thread, its share done, polls the workers' launches before it
+#: blocks: a worker still on its last block finishes within a block's time, and a
+#: blocking wait costs a wake-up (tens of us) after that
+WAIT_SPIN_S = 100e-6
+
+
 def time_alone(run_alone, runs: int = 5) -> float:
     """Seconds that ``run_alone()`` (a kernel launched on the calling thread only, waited
     for) takes: the best of ``runs`` runs (the first ones after a bind run cold), stopping
@@ -228,7 +234,14 @@ def launch_shared(kernel, counter: "HostArray", before=(), queues=None, workers:
     for q, n in plan:
         events.append(cl.enqueue_nd_range_kernel(q, kernel, (n,), (1,)))
         q.flush()
-    for q, _ in reversed(plan):         # the calling thread's share first
+    host_q.finish()                     # the calling thread's share of the blocks
+    if len(plan) > 1 and WAIT_SPIN_S > 0:
+        import time
+        done = cl.command_execution_status.COMPLETE
+        until = time.perf_counter() + WAIT_SPIN_S
+        while any(e.command_execution_status != done for e in events[:-1]) and time.perf_counter() < until:
+            pass
+    for q, _ in plan[:-1]:
         q.finish()
     return pre, events
 
@@ -243,14 +256,18 @@ def describe() -> dict:
 
 
 def kernel_source(name: str) -> str:
-    """Text of ``kernels/<name>`` as shipped in the installed package, with each
-    ``#include "x.h"`` line replaced by the text of ``kernels/x.h`` (pasted here
-    rather than left to the compiler so that PoCL's kernel cache, keyed on the
-    source, sees changes to the header)."""
+    """Text of ``kernels/<name>`` as shipped in the installed package, headers pasted
+    (:func:`with_headers`)."""
+    return with_headers(resources.files("nrpose.kernels").joinpath(name).read_text())
+
+
+def with_headers(source: str) -> str:
+    """OpenCL ``source`` with each ``#include "x.h"`` line replaced by the text of
+    ``kernels/x.h`` (pasted here rather than left to the compiler so that PoCL's kernel
+    cache, keyed on the source, sees changes to the header)."""
     folder = resources.files("nrpose.kernels")
-    lines = folder.joinpath(name).read_text().splitlines(keepends=True)
     return "".join(folder.joinpath(m.group(1)).read_text() if (m := _INCLUDE.match(line)) else line
-                   for line in lines)
+                   for line in source.splitlines(keepends=True))
 
 
 def program(name: str, options: tuple[str, ...] = ()):

@@ -10,8 +10,11 @@ per-handle data (posed positions, the segments' rotations and the global
 rotation) into memory shared with the device and runs two kernels:
 ``nrmls_prepare`` turns the rotations into the table the points use (relative
 rotation vectors, or sign-aligned quaternions for the quaternion blend),
-``nrmls_pose`` poses the points. ``pose_frames``
-does the same for F poses in one launch of each.
+``nrmls_pose`` poses the points. The calling thread runs ``nrmls_prepare``
+and takes blocks of points of ``nrmls_pose`` alongside PoCL's worker threads
+(:func:`nrpose.device.launch_shared`), or alone when the launch is too small
+to be worth waking them (timed at bind). ``pose_frames`` does the same for F
+poses in one launch of each.
 
 ``backend="numpy"`` runs :func:`nrpose.blend.pose_reference` instead (float64);
 nothing ever falls back to it silently.

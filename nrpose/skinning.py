@@ -25,13 +25,19 @@ weight, first on ties) joint's rotation quaternion, the weighted sum is
 divided by the norm of its real part, and the resulting rigid transform is
 applied.
 
-Device side: float32, 8 vertices per work-item in float8 lanes, bound data
+Device side: float32, groups of 8 vertices in float8 lanes, bound data
 (rest vertices, influences) uploaded once in a structure-of-arrays layout,
 see ``kernels/skinning.cl``; each vertex's influences are sorted by
-decreasing weight at bind (influence 0 is the dominant joint). Per-pose
-parameters and results live in fine-grained SVM when the device offers it
-(PoCL does): one pose is then a single kernel enqueue plus ``finish``; other
-devices get write + launch + read. :meth:`pose_frames` poses F frames in one
+decreasing weight at bind (influence 0 is the dominant joint). A launch
+(:func:`nrpose.device.launch_shared`) runs the kernel on PoCL's worker
+threads and the calling thread at once: each takes blocks of :data:`BLOCK`
+groups from a shared counter until none are left and poses every frame of the
+launch for them (frames innermost). Launches whose frames take less than
+``device.SHARE_MIN_S`` on the calling thread alone (timed at bind) stay on
+the calling thread. Per-pose parameters, results and the counter live in
+fine-grained SVM when the device offers it (PoCL does): one pose is then a
+kernel enqueue plus ``finish`` per device; other devices get write + launch +
+read on one queue. :meth:`pose_frames` poses F frames in one
 launch. DQS converts matrices to dual quaternions on the host (scipy,
 ~0.1-0.2 ms for 65 joints); :meth:`Deformer.pose_dual_quaternions` skips that.
 
@@ -50,8 +56,8 @@ from .skeleton import polar_rotation
 __all__ = ["LbsDeformer", "DqsDeformer", "Deformer", "lbs_reference", "dqs_reference",
            "dqs_reference_dq", "dual_quaternions", "prepare_influences"]
 
-LANES = 8          # vertices per work-item (float8 lanes)
-LOCAL_SIZE = 32    # work-items per work-group: measured best of 8..128 on PoCL (2 cores)
+LANES = 8          # vertices per group (float8 lanes)
+BLOCK = 32         # groups (of 8 vertices) per block of work taken from the shared counter
 
 
 # --------------------------------------------------------------------------- validation
@@ -245,16 +251,17 @@ class Deformer:
     """Skinning deformer bound once to a mesh's rest vertices and influences.
 
     ``method`` is ``"lbs"`` or ``"dqs"``. Construction validates the inputs,
-    normalises weights, sorts each vertex's influences by decreasing weight and
-    uploads everything once; :meth:`pose` and :meth:`pose_frames` then cost one
-    kernel launch each.
+    normalises weights, sorts each vertex's influences by decreasing weight,
+    uploads everything once, poses the identity once (PoCL compiles the kernel
+    for each device at its first launch) and times one frame of the kernel on
+    the calling thread alone; :meth:`pose` and :meth:`pose_frames` then cost one
+    (shared) kernel launch each.
     """
 
     def __init__(self, rest, joints, weights, method: str = "lbs"):
         if method not in ("lbs", "dqs"):
             raise InputError(f"skinning method must be 'lbs' or 'dqs', got {method!r}")
         import pyopencl as cl
-        self._cl = cl
         self.method = method
         rest, joints, weights, self.max_joint = prepare_influences(rest, joints, weights)
         n, k = joints.shape
@@ -265,7 +272,7 @@ class Deformer:
 
         g = -(-n // LANES)
         npad = g * LANES
-        self.n_blocks = g
+        self.n_groups = g       # groups of 8 vertices (the last one padded)
         r = np.zeros((npad, 3), np.float32)
         r[:n] = rest
         jj = np.zeros((npad, k), np.int32)
@@ -273,7 +280,7 @@ class Deformer:
         ww = np.zeros((npad, k), np.float32)
         ww[:n] = weights
         ww[n:, 0] = 1.0                                              # padding: joint 0, weight 1
-        # (G, 8, C) -> (G, C, 8): SoA per block of 8 vertices
+        # (G, 8, C) -> (G, C, 8): SoA per group of 8 vertices
         soa = lambda a: np.ascontiguousarray(a.reshape(g, LANES, -1).transpose(0, 2, 1))
         ctx, self._queue = device.context()
         self._ctx = ctx
@@ -288,15 +295,24 @@ class Deformer:
         self._kernel.set_arg(2, self._weights)
         self._kernel.set_arg(5, np.int32(k))
         self._kernel.set_arg(7, np.int32(g))
-        self._local = LOCAL_SIZE
-        self._global0 = -(-g // LOCAL_SIZE) * LOCAL_SIZE
-        # Per-pose parameters and posed vertices: device.HostArray (fine-grained
-        # SVM when the device has it). Setting ``_svm = False`` before the first
-        # pose forces the copying buffer path (tests use it on PoCL).
+        self._kernel.set_arg(9, np.int32(BLOCK))
+        # Per-pose parameters, posed vertices and the shared block counter:
+        # device.HostArray (fine-grained SVM when the device has it). Setting
+        # ``_svm = False`` forces the copying buffer path (tests use it on PoCL):
+        # the next pose replaces the arrays, and launches run on one queue.
         self._svm = device.fine_grain_svm()
         self._in: device.HostArray | None = None     # per-pose parameters
         self._out: device.HostArray | None = None    # posed vertices
+        self._next: device.HostArray | None = None   # the shared block counter
         self._joints_bound = -1
+        self._batch = 0       # frames per launch, as last set on the kernel
+        # PoCL compiles a kernel's work-group function at its first launch on each
+        # device: pay that at bind (an identity pose, shared), not in the first frame
+        self._alone_s = float("inf")
+        self.pose(np.tile(np.eye(4), (self.max_joint + 1, 1, 1)))
+        # one frame of the kernel on the calling thread alone: small launches are not shared
+        self._alone_s = device.time_alone(
+            lambda: device.launch_shared(self._kernel, self._next, workers=False))
 
     # -- per pose -------------------------------------------------------------
     def pose(self, mats) -> np.ndarray:
@@ -314,15 +330,17 @@ class Deformer:
             return mats[:, :, :3, :].reshape(mats.shape[0], mats.shape[1], 12)
         return dual_quaternions(mats)
 
-    def _array(self, which: str, n_floats: int, arg: int) -> device.HostArray:
-        """HostArray `which` with >= n_floats elements, bound to kernel argument `arg`.
+    def _array(self, which: str, n: int, arg: int, **kw) -> device.HostArray:
+        """HostArray `which` with >= n elements, bound to kernel argument `arg`
+        (``kw``: dtype, atomics, as HostArray's).
 
         HostArrays have a fixed size: a larger batch allocates a larger one
-        (and rebinds it); smaller batches reuse the current one.
+        (and rebinds it); smaller batches reuse the current one. One whose
+        memory kind (SVM or not) is not ``_svm``'s is replaced too.
         """
         cur = getattr(self, which)
-        if cur is None or cur.host.size < n_floats:
-            cur = device.HostArray(n_floats, svm=self._svm)
+        if cur is None or cur.host.size < n or cur.svm != self._svm:
+            cur = device.HostArray(n, svm=self._svm, **kw)
             self._kernel.set_arg(arg, cur.arg)
             setattr(self, which, cur)
         return cur
@@ -330,19 +348,32 @@ class Deformer:
     def _run(self, params: np.ndarray) -> np.ndarray:
         """params (F, J, W) -> posed (F, N, 3) float64: one launch (SVM) or write+launch+read."""
         f, j, width = params.shape
-        npad = self.n_blocks * LANES
+        npad = self.n_groups * LANES
         arr_in = self._array("_in", f * j * width, 3)
         arr_out = self._array("_out", f * npad * 3, 4)
+        self._array("_next", 1, 10, dtype=np.int32, atomics=True)
         if j != self._joints_bound:
             self._kernel.set_arg(6, np.int32(j))
             self._joints_bound = j
+        if f != self._batch:
+            self._kernel.set_arg(8, np.int32(f))
+            self._batch = f
         arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
         arr_in.upload()
-        self._cl.enqueue_nd_range_kernel(self._queue, self._kernel, (self._global0, f),
-                                         (self._local, 1))
+        self.relaunch()
         arr_out.download()
         out = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
         return out.astype(np.float64)
+
+    def relaunch(self, queues=None, workers: bool | None = None) -> tuple[list, list]:
+        """Run the last posing's kernel again (same inputs, same result) and return its
+        events ``(before, kernel)`` (:func:`nrpose.device.launch_shared`; ``before`` is
+        empty); queues: as there, e.g. profiling queues; workers: share the kernel with
+        PoCL's worker threads (default: when the launch's frames take at least
+        ``device.SHARE_MIN_S`` alone, as timed at bind)."""
+        if workers is None:
+            workers = self._batch * self._alone_s >= device.SHARE_MIN_S
+        return device.launch_shared(self._kernel, self._next, queues=queues, workers=workers)
 
     def pose_dual_quaternions(self, dq) -> np.ndarray:
         """DQS only: posed vertices (N, 3) from per-joint unit dual quaternions dq (J, 8)."""

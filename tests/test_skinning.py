@@ -117,6 +117,57 @@ def test_padded_influences_and_buffer_fallback(method):
     assert_close(d.pose_frames(np.stack([mats, mats]))[1], want)
 
 
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_shared_launch_any_split_same_vertices(method):
+    """The kernel's blocks (skinning.BLOCK groups of 8 vertices) may be taken by the
+    calling thread alone, by PoCL's workers alone or by both (device.launch_shared):
+    bitwise the same result each way for a batch of frames, equal to the reference; a
+    last block that is partly filled and a padded last group included."""
+    from nrpose import device
+    from nrpose.skinning import BLOCK, LANES
+
+    rng = np.random.default_rng(31)
+    n, j, frames = 3 * BLOCK * LANES + 5, 11, 3
+    rest, joints, weights = make_rig(rng, n, j, 4)
+    d = Deformer(rest, joints, weights, method=method)
+    assert 0 < d._alone_s < float("inf")
+    mats = np.stack([rigid(rng, j) if method == "dqs" else affine(rng, j) for _ in range(frames)])
+    shared = d.pose_frames(mats)
+    ref = lbs_reference if method == "lbs" else dqs_reference
+    for f in range(frames):
+        assert_close(shared[f], ref(rest, joints, weights, mats[f]))
+    npad = d.n_groups * LANES
+    want = shared.astype(np.float32)
+    wq = device.worker_queue()
+    runs = {"alone": {"workers": False}, "shared": {"workers": True}}
+    if wq is not None:
+        runs["workers only"] = {"queues": (None, wq)}
+    for name, kw in runs.items():
+        d._out.host[:] = np.nan
+        d.relaunch(**kw)
+        d._out.download()
+        got = d._out.host[: frames * npad * 3].reshape(frames, npad, 3)[:, :n]
+        assert np.array_equal(got, want), name
+
+
+def test_small_launches_stay_on_the_calling_thread(monkeypatch):
+    """A bind times one frame of the kernel on the calling thread alone; launches whose
+    frames take less than device.SHARE_MIN_S together are not shared."""
+    from nrpose import device
+
+    rng = np.random.default_rng(32)
+    rest, joints, weights = make_rig(rng, 40, 5, 2)
+    d = LbsDeformer(rest, joints, weights)
+    calls = []
+    real = device.launch_shared
+    monkeypatch.setattr(device, "launch_shared", lambda *a, **kw: calls.append(kw["workers"]) or real(*a, **kw))
+    d._alone_s = device.SHARE_MIN_S / 4
+    mats = rigid(rng, 5)
+    d.pose_frames(np.stack([mats] * 3))
+    d.pose_frames(np.stack([mats] * 4))
+    assert calls == [False, True]
+
+
 def test_lbs_scale_is_honoured_dqs_ignores_it():
     rng = np.random.default_rng(6)
     rest, joints, weights = make_rig(rng, 40, 3, 2)
