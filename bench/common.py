@@ -72,7 +72,7 @@ def environment() -> dict:
     target = re.search(r"HSTR:\s*(\S+)", dev.get("device_version", ""))
     env.update({"pocl_version": m.group(1) if m else dev.get("driver_version"),
                 "llvm_version": llvm.group(1) if llvm else None,
-                "cpu": env.get("processor"), "compute_units": dev.get("compute_units"),
+                "cpu": env.get("processor"), "compute_units": dev.get("threads", dev.get("compute_units")),
                 "device_target": target.group(1) if target else None,
                 "memory_gb": _mem_total_gb()})
     return env

@@ -43,7 +43,7 @@ def _header(doc: dict) -> str:
     opts = doc.get("options", {})
     return (f"commit {doc.get('git_commit', '?')[:8]}{' (dirty)' if doc.get('git_dirty') else ''}, "
             f"{doc.get('timestamp', '?')}, `--repeat {opts.get('repeat', '?')}`, "
-            f"{dev.get('device_version', dev.get('device', '?'))}, {env.get('cpu_count', '?')} CPUs")
+            f"{dev.get('summary', dev.get('device_version', dev.get('device', '?')))}, {env.get('cpu_count', '?')} CPUs")
 
 
 def table1_block(doc: dict) -> str:

@@ -153,7 +153,7 @@ def write_png(doc: dict, path) -> None:
     for ax, name in zip(axes[:, 0], names):
         globals()[f"_plot_{name}"](ax, s[name])
     env = doc["environment"]
-    fig.suptitle(f"nrpose benchmark suites: {env['device']['device']} ({env['compute_units']} CU), PoCL "
+    fig.suptitle(f"nrpose benchmark suites: {env['device'].get('summary', env['device']['device'])}, PoCL "
                  f"{env['pocl_version']}, LLVM {env['llvm_version']}\ncommit {doc['git_commit'][:8]}"
                  f"{' + changes' if doc['git_dirty'] else ''}; {doc['timestamp']}; load {doc['load_start'][:1]}"
                  f"{' (quick: timings mean nothing)' if doc['options']['quick'] else ''}", fontsize=9)

@@ -553,8 +553,7 @@ def write_png(doc: dict, path: pathlib.Path) -> None:
     ax.set_xticks(x, labels, fontsize=8)
     dev = doc["environment"]["device"]
     ax.set_title(f"Table 1 rows: pose time, {doc['options'].get('blend', BLEND)} blend "
-                 f"(medians; PoCL bars p10–p90)\n{dev['device']}, "
-                 f"{dev['compute_units']} compute units, {doc['timestamp']}, "
+                 f"(medians; PoCL bars p10–p90)\n{dev.get('summary', dev['device'])}, {doc['timestamp']}, "
                  f"commit {doc['git_commit'][:8]}{' + uncommitted changes' if doc['git_dirty'] else ''}"
                  f"{' (quick)' if doc['options']['quick'] else ''}",
                  fontsize=9)

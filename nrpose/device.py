@@ -117,14 +117,17 @@ def context():
     return ctx, cl.CommandQueue(ctx, (host or ctx.devices)[0])
 
 
-@functools.lru_cache(maxsize=None)
 def worker_queue():
     """Queue of PoCL's worker-thread device when the context also has the ``basic``
     device (:func:`launch_shared` uses both), else None."""
-    ctx, q = context()
+    return _worker_queue(*context())
+
+
+@functools.lru_cache(maxsize=None)
+def _worker_queue(ctx, host_queue):
     if len(ctx.devices) < 2:
         return None
-    return _cl().CommandQueue(ctx, [d for d in ctx.devices if d != q.device][0])
+    return _cl().CommandQueue(ctx, [d for d in ctx.devices if d != host_queue.device][0])
 
 
 def _is_basic(dev) -> bool:
@@ -179,12 +182,6 @@ def work_items(queues=None) -> list[tuple]:
 SHARE_MIN_S = 60e-6
 
 
-#: how long the calling thread, its share done, polls the workers' launches before it
-#: blocks: a worker still on its last block finishes within a block's time, and a
-#: blocking wait costs a wake-up (tens of us) after that
-WAIT_SPIN_S = 100e-6
-
-
 def time_alone(run_alone, runs: int = 5) -> float:
     """Seconds that ``run_alone()`` (a kernel launched on the calling thread only, waited
     for) takes: the best of ``runs`` runs (the first ones after a bind run cold), stopping
@@ -227,6 +224,8 @@ def launch_shared(kernel, counter: "HostArray", before=(), queues=None, workers:
     host_q = plan[-1][0]
     counter.host[0] = 0
     counter.upload()
+    if not counter.svm and plan[-1][0] != counter._queue:
+        counter._queue.finish()         # uploads go to the shared queue: done before these queues run
     pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
     if len(plan) > 1 and pre:
         host_q.finish()                 # the workers read what `before` wrote
@@ -235,24 +234,26 @@ def launch_shared(kernel, counter: "HostArray", before=(), queues=None, workers:
         events.append(cl.enqueue_nd_range_kernel(q, kernel, (n,), (1,)))
         q.flush()
     host_q.finish()                     # the calling thread's share of the blocks
-    if len(plan) > 1 and WAIT_SPIN_S > 0:
-        import time
-        done = cl.command_execution_status.COMPLETE
-        until = time.perf_counter() + WAIT_SPIN_S
-        while any(e.command_execution_status != done for e in events[:-1]) and time.perf_counter() < until:
-            pass
-    for q, _ in plan[:-1]:
+    for q, _ in plan[:-1]:              # the workers': nearly always done by now
         q.finish()
     return pre, events
 
 
 def describe() -> dict:
-    """Device facts for benchmark records: platform, device, version, compute units."""
+    """Device facts for benchmark records: platform, the first device's name, version and
+    compute units, and how a shared launch uses the devices (``launch``: one entry per
+    device, its name and work-items; ``threads``: worker threads + the calling thread;
+    ``summary``: that in words, for plot titles)."""
     ctx, _ = context()
     dev = ctx.devices[0]
+    plan = work_items()
     return {"platform": dev.platform.name, "platform_version": dev.platform.version,
             "device": dev.name, "device_version": dev.version,
-            "driver_version": dev.driver_version, "compute_units": dev.max_compute_units}
+            "driver_version": dev.driver_version, "compute_units": dev.max_compute_units,
+            "launch": [{"device": q.device.name, "work_items": n} for q, n in plan],
+            "threads": (plan[0][1] + 1) if len(plan) > 1 else dev.max_compute_units,
+            "summary": (f"{plan[0][0].device.name} x {plan[0][1]} + calling thread ({plan[1][0].device.name})"
+                        if len(plan) > 1 else f"{dev.name} ({dev.max_compute_units} CU)")}
 
 
 def kernel_source(name: str) -> str:
