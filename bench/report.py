@@ -95,9 +95,12 @@ def suites_block(doc: dict) -> str:
         c = ro["roofs"]
         out += ["", f"Roofline ceilings: {c['gflops']['median']:.0f} GFLOP/s arithmetic (best "
                     f"{c['gflops']['max']:.0f}), copy {c['dram_gbs']['median']:.1f} GB/s DRAM, "
-                    f"{c['l3_gbs']['median']:.1f} GB/s L3-resident; empty kernel "
+                    f"{c['l3_gbs']['median']:.1f} GB/s L3-resident; empty kernel shared with the workers "
                     f"{c['launch']['event_ms'] * 1e3:.1f} µs event, {c['launch']['wall_ms'] * 1e3:.0f} µs "
-                    "enqueue+wait.", "",
+                    "enqueue+wait"
+                    + (f", on the calling thread alone {c['launch_alone']['event_ms'] * 1e3:.1f} µs event, "
+                       f"{c['launch_alone']['wall_ms'] * 1e3:.0f} µs enqueue+wait" if "launch_alone" in c else "")
+                    + ".", "",
                 _table(["row", "flop/pt", "B/pt", "pose ms", "kernel ms", "GFLOP/s", "% arith",
                         "batched kernel ms/frame", "batched % arith", "bound"],
                        [[f"{r['model']}/{r['kind']}", r["work"]["flops_per_point"], r["work"]["bytes_per_point"],

@@ -422,7 +422,8 @@ def merge_roofs(before: dict, after: dict) -> dict:
         out[k] = {"median": float(np.median([before[k]["median"], after[k]["median"]])),
                   "max": max(before[k]["max"], after[k]["max"]),
                   "n": before[k]["n"] + after[k]["n"]}
-    out["launch"] = {k: float(np.median([before["launch"][k], after["launch"][k]])) for k in before["launch"]}
+    for k in ("launch", "launch_alone"):
+        out[k] = {m: float(np.median([before[k][m], after[k][m]])) for m in before[k]}
     out["ridge_flops_per_byte_dram"] = out["gflops"]["median"] / out["dram_gbs"]["median"]
     out["ridge_flops_per_byte_l3"] = out["gflops"]["median"] / out["l3_gbs"]["median"]
     return out
