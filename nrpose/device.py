@@ -5,15 +5,18 @@ Default: PoCL's CPU devices. ``PYOPENCL_CTX`` (pyopencl's own variable, e.g.
 per (context, kernel file, build options) and kept for the life of the process;
 callers keep their ``cl.Kernel`` objects and buffers alive.
 
-How a launch uses the CPUs (see :func:`pocl_environment`): unless the
+How a launch uses the CPUs (see :func:`pocl_settings`): unless the
 environment says otherwise, PoCL starts two devices, ``pthread`` with one
-worker thread per CPU but one (each pinned to its CPU) and ``basic``, which
-runs a kernel in the thread that waits for it. The pose kernels are
-enqueued on both at once (:func:`launch_shared`): the workers and the calling
-thread take blocks of points from one counter until none are left. The
-calling thread computes instead of sleeping until a worker wakes it, and
-nobody waits for a worker that woke late: on the 2-core VM a Table-1 pose took
-~0.1 ms of launch and wake-up latency with two workers, ~3 us this way.
+worker thread per CPU but one and ``basic``, which runs a kernel in the thread
+that waits for it. The pose kernels are enqueued on both at once
+(:func:`launch_shared`): the workers and the calling thread take blocks of
+points from one counter until none are left, so the calling thread computes
+instead of sleeping until a worker wakes it, and a worker that wakes late
+finds less to do. Measured on the 2-core VM: an empty kernel's enqueue + wait
+takes 0.04-0.07 ms on the pthread device and 2.6 us on the basic device;
+waking the worker costs the calling thread 13-19 us and the worker starts
+20-40 us later, so launches too small to pay for that run on the calling
+thread alone (:func:`time_alone`, :data:`SHARE_MIN_S`).
 """
 from __future__ import annotations
 
@@ -63,15 +66,20 @@ def may_pin_workers() -> bool:
 
 def pocl_settings() -> dict[str, str]:
     """The PoCL variables nrpose sets while PoCL starts; a variable the user has set
-    (to anything but the empty string) is left alone, and the worker count only goes
-    with nrpose's own device list.
+    (to anything but the empty string) is left alone.
 
     * ``POCL_DEVICES="pthread basic"`` (``"basic"`` on a single CPU): the worker-thread
       device and the device that runs kernels in the calling thread (:func:`launch_shared`).
-    * ``POCL_MAX_PTHREAD_COUNT`` = usable CPUs - 1: the calling thread is the last worker.
-    * ``POCL_AFFINITY=1`` where :func:`may_pin_workers`: worker i pinned to CPU i, so the
-      last CPU is the calling thread's. Unpinned (measured on the 2-core VM, bench/README.md),
-      a woken worker often lands on the CPU of the thread that woke it and waits there.
+    * ``POCL_MAX_PTHREAD_COUNT`` = usable CPUs - 1, with that device list: the calling
+      thread is the last worker. The workers are left unpinned: pinned, the calling thread
+      sometimes shared a worker's CPU for a whole process (woken on it by the worker it
+      waited for) while the other CPU idled; 24 alternated processes on the 2-core VM,
+      Table-1 dragon/bunny/armadillo segments and dragon points, medians 0.208 / 0.194 /
+      0.206 / 0.618 ms unpinned vs 0.218 / 0.200 / 0.199 / 0.651 ms pinned, and the pinned
+      worst process 0.32 ms against 0.25 ms.
+    * ``POCL_AFFINITY=1`` only with a device list of the user's (PoCL's own workers on
+      every CPU) and where :func:`may_pin_workers`: unpinned, PoCL's broadcast woke two
+      workers onto one CPU and a sub-millisecond kernel ran on one thread (bench/README.md).
     """
     out = {}
     if not os.environ.get("POCL_DEVICES"):
@@ -79,7 +87,7 @@ def pocl_settings() -> dict[str, str]:
         out["POCL_DEVICES"] = "pthread basic" if cpus >= 2 else "basic"
         if cpus >= 2 and not os.environ.get("POCL_MAX_PTHREAD_COUNT"):
             out["POCL_MAX_PTHREAD_COUNT"] = str(cpus - 1)
-    if may_pin_workers():
+    elif may_pin_workers():
         out["POCL_AFFINITY"] = "1"
     return out
 
