@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from launches import splits
 
 from nrpose import Deformer, HandleError, HandleSet, InputError, Pose
 from nrpose.blend import deform_reference, rest_terms
@@ -455,7 +456,6 @@ def test_shared_launch_any_split_same_points(blocks):
     calling thread alone, by PoCL's workers alone or by both (device.launch_shared):
     bitwise the same result each way, equal to the reference; a last block that is
     partly filled and a padded last chunk included."""
-    from nrpose import device
     from nrpose.engine import BLOCK, LANES
 
     rng = np.random.default_rng(3)
@@ -466,12 +466,7 @@ def test_shared_launch_any_split_same_points(blocks):
     expected = ref.pose(pose)
     shared = dev.pose(pose).copy()
     assert np.abs(shared - expected).max() <= TOL * diag(points)
-    _, q = device.context()
-    wq = device.worker_queue()
-    runs = {"alone": {"workers": False}, "shared": {"workers": True}}
-    if wq is not None:
-        runs["workers only"] = {"queues": (None, wq)}
-    for name, kw in runs.items():
+    for name, kw in splits().items():
         dev._out.host[:] = np.nan
         dev.relaunch(**kw)
         dev._out.download()

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from launches import splits
 from scipy.spatial.transform import Rotation
 
 from nrpose.errors import InputError
@@ -138,11 +139,7 @@ def test_shared_launch_any_split_same_vertices(method):
         assert_close(shared[f], ref(rest, joints, weights, mats[f]))
     npad = d.n_groups * LANES
     want = shared.astype(np.float32)
-    wq = device.worker_queue()
-    runs = {"alone": {"workers": False}, "shared": {"workers": True}}
-    if wq is not None:
-        runs["workers only"] = {"queues": (None, wq)}
-    for name, kw in runs.items():
+    for name, kw in splits().items():
         d._out.host[:] = np.nan
         d.relaunch(**kw)
         d._out.download()
