@@ -245,7 +245,9 @@ class Roofs:
     # ------------------------------------------------------------------ pose kernel
     def pose_kernel_once(self, deformer) -> tuple[float, float]:
         """(prepare, pose) kernel times in seconds, re-running the deformer's last posing
-        on the profiling queues (the pose kernel's time spans the devices it ran on)."""
+        on the profiling queues: prepare spans the kernels before the pose kernel (the R_g
+        fit, when some point needs it, and nrmls_prepare); the pose kernel's time spans the
+        devices it ran on."""
         pre, events = deformer.relaunch(queues=self.queues)
         return span_s(pre), span_s(events)
 
@@ -291,7 +293,7 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
     reasons = []
     if outside >= 0.5:
         reasons.append(f"launch overhead and host work: {100 * outside:.0f} % of the pose wall time is outside "
-                       f"the pose kernel (prepare kernel {prepare_ms:.3f} ms, an empty kernel's enqueue + "
+                       f"the pose kernel (prepare kernels {prepare_ms:.3f} ms, an empty kernel's enqueue + "
                        f"wait {launch['wall_ms']:.3f} ms, pose upload and result copy)")
     if f_arith >= 0.3:
         kernel_bound = "arithmetic"

@@ -260,7 +260,7 @@ def reference_rotations(rest: HandleSet, pose: Pose, blend: str) -> Rotation:
 def global_rotation(rest: HandleSet, pose: Pose) -> np.ndarray:
     """R_g (3, 3): least-squares rotation of all handle positions (point handles
     and segment ends, unweighted) from rest to pose; see :func:`nrpose.rotation.kabsch`.
-    A deformer posing many frames keeps a :class:`GlobalRotation` instead."""
+    Posing many frames, keep a :class:`GlobalRotation`."""
     return GlobalRotation(rest)(pose)
 
 
@@ -273,25 +273,24 @@ class GlobalRotation:
     posed handle o (not the origin: the rest side sums to zero only to rounding,
     and far from the origin that rounding times |q| would reach the fit).
     Per pose that leaves two (3, M) products and
-    :func:`nrpose.rotation.covariance_rotation`, which a point-handle rig (every
-    point's reference is R_g) pays on every frame: with both changes its pose wall
-    time fell 11-27 % (Table-1 point rows, A/B interleaved).
+    :func:`nrpose.rotation.covariance_rotation`. The OpenCL deformer runs the
+    same fit on the device (kernels/global_fit.cl, :class:`nrpose.engine.GlobalFit`)
+    from ``centred`` and ``scale2``; this is its float64 reference.
+
+    centred: (M, 3) float64 rest positions (point handles, then segment ends) minus
+    their mean; scale2: the largest |component|² of ``centred`` (the scale of the
+    fit's tie tolerance, see covariance_rotation).
     """
 
     def __init__(self, rest: HandleSet):
         P0 = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
-        Pc = P0 - P0.mean(axis=0)
-        self._points, self._ends = Pc[: len(rest.points)], Pc[len(rest.points):]
-        self._scale2 = float(np.abs(Pc).max() ** 2)
+        self.centred = P0 - P0.mean(axis=0)
+        self.scale2 = float(np.abs(self.centred).max() ** 2)
 
     def __call__(self, pose: Pose) -> np.ndarray:
         h = pose.handles
-        ends = h.segments.reshape(-1, 3)
-        o = h.points[0] if len(h.points) else ends[0]
-        C = (h.points - o).T @ self._points
-        if len(ends):
-            C = C + (ends - o).T @ self._ends
-        return covariance_rotation(C, self._scale2)
+        q = np.concatenate([h.points, h.segments.reshape(-1, 3)])
+        return covariance_rotation((q - q[0]).T @ self.centred, self.scale2)
 
 
 def rotation_table(rest: HandleSet, pose: Pose, blend: str) -> tuple[np.ndarray, np.ndarray]:

@@ -5,12 +5,13 @@
 
 Binding computes :class:`nrpose.blend.RestTerms` in float64 on the host and
 uploads them once (float32) to the device; the kernel objects and buffers
-live as long as the deformer. A pose writes (P + 2S)·3 + 9(S + 1) floats of
-per-handle data (posed positions, the segments' rotations and the global
-rotation) into memory shared with the device and runs two kernels:
-``nrmls_prepare`` turns the rotations into the table the points use (relative
-rotation vectors, or sign-aligned quaternions for the quaternion blend),
-``nrmls_pose`` poses the points. The calling thread runs ``nrmls_prepare``
+live as long as the deformer. A pose writes (P + 2S)·3 + 9S floats of
+per-handle data (posed positions and the segments' rotations) into memory
+shared with the device and runs its kernels: ``global_rotation`` fits the
+global rotation R_g when some point takes it as its reference
+(:class:`GlobalFit`), ``nrmls_prepare`` turns the rotations into the table the
+points use (relative rotation vectors, or sign-aligned quaternions for the
+quaternion blend), ``nrmls_pose`` poses the points. The calling thread runs the first two
 and takes blocks of points of ``nrmls_pose`` alongside PoCL's worker threads
 (:func:`nrpose.device.launch_shared`), or alone when the launch is too small
 to be worth waking them (timed at bind). ``pose_frames`` does the same for F
@@ -101,8 +102,9 @@ class Deformer:
         quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
         self._derived_stride = (9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
                                 + 3 * P * (S + 1))
-        # R_g per pose, when some point takes the global rotation as its reference
-        self._global = GlobalRotation(self.rest) if blend != "paper" and bool((T.ref == S).any()) else None
+        # R_g per pose on the device, when some point takes the global rotation as its reference
+        self._global = (GlobalFit(self.rest, self._pose_stride, self._npos + 9 * S)
+                        if blend != "paper" and bool((T.ref == S).any()) else None)
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
@@ -135,9 +137,11 @@ class Deformer:
             return
         self._pose = device.HostArray(frames * self._pose_stride)
         blocks = self._pose.host.reshape(frames, self._pose_stride)
-        blocks[:, -9:] = np.eye(3).ravel()                      # R_g until a pose needs it
+        blocks[:, -9:] = np.eye(3).ravel()                      # R_g, unless GlobalFit writes it
         self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
         self._out = device.HostArray(frames * 3 * self._npad)
+        if self._global is not None:
+            self._global.kernel.set_arg(0, self._pose.arg)
         self._prepare.set_arg(4, self._pose.arg)
         self._prepare.set_arg(5, self._derived.arg)
         self._kernel.set_arg(5, self._pose.arg)
@@ -193,15 +197,17 @@ class Deformer:
 
     def relaunch(self, queues=None, workers: bool | None = None) -> tuple[list, list]:
         """Run the last posing's kernels again (same inputs, same result) and return their
-        events ``(prepare, pose)`` (:func:`nrpose.device.launch_shared`); queues: as there,
+        events ``(before, pose)``, before: the R_g fit (when some point needs it) and
+        ``nrmls_prepare`` (:func:`nrpose.device.launch_shared`); queues: as there,
         e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
         (default: when the launch's frames take at least ``device.SHARE_MIN_S`` alone, as
         timed at bind)."""
         S = len(self.rest.segments)
-        prepare = (self._prepare, (self._npairs + S + 1, self._batch), None)
+        before = [self._global.launch(self._batch)] if self._global is not None else []
+        before.append((self._prepare, (self._npairs + S + 1, self._batch), None))
         if workers is None:
             workers = self._batch * self._alone_s >= device.SHARE_MIN_S
-        return device.launch_shared(self._kernel, self._next, before=[prepare], queues=queues,
+        return device.launch_shared(self._kernel, self._next, before=before, queues=queues,
                                     workers=workers)
 
     def _run(self, poses: list) -> np.ndarray:
@@ -214,8 +220,6 @@ class Deformer:
             rows[: 3 * len(h.points)] = h.points.ravel()
             rows[3 * len(h.points): k] = h.segments.ravel()
             rows[k: k + pose.rotations.size] = pose.rotations.ravel()
-            if self._global is not None:
-                rows[k + pose.rotations.size:] = self._global(pose).ravel()
         self._pose.upload()
         if F != self._batch:
             self._kernel.set_arg(9, np.int32(F))
@@ -223,6 +227,56 @@ class Deformer:
         self.relaunch()
         self._out.download()
         return self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]
+
+
+class GlobalFit:
+    """R_g, the global rotation (:class:`nrpose.blend.GlobalRotation`, its float64
+    reference), fitted on the device by kernels/global_fit.cl for each frame of a
+    block of poses, where the pose kernels read it: no host work per pose (on the
+    host the fit took 60-130 µs of a point-handle pose).
+
+    rest: the rest handles; pose_stride: floats per frame of the pose array,
+    whose frames start with the M = P + 2S posed handle positions (xyz: point
+    handles, then segment ends); rg_offset: where in a frame R_g goes (9 floats,
+    row-major). ``kernel``: its argument 0 is the pose array, set by the caller.
+    """
+
+    def __init__(self, rest: HandleSet, pose_stride: int, rg_offset: int):
+        import pyopencl as cl
+
+        fit = GlobalRotation(rest)
+        ctx, _ = device.context()
+        self._rest = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                               hostbuf=np.ascontiguousarray(fit.centred, np.float64))
+        self.kernel = cl.Kernel(device.program("global_fit.cl"), "global_rotation")
+        self.kernel.set_args(None, self._rest, np.int32(len(fit.centred)), np.float64(fit.scale2),
+                             np.int32(pose_stride), np.int32(rg_offset))
+
+    def launch(self, frames: int) -> tuple:
+        """The launch ``(kernel, global size, local size)`` fitting ``frames`` frames."""
+        return self.kernel, (frames,), None
+
+    @classmethod
+    def fit(cls, rest: HandleSet, poses) -> np.ndarray:
+        """R_g (F, 3, 3) float32 of poses of ``rest`` fitted on the device on their own
+        (what a deformer's launches compute in place; for tests and diagnostics)."""
+        poses = list(poses)
+        M = len(rest.points) + 2 * len(rest.segments)
+        block = device.HostArray(max(len(poses), 1) * (3 * M + 9))
+        rows = block.host.reshape(-1, 3 * M + 9)
+        for f, p in enumerate(poses):
+            rest.same_layout(p.handles, "posed handles")
+            rows[f, : 3 * M] = np.concatenate([p.handles.points.ravel(), p.handles.segments.ravel()])
+        fit = cls(rest, 3 * M + 9, 3 * M)
+        fit.kernel.set_arg(0, block.arg)
+        block.upload()
+        _, queue = device.context()
+        if poses:
+            import pyopencl as cl
+
+            cl.enqueue_nd_range_kernel(queue, *fit.launch(len(poses)))
+        block.download()
+        return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
 
 
 def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> tuple[dict, int]:

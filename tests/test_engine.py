@@ -545,6 +545,62 @@ def test_global_rotation_fit(shape):
             assert np.abs(fit(pose) - R).max() < tol
 
 
+@pytest.mark.parametrize("shape", ["general", "noisy", "coplanar", "mirrored"])
+def test_global_fit_on_device(shape):
+    """The device's R_g fit (kernels/global_fit.cl) against the SVD oracle and its
+    float64 reference, several frames per launch. It reads float32 positions, so
+    the tolerance is float32 rounding amplified by the fit's conditioning, with rest
+    and pose up to 30 handle spans from the origin."""
+    from nrpose.blend import GlobalRotation
+    from nrpose.engine import GlobalFit
+
+    rng = np.random.default_rng(10 + ["general", "noisy", "coplanar", "mirrored"].index(shape))
+    for trial in range(12):
+        rest = random_rest(rng, int(rng.integers(1, 5)), int(rng.integers(1, 4)))
+        offset = rng.normal(size=3) * [0.0, 1.0, 10.0][trial % 3]
+        flat = [1, 1, 0] if shape == "coplanar" else [1, 1, 1]
+        rest = HandleSet.make(points=rest.points * flat + offset, segments=rest.segments * flat + offset)
+        P = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
+        poses, wants = [], []
+        for frame in range(3):
+            R = Rotation.random(random_state=rng).as_matrix()
+            Q = ((P * [-1, 1, 1]) if shape == "mirrored" else P) @ R.T + rng.normal(size=3) * 10
+            if shape == "noisy":
+                Q = Q + rng.normal(scale=0.2, size=Q.shape)
+            poses.append(Pose.make(rest, points=Q[: len(rest.points)], segments=Q[len(rest.points):].reshape(-1, 2, 3)))
+            want, tol = _svd_fit(P, Q, shape == "mirrored")
+            wants.append((want, 2e3 * tol + 1e-6))   # float32 positions: ~60x float64 rounding, offsets
+        got = GlobalFit.fit(rest, poses)
+        assert got.dtype == np.float32 and got.shape == (3, 3, 3)
+        for g, pose, (want, tol) in zip(got, poses, wants):
+            assert np.abs(g - want).max() < tol, (shape, trial)
+            assert np.abs(g - GlobalRotation(rest)(pose)).max() < tol, (shape, trial)
+
+
+def test_global_fit_on_device_ties():
+    """Non-unique fits on the device as in the reference: collinear handles take the
+    minimal rotation between the two lines, a single handle the identity."""
+    from nrpose.engine import GlobalFit
+    from nrpose.rotation import minimal_rotvec
+
+    rng = np.random.default_rng(6)
+    for trial in range(20):
+        a, b = rng.normal(size=3), rng.normal(size=3)
+        offset, move = rng.normal(size=(2, 3)) * [1.0, 10.0][trial % 2]
+        s = rng.uniform(0.1, 3.0)
+        line_p = np.array([[0.0, 0, 0], s * a]) + offset
+        line_q = np.array([[0.0, 0, 0], s * b / np.linalg.norm(b) * np.linalg.norm(a)]) + move
+        want = Rotation.from_rotvec(minimal_rotvec(a, b)).as_matrix()
+        two_points = HandleSet.make(points=line_p)
+        one_segment = HandleSet.make(segments=line_p[None])
+        assert np.abs(GlobalFit.fit(two_points, [Pose.make(two_points, points=line_q)])[0] - want).max() < 2e-5
+        assert np.abs(GlobalFit.fit(one_segment, [Pose.make(one_segment, segments=line_q[None])])[0]
+                      - want).max() < 2e-5
+        single = HandleSet.make(points=offset[None])
+        assert np.array_equal(GlobalFit.fit(single, [Pose.make(single, points=(offset + move)[None])])[0],
+                              np.eye(3, dtype=np.float32))
+
+
 def test_global_rotation_ties():
     """Fits that are not unique take the optimal rotation nearest the identity: for
     collinear handles (two point handles, one segment) the minimal rotation between
