@@ -154,6 +154,8 @@ class Deformer:
 
         out: optional (N, 3) array to write the result into (and return).
         """
+        if out is not None and np.shape(out) != (self.n, 3):
+            raise InputError(f"out: expected an array of shape {(self.n, 3)} (points, 3), got {np.shape(out)}")
         result = self.pose_frames([pose], None if out is None else out[None])[0]
         return result if out is None else out
 
@@ -167,6 +169,9 @@ class Deformer:
         for p in poses:
             self.rest.same_layout(p.handles, "posed handles")
         F = len(poses)
+        if out is not None and np.shape(out) != (F, self.n, 3):
+            raise InputError(f"out: expected an array of shape {(F, self.n, 3)} (frames, points, 3), "
+                             f"got {np.shape(out)}")
         if self.backend == "numpy":
             result = np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses]) if F \
                 else np.zeros((0, self.n, 3))

@@ -474,6 +474,21 @@ def test_shared_launch_any_split_same_points(blocks):
         assert np.array_equal(got, shared), name
 
 
+@pytest.mark.parametrize("backend", ["opencl", "numpy"])
+def test_pose_out_shape_is_checked(backend):
+    """``out=`` of the wrong shape is an InputError naming the expected shape."""
+    rng = np.random.default_rng(4)
+    rest = random_rest(rng, 1, 2)
+    dev = Deformer(rng.uniform(-1, 1, (13, 3)), rest, backend=backend)
+    pose = random_pose(rng, rest)
+    for bad in (np.zeros((13, 3), np.float32), np.zeros((1, 14, 3), np.float32)):
+        with pytest.raises(InputError, match=r"out: expected an array of shape \(1, 13, 3\)"):
+            dev.pose_frames([pose], out=bad)
+    with pytest.raises(InputError, match=r"out: expected an array of shape \(13, 3\)"):
+        dev.pose(pose, out=np.zeros((12, 3)))
+    assert np.array_equal(dev.pose(pose, out=np.zeros((13, 3))), dev.pose(pose))
+
+
 def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     """A bind times one frame of the pose kernel on the calling thread alone; launches
     whose frames take less than device.SHARE_MIN_S together are not shared."""
