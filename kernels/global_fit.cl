@@ -11,7 +11,8 @@
  * the top one: collinear handles leave a circle of optimal rotations, one
  * handle a sphere) take the optimal rotation nearest the identity, the
  * identity quaternion projected onto their eigenspace; when every optimal
- * rotation is a half turn (that projection vanishes), the top eigenvector.
+ * rotation is a half turn (that projection vanishes), the top eigenvector. The
+ * tie tolerance adds the float32 rounding of the posed positions (see below).
  * Everything in double precision after reading the float32 positions; the
  * 4x4 eigenproblem by cyclic Jacobi rotations.
  *
@@ -35,8 +36,10 @@ __kernel void global_rotation(__global float *pose, __global const double *rest,
     __global float *q = pose + get_global_id(0) * pose_stride;
     double c[3][3] = {{0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}, {0.0, 0.0, 0.0}};
     const double o0 = q[0], o1 = q[1], o2 = q[2];
+    double qmax = fmax(fabs(o0), fmax(fabs(o1), fabs(o2)));
     for (int k = 1; k < m; ++k) {     /* k = 0 adds (q_0 - o) p_0^T = 0 */
         const double d[3] = {q[3 * k] - o0, q[3 * k + 1] - o1, q[3 * k + 2] - o2};
+        qmax = fmax(qmax, fmax(fabs((double)q[3 * k]), fmax(fabs((double)q[3 * k + 1]), fabs((double)q[3 * k + 2]))));
         for (int i = 0; i < 3; ++i)
             for (int j = 0; j < 3; ++j)
                 c[i][j] += d[i] * rest[3 * k + j];
@@ -84,10 +87,14 @@ __kernel void global_rotation(__global float *pose, __global const double *rest,
     int top = 0;
     for (int k = 1; k < 4; ++k)
         top = a[k][k] > a[top][top] ? k : top;
-    /* the identity quaternion projected onto the optimal eigenspace */
+    /* the identity quaternion projected onto the optimal eigenspace. Tolerance: the
+     * reference's 1e-9 of the scale, plus what rounding the posed positions to float32
+     * moves N's eigenvalues by (|dC| <= m eps max|q| max|p|, |dN| <= 4 max|dC|...), so
+     * that ties made by the posed side (e.g. posed handles on one line) are ties here too */
+    const double tol = 1e-9 * scale + 16.0 * m * FLT_EPSILON * qmax * sqrt(scale2);
     double w = 0.0, x = 0.0, y = 0.0, z = 0.0;
     for (int k = 0; k < 4; ++k) {
-        if (a[k][k] >= a[top][top] - 1e-9 * scale) {
+        if (a[k][k] >= a[top][top] - tol) {
             w += v[0][k] * v[0][k]; x += v[1][k] * v[0][k]; y += v[2][k] * v[0][k]; z += v[3][k] * v[0][k];
         }
     }

@@ -272,7 +272,7 @@ class GlobalRotation:
     Σ (q_k − q̄) p_kᵀ = Σ (q_k − o) p_kᵀ for any o. They are taken relative to one
     posed handle o (not the origin: the rest side sums to zero only to rounding,
     and far from the origin that rounding times |q| would reach the fit).
-    Per pose that leaves two (3, M) products and
+    Per pose that leaves one (3, M) product and
     :func:`nrpose.rotation.covariance_rotation`. The OpenCL deformer runs the
     same fit on the device (kernels/global_fit.cl, :class:`nrpose.engine.GlobalFit`)
     from ``centred`` and ``scale2``; this is its float64 reference.

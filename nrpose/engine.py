@@ -11,8 +11,8 @@ shared with the device and runs its kernels: ``global_rotation`` fits the
 global rotation R_g when some point takes it as its reference
 (:class:`GlobalFit`), ``nrmls_prepare`` turns the rotations into the table the
 points use (relative rotation vectors, or sign-aligned quaternions for the
-quaternion blend), ``nrmls_pose`` poses the points. The calling thread runs the first two
-and takes blocks of points of ``nrmls_pose`` alongside PoCL's worker threads
+quaternion blend), ``nrmls_pose`` poses the points. The calling thread runs the kernels
+before ``nrmls_pose`` and takes blocks of points of ``nrmls_pose`` alongside PoCL's worker threads
 (:func:`nrpose.device.launch_shared`), or alone when the launch is too small
 to be worth waking them (timed at bind). ``pose_frames`` does the same for F
 poses in one launch of each.
@@ -26,7 +26,7 @@ import numpy as np
 
 from . import device
 from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers
-from .errors import InputError
+from .errors import DeviceError, InputError
 from .handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
@@ -251,6 +251,10 @@ class GlobalFit:
 
         fit = GlobalRotation(rest)
         ctx, _ = device.context()
+        if not all("cl_khr_fp64" in d.extensions for d in ctx.devices):
+            raise DeviceError("point-handle rigs fit their global rotation in double precision: the "
+                              "OpenCL device needs cl_khr_fp64 (PoCL's CPU devices have it); choose "
+                              "another device with PYOPENCL_CTX or use backend='numpy'")
         self._rest = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                                hostbuf=np.ascontiguousarray(fit.centred, np.float64))
         self.kernel = cl.Kernel(device.program("global_fit.cl"), "global_rotation")

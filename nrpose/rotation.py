@@ -107,8 +107,8 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     pair a sphere), and the one nearest the identity is taken: the identity
     quaternion projected onto their eigenspace. That is exact, where the old
     regularised SVD (C + εI) resolved it only to ~1e-5. One 4×4 ``eigh``
-    instead of an SVD and two determinants: measured right after a pose
-    kernel, R_g took ~70 µs against ~120 µs.
+    instead of an SVD and two determinants (~70 µs against ~120 µs per call).
+    kernels/global_fit.cl is its device twin for the OpenCL deformer's R_g.
     """
     scale = max(np.abs(C).max(), p_scale2, 1e-300)
     (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = C.tolist()
@@ -123,7 +123,7 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     # every optimal rotation a half turn (w = 0: e.g. collinear pairs reversed): any of them
     w, x, y, z = (q / norm).tolist() if norm > 1e-6 else vecs[:, 3].tolist()
     # the matrix of (w, x, y, z) written out: scipy's from_quat(...).as_matrix() gives the
-    # same to 1e-16 but costs ~27 µs against ~3.5 µs, on a path run once per pose
+    # same to 1e-16 but costs ~27 µs against ~3.5 µs
     return np.array([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],
                      [2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x)],
                      [2 * (x * z - w * y), 2 * (y * z + w * x), w * w - x * x - y * y + z * z]])

@@ -594,7 +594,9 @@ def test_global_fit_on_device(shape):
 
 def test_global_fit_on_device_ties():
     """Non-unique fits on the device as in the reference: collinear handles take the
-    minimal rotation between the two lines, a single handle the identity."""
+    minimal rotation between the two lines, a single handle the identity, and handles
+    posed on one line what the float64 reference takes."""
+    from nrpose.blend import GlobalRotation
     from nrpose.engine import GlobalFit
     from nrpose.rotation import minimal_rotvec
 
@@ -614,6 +616,12 @@ def test_global_fit_on_device_ties():
         single = HandleSet.make(points=offset[None])
         assert np.array_equal(GlobalFit.fit(single, [Pose.make(single, points=(offset + move)[None])])[0],
                               np.eye(3, dtype=np.float32))
+        # ties made by the pose: rest handles in general position, posed on one line
+        # (rank-1 covariance); float32 rounding of the posed side must not break the tie
+        spread = HandleSet.make(points=rng.normal(size=(4, 3)) + offset)
+        on_line = move + rng.normal(size=(4, 1)) * b
+        pose = Pose.make(spread, points=on_line)
+        assert np.abs(GlobalFit.fit(spread, [pose])[0] - GlobalRotation(spread)(pose)).max() < 2e-5, trial
 
 
 def test_global_rotation_ties():
@@ -640,3 +648,16 @@ def test_global_rotation_ties():
         assert np.abs(kabsch(line_p, line_q) - want).max() < 1e-9
         single = HandleSet.make(points=offset[None])
         assert np.abs(GlobalRotation(single)(Pose.make(single, points=(offset + move)[None])) - np.eye(3)).max() < 1e-12
+
+
+def test_global_fit_needs_double_precision(monkeypatch):
+    """A device without cl_khr_fp64 cannot fit R_g: a DeviceError that says so and what to do."""
+    from nrpose import DeviceError, device
+    from nrpose.engine import GlobalFit
+
+    class NoDoubles:
+        extensions = "cl_khr_global_int32_base_atomics cl_khr_byte_addressable_store"
+
+    monkeypatch.setattr(device, "context", lambda: (type("Ctx", (), {"devices": [NoDoubles()]})(), None))
+    with pytest.raises(DeviceError, match="cl_khr_fp64.*PYOPENCL_CTX"):
+        GlobalFit(HandleSet.make(points=np.eye(3)), 18, 9)
