@@ -530,6 +530,30 @@ def _svd_fit(P: np.ndarray, Q: np.ndarray, mirrored: bool) -> tuple[np.ndarray, 
     return U @ np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))]) @ Vt, 1e-12 + 1e-9 * sv[0] / gap
 
 
+def _fit_rest(rng, shape: str, offset_scale: float) -> tuple[HandleSet, np.ndarray]:
+    """Rest handles for the R_g fit tests (flat for "coplanar"), moved off the origin by
+    offset_scale, and their positions P (M, 3): point handles, then segment ends."""
+    rest = random_rest(rng, int(rng.integers(1, 5)), int(rng.integers(1, 4)))
+    offset = rng.normal(size=3) * offset_scale
+    flat = [1, 1, 0] if shape == "coplanar" else [1, 1, 1]
+    rest = HandleSet.make(points=rest.points * flat + offset, segments=rest.segments * flat + offset)
+    return rest, np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
+
+
+def _fit_target(rng, shape: str, P: np.ndarray, shift_scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """(R, Q): a random rotation and the posed positions Q = R P (mirrored first for
+    "mirrored", noisy for "noisy") shifted by a random vector times shift_scale."""
+    R = Rotation.random(random_state=rng).as_matrix()
+    Q = ((P * [-1, 1, 1]) if shape == "mirrored" else P) @ R.T + rng.normal(size=3) * shift_scale
+    if shape == "noisy":
+        Q = Q + rng.normal(scale=0.2, size=Q.shape)
+    return R, Q
+
+
+def _posed(rest: HandleSet, Q: np.ndarray) -> Pose:
+    return Pose.make(rest, points=Q[: len(rest.points)], segments=Q[len(rest.points):].reshape(-1, 2, 3))
+
+
 @pytest.mark.parametrize("shape", ["general", "noisy", "coplanar", "mirrored"])
 def test_global_rotation_fit(shape):
     """R_g (kabsch, and GlobalRotation's centred-once form) against an SVD oracle:
@@ -541,16 +565,9 @@ def test_global_rotation_fit(shape):
 
     rng = np.random.default_rng(["general", "noisy", "coplanar", "mirrored"].index(shape))
     for trial in range(24):
-        rest = random_rest(rng, int(rng.integers(1, 5)), int(rng.integers(1, 4)))
-        offset = rng.normal(size=3) * [1.0, 1e3, 1e6][trial % 3]
-        flat = [1, 1, 0] if shape == "coplanar" else [1, 1, 1]
-        rest = HandleSet.make(points=rest.points * flat + offset, segments=rest.segments * flat + offset)
-        P = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
-        R = Rotation.random(random_state=rng).as_matrix()
-        Q = ((P * [-1, 1, 1]) if shape == "mirrored" else P) @ R.T + rng.normal(size=3) * [1.0, 1e6][trial % 2]
-        if shape == "noisy":
-            Q = Q + rng.normal(scale=0.2, size=Q.shape)
-        pose = Pose.make(rest, points=Q[: len(rest.points)], segments=Q[len(rest.points):].reshape(-1, 2, 3))
+        rest, P = _fit_rest(rng, shape, [1.0, 1e3, 1e6][trial % 3])
+        R, Q = _fit_target(rng, shape, P, [1.0, 1e6][trial % 2])
+        pose = _posed(rest, Q)
         want, tol = _svd_fit(P, Q, shape == "mirrored")
         fit = GlobalRotation(rest)
         for got in (kabsch(P, Q), global_rotation(rest, pose), fit(pose)):
@@ -571,18 +588,11 @@ def test_global_fit_on_device(shape):
 
     rng = np.random.default_rng(10 + ["general", "noisy", "coplanar", "mirrored"].index(shape))
     for trial in range(12):
-        rest = random_rest(rng, int(rng.integers(1, 5)), int(rng.integers(1, 4)))
-        offset = rng.normal(size=3) * [0.0, 1.0, 10.0][trial % 3]
-        flat = [1, 1, 0] if shape == "coplanar" else [1, 1, 1]
-        rest = HandleSet.make(points=rest.points * flat + offset, segments=rest.segments * flat + offset)
-        P = np.concatenate([rest.points, rest.segments.reshape(-1, 3)])
+        rest, P = _fit_rest(rng, shape, [0.0, 1.0, 10.0][trial % 3])
         poses, wants = [], []
         for frame in range(3):
-            R = Rotation.random(random_state=rng).as_matrix()
-            Q = ((P * [-1, 1, 1]) if shape == "mirrored" else P) @ R.T + rng.normal(size=3) * 10
-            if shape == "noisy":
-                Q = Q + rng.normal(scale=0.2, size=Q.shape)
-            poses.append(Pose.make(rest, points=Q[: len(rest.points)], segments=Q[len(rest.points):].reshape(-1, 2, 3)))
+            _, Q = _fit_target(rng, shape, P, 10.0)
+            poses.append(_posed(rest, Q))
             want, tol = _svd_fit(P, Q, shape == "mirrored")
             wants.append((want, 2e3 * tol + 1e-6))   # float32 positions: ~60x float64 rounding, offsets
         got = GlobalFit.fit(rest, poses)
