@@ -186,8 +186,12 @@ def work_items(queues=None) -> list[tuple]:
 
 #: below this time of a kernel on the calling thread alone, waking the workers costs more
 #: than they save (2-core VM: a wake-up is 13-19 us of the calling thread's time and the
-#: worker starts 20-40 us later; the 6,006-point box, 0.03 ms alone, took 0.06 ms shared)
-SHARE_MIN_S = 60e-6
+#: worker starts 20-40 us later). Measured on subsets of the dragon, pose kernel alone vs
+#: shared (medians of 300 interleaved launches): 5 segments, 0.054 vs 0.063 ms at 9,000
+#: points, 0.074 vs 0.070 at 13,000; 5 point handles, 0.092 vs 0.095 ms at 4,000 points,
+#: 0.121 vs 0.110 at 6,000. At 60 us, the 6,006-point box's segment row (0.034-0.062 ms
+#: alone, timed at bind) was shared in some processes and then took 0.08-0.18 ms, not 0.05.
+SHARE_MIN_S = 90e-6
 
 
 def time_alone(run_alone, runs: int = 5) -> float:
