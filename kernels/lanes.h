@@ -45,14 +45,13 @@ static inline int or8(const int8 v)
     (q)[3 * (o).s7] = (x).s7; (q)[3 * (o).s7 + 1] = (y).s7; (q)[3 * (o).s7 + 2] = (z).s7; \
 } while (0)
 
-/* Store (x, y, z) of 8 consecutive rows, xyz interleaved, at q (24 floats; q
- * 4-byte aligned): three 8-float vector stores instead of 24 scalar ones. */
-typedef float float8u __attribute__((ext_vector_type(8), aligned(4)));
+/* Store (x, y, z) of 8 consecutive rows, xyz interleaved, at q (24 floats, q
+ * 32-byte aligned): three 8-float vector stores instead of 24 scalar ones. */
 #define STORE_XYZ8(x, y, z, q) do {                                                 \
-    __global float8u *v_ = (__global float8u *)(q);                                  \
-    v_[0] = (float8u)((x).s0, (y).s0, (z).s0, (x).s1, (y).s1, (z).s1, (x).s2, (y).s2); \
-    v_[1] = (float8u)((z).s2, (x).s3, (y).s3, (z).s3, (x).s4, (y).s4, (z).s4, (x).s5); \
-    v_[2] = (float8u)((y).s5, (z).s5, (x).s6, (y).s6, (z).s6, (x).s7, (y).s7, (z).s7); \
+    __global float8 *v_ = (__global float8 *)(q);                                    \
+    v_[0] = (float8)((x).s0, (y).s0, (z).s0, (x).s1, (y).s1, (z).s1, (x).s2, (y).s2); \
+    v_[1] = (float8)((z).s2, (x).s3, (y).s3, (z).s3, (x).s4, (y).s4, (z).s4, (x).s5); \
+    v_[2] = (float8)((y).s5, (z).s5, (x).s6, (y).s6, (z).s6, (x).s7, (y).s7, (z).s7); \
 } while (0)
 
 /* float8 of p[i.s0], ..., p[i.s7]. */

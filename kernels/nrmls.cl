@@ -470,13 +470,16 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
     const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
 #endif
-    /* 8 consecutive rows (every chunk of a point-handle rig, where all points share R_g):
-     * three vector stores; else 24 scalar ones */
+#if K == 0 && !defined(SPARSE)
+    /* no segments: points are stored in their own order, chunk g holds rows 8g..8g+7:
+     * three vector stores (point rows 3-5 % faster) */
+    STORE_XYZ8(ox, oy, oz, out + 24 * (size_t)g);
+#else
+    /* elsewhere the 8 rows are seldom consecutive (0.2-38 % of the chunks on the mesh
+     * rigs, mostly aligned; checking for them cost the segment rows 1-3 %) */
     const int8 o = LOADI8(1, ints);
-    if (SAME8(o - (int8)(0, 1, 2, 3, 4, 5, 6, 7)))
-        STORE_XYZ8(ox, oy, oz, out + 3 * o.s0);
-    else
-        STORE_ROWS(ox, oy, oz, out, o);
+    STORE_ROWS(ox, oy, oz, out, o);
+#endif
     }
     }
     }

@@ -96,31 +96,6 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
         assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
 
 
-@pytest.mark.parametrize("blend", ["relative", "paper", "quaternion"])
-def test_output_rows_contiguous_aligned_unaligned_and_scattered(blend):
-    """The kernel writes a chunk whose 8 stored points are 8 consecutive rows with three
-    vector stores (at any row, 8-aligned or not) and any other chunk row by row: every
-    kind against the reference, in both frames of a batch."""
-    from nrpose.engine import LANES, device_layout
-
-    rng = np.random.default_rng(17)
-    segs = np.array([[[0.0, 0, 0], [1, 0, 0]], [[5.0, 0, 0], [6, 0, 0]]])
-    rest = HandleSet.make((), segs)
-    near = lambda s, n: segs[s, 0] + [0.5, 0, 0] + rng.normal(scale=0.2, size=(n, 3))  # noqa: E731
-    points = np.concatenate([near(1, 13), near(0, 30), near(1, 7),
-                             rng.uniform([-1, -1, -1], [7, 1, 1], (50, 3))])
-    dev, ref = both(points, rest, blend=blend)
-    arrays, _ = device_layout(dev.terms, rest, None, dev.lever)
-    chunk_rows = arrays["row"].reshape(-1, LANES)
-    consecutive = (np.diff(chunk_rows, axis=1) == 1).all(axis=1)
-    assert (consecutive & (chunk_rows[:, 0] % LANES != 0)).any()
-    assert (consecutive & (chunk_rows[:, 0] % LANES == 0)).any() and not consecutive.all()
-    poses = [random_pose(rng, rest), random_pose(rng, rest)]
-    got = dev.pose_frames(poses)
-    for f, pose in enumerate(poses):
-        assert np.abs(got[f] - ref.pose(pose)).max() <= TOL * diag(points)
-
-
 def test_opencl_deformer_recomputes_its_dropped_rest_terms():
     """The OpenCL deformer does not hold its host copy of the rest terms after binding;
     ``terms`` recomputes them, equal to the numpy deformer's kept ones."""
@@ -497,6 +472,34 @@ def test_shared_launch_any_split_same_points(blocks):
         dev._out.download()
         got = dev._out.host[: 3 * dev._npad].reshape(-1, 3)[: len(points)]
         assert np.array_equal(got, shared), name
+
+
+@pytest.mark.parametrize("blend", ["relative", "quaternion"])
+def test_buffer_path_without_shared_memory(monkeypatch, blend):
+    """Where the device has no fine-grained SVM, every per-pose array is an ordinary
+    buffer that is copied to the device and back (device.HostArray) and the kernels run
+    on the calling thread's queue alone: a mixed rig whose point-handle points take R_g
+    (fitted on the device, into the uploaded pose buffer), single poses and batches that
+    regrow the arrays, bitwise as with SVM; R_g by GlobalFit.fit likewise."""
+    from nrpose import device
+    from nrpose.engine import GlobalFit
+
+    rng = np.random.default_rng(23)
+    rest = random_rest(rng, 3, 2)
+    points = rng.uniform(-1.5, 1.5, (777, 3))
+    svm, ref = both(points, rest, blend=blend)
+    poses = [random_pose(rng, rest) for _ in range(3)]
+    fits = GlobalFit.fit(rest, poses)
+    monkeypatch.setattr(device, "fine_grain_svm", lambda: False)
+    dev = Deformer(points, rest, blend=blend)
+    assert dev._global is not None and not dev._pose.svm and not dev._next.svm
+    for pose in poses:
+        got = dev.pose(pose)
+        assert np.array_equal(got, svm.pose(pose))
+        assert np.abs(got - ref.pose(pose)).max() <= TOL * diag(points)
+    assert np.array_equal(dev.pose_frames(poses), svm.pose_frames(poses))       # 3 frames: regrown
+    assert np.array_equal(dev.pose_frames(poses[1:]), svm.pose_frames(poses[1:]))
+    assert np.array_equal(GlobalFit.fit(rest, poses), fits)
 
 
 @pytest.mark.parametrize("backend", ["opencl", "numpy"])
