@@ -11,7 +11,8 @@
  * the top one: collinear handles leave a circle of optimal rotations, one
  * handle a sphere) take the optimal rotation nearest the identity, the
  * identity quaternion projected onto their eigenspace; when every optimal
- * rotation is a half turn (that projection vanishes), the top eigenvector. The
+ * rotation is a half turn (that projection vanishes), the one whose axis is
+ * nearest x, else y, else z, as the reference decides. The
  * tie tolerance adds the float32 rounding of the posed positions (see below).
  * Everything in double precision after reading the float32 positions; the
  * 4x4 eigenproblem by cyclic Jacobi rotations.
@@ -92,16 +93,20 @@ __kernel void global_rotation(__global float *pose, __global const double *rest,
      * moves N's eigenvalues by (|dC| <= m eps max|q| max|p|, |dN| <= 4 max|dC|...), so
      * that ties made by the posed side (e.g. posed handles on one line) are ties here too */
     const double tol = 1e-9 * scale + 16.0 * m * FLT_EPSILON * qmax * sqrt(scale2);
-    double w = 0.0, x = 0.0, y = 0.0, z = 0.0;
-    for (int k = 0; k < 4; ++k) {
-        if (a[k][k] >= a[top][top] - tol) {
-            w += v[0][k] * v[0][k]; x += v[1][k] * v[0][k]; y += v[2][k] * v[0][k]; z += v[3][k] * v[0][k];
+    double w, x, y, z, norm;
+    /* e = 0: the identity (1, 0, 0, 0) projected; when every optimal rotation is a half
+     * turn (that projection vanishes) the half turns about x, y, z (e = 1, 2, 3) in turn,
+     * the first projection at least 1/2 long: the reference's rule */
+    for (int e = 0; e < 4; ++e) {
+        w = 0.0; x = 0.0; y = 0.0; z = 0.0;
+        for (int k = 0; k < 4; ++k) {
+            if (a[k][k] >= a[top][top] - tol) {
+                w += v[0][k] * v[e][k]; x += v[1][k] * v[e][k]; y += v[2][k] * v[e][k]; z += v[3][k] * v[e][k];
+            }
         }
-    }
-    double norm = sqrt(w * w + x * x + y * y + z * z);
-    if (norm <= 1e-6) {
-        w = v[0][top]; x = v[1][top]; y = v[2][top]; z = v[3][top];
-        norm = 1.0;
+        norm = sqrt(w * w + x * x + y * y + z * z);
+        if (e == 0 ? norm > 1e-6 : norm >= 0.5)
+            break;
     }
     w /= norm; x /= norm; y /= norm; z /= norm;
     __global float *rg = q + rg_offset;

@@ -105,7 +105,8 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     an SVD of C). Ties: eigenvalues within 1e-9 of the scale of the top one
     count as optimal (collinear pairs leave a circle of optimal rotations, one
     pair a sphere), and the one nearest the identity is taken: the identity
-    quaternion projected onto their eigenspace. That is exact, where the old
+    quaternion projected onto their eigenspace (when all of them are half turns,
+    the one whose axis is nearest x, else y, else z). That is exact, where the old
     regularised SVD (C + εI) resolved it only to ~1e-5. One 4×4 ``eigh``
     instead of an SVD and two determinants (~70 µs against ~120 µs per call).
     kernels/global_fit.cl is its device twin for the OpenCL deformer's R_g.
@@ -120,8 +121,18 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     best = vecs[:, vals >= vals[3] - 1e-9 * scale]
     q = best @ best[0]                                 # identity quaternion (1, 0, 0, 0) projected
     norm = float(np.linalg.norm(q))
-    # every optimal rotation a half turn (w = 0: e.g. collinear pairs reversed): any of them
-    w, x, y, z = (q / norm).tolist() if norm > 1e-6 else vecs[:, 3].tolist()
+    if norm <= 1e-6:
+        # every optimal rotation a half turn (w = 0: e.g. collinear pairs reversed): the
+        # one whose axis is nearest x (the half turn about x, (0, 1, 0, 0), projected), or
+        # where that projection is shorter than 1/2 (axes nearly perpendicular to x) y,
+        # else z; one of the three is at least 1/sqrt(3) long. A rule rather than eigh's
+        # arbitrary pick, so that the device's fit (kernels/global_fit.cl) agrees.
+        for axis in (1, 2, 3):
+            q = best @ best[axis]
+            norm = float(np.linalg.norm(q))
+            if norm >= 0.5:
+                break
+    w, x, y, z = (q / norm).tolist()
     # the matrix of (w, x, y, z) written out: scipy's from_quat(...).as_matrix() gives the
     # same to 1e-16 but costs ~27 µs against ~3.5 µs
     return np.array([[w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y)],

@@ -688,6 +688,41 @@ def test_global_rotation_ties():
         assert np.abs(GlobalRotation(single)(Pose.make(single, points=(offset + move)[None])) - np.eye(3)).max() < 1e-12
 
 
+def test_global_fit_half_turn_ties():
+    """When every optimal rotation is a half turn (collinear handles posed reversed: a
+    circle of half turns about the axes perpendicular to the line), the reference and
+    the device both take the one whose axis is nearest x, or y where the line is within
+    30 degrees of x; a unique half turn (handles in general position turned by 180
+    degrees) is that turn on both."""
+    from nrpose.blend import GlobalRotation
+    from nrpose.engine import GlobalFit
+
+    rng = np.random.default_rng(29)
+    dirs = [rng.normal(size=3) for _ in range(6)] + [np.array([1.0, 0.1, -0.05]), np.array([1.0, 0, 0]),
+                                                      np.array([0, 0, 1.0])]
+    for trial, d in enumerate(dirs):
+        d = d / np.linalg.norm(d)
+        e = np.eye(3)[0 if abs(d[0]) <= np.sqrt(0.75) else 1]
+        n = e - (e @ d) * d
+        n /= np.linalg.norm(n)
+        want = 2 * np.outer(n, n) - np.eye(3)
+        offset, move = rng.normal(size=(2, 3)) * 5
+        line = offset + np.array([[0.0], [1.3]]) * d
+        reversed_line = move + np.array([[1.3], [0.0]]) * d
+        two_points, one_segment = HandleSet.make(points=line), HandleSet.make(segments=line[None])
+        for rest, pose in ((two_points, Pose.make(two_points, points=reversed_line)),
+                           (one_segment, Pose.make(one_segment, segments=reversed_line[None]))):
+            assert np.abs(GlobalRotation(rest)(pose) - want).max() < 1e-9, trial
+            assert np.abs(GlobalFit.fit(rest, [pose])[0] - want).max() < 2e-5, trial
+    for trial in range(5):
+        axis = rng.normal(size=3)
+        turn = Rotation.from_rotvec(np.pi * axis / np.linalg.norm(axis))
+        rest = HandleSet.make(points=rng.normal(size=(5, 3)))
+        pose = Pose.make(rest, points=turn.apply(rest.points) + rng.normal(size=3))
+        assert np.abs(GlobalRotation(rest)(pose) - turn.as_matrix()).max() < 1e-9, trial
+        assert np.abs(GlobalFit.fit(rest, [pose])[0] - turn.as_matrix()).max() < 2e-5, trial
+
+
 def test_global_fit_needs_double_precision(monkeypatch):
     """A device without cl_khr_fp64 cannot fit R_g: a DeviceError that says so and what to do."""
     from nrpose import DeviceError, device
