@@ -118,8 +118,9 @@ def pose_flops(P: int, K: int) -> dict:
                 *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(4))),
             "divisions_per_point": _total(DIVISIONS, P, K),
             "rule": "mul/add/sub = 1 flop (an FMA is 2); divisions counted as 1 each (listed under "
-                    "divisions_per_point); sqrt and atan2 are inline polynomials, counted by their "
-                    "operations; folded constants, "
+                    "divisions_per_point); sqrt and atan2 are inline code (rsqrt8, atan2pos8), counted by "
+                    "their operations as the x86 AVX build runs them (the rsqrtps estimate counted 1); "
+                    "folded constants, "
                     "integer index work, comparisons and select() not counted; counted per real "
                     "point (padding to a multiple of 8 not counted); DERIVED_LEVER build (default "
                     "lever rule)"}

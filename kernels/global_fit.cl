@@ -92,11 +92,16 @@ __kernel void global_rotation(__global float *pose, __global const double *rest,
      * reference's 1e-9 of the scale, plus what rounding the posed positions to float32
      * moves N's eigenvalues by (|dC| <= m eps max|q| max|p|, |dN| <= 4 max|dC|...), so
      * that ties made by the posed side (e.g. posed handles on one line) are ties here too */
-    const double tol = 1e-9 * scale + 16.0 * m * FLT_EPSILON * qmax * sqrt(scale2);
+    const double rounding = 16.0 * m * FLT_EPSILON * qmax * sqrt(scale2);
+    const double tol = 1e-9 * scale + rounding;
     double w, x, y, z, norm;
     /* e = 0: the identity (1, 0, 0, 0) projected; when every optimal rotation is a half
      * turn (that projection vanishes) the half turns about x, y, z (e = 1, 2, 3) in turn,
-     * the first projection at least 1/2 long: the reference's rule */
+     * the first projection at least 1/2 long: the reference's rule. "Vanishes": below
+     * the reference's 1e-6 plus the same float32 rounding relative to the scale (handles
+     * far from the origin, posed reversed on a line, left a noise projection of 1e-6 to
+     * 3e-6 at 100 handle spans out, which picked a noise half turn); on a unique optimum
+     * every projection gives the same rotation, so the threshold only matters in a tie */
     for (int e = 0; e < 4; ++e) {
         w = 0.0; x = 0.0; y = 0.0; z = 0.0;
         for (int k = 0; k < 4; ++k) {
@@ -105,7 +110,7 @@ __kernel void global_rotation(__global float *pose, __global const double *rest,
             }
         }
         norm = sqrt(w * w + x * x + y * y + z * z);
-        if (e == 0 ? norm > 1e-6 : norm >= 0.5)
+        if (e == 0 ? norm > 1e-6 + rounding / scale : norm >= 0.5)
             break;
     }
     w /= norm; x /= norm; y /= norm; z /= norm;

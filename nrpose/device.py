@@ -330,7 +330,9 @@ class HostArray:
             flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER
             if atomics:
                 flags |= cl.svm_mem_flags.SVM_ATOMICS
-            self.host = cl.svm_empty(ctx, flags, (size,), dtype)
+            # 128-byte aligned (pyopencl asks only for the element size): kernels store
+            # float8 rows at multiples of 32 bytes from the start (lanes.h STORE_XYZ8)
+            self.host = cl.svm_empty(ctx, flags, (size,), dtype, alignment=128)
             self.arg = cl.SVM(self.host)
         else:
             self.host = np.zeros(size, dtype)

@@ -124,9 +124,9 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     if norm <= 1e-6:
         # every optimal rotation a half turn (w = 0: e.g. collinear pairs reversed): the
         # one whose axis is nearest x (the half turn about x, (0, 1, 0, 0), projected), or
-        # where that projection is shorter than 1/2 (axes nearly perpendicular to x) y,
-        # else z; one of the three is at least 1/sqrt(3) long. A rule rather than eigh's
-        # arbitrary pick, so that the device's fit (kernels/global_fit.cl) agrees.
+        # where that projection is shorter than 1/2 (every optimal axis more than 60° from
+        # x) y, else z; the longest of the three is at least 1/sqrt(3). A rule rather than
+        # eigh's arbitrary pick, so that the device's fit (kernels/global_fit.cl) agrees.
         for axis in (1, 2, 3):
             q = best @ best[axis]
             norm = float(np.linalg.norm(q))

@@ -475,30 +475,38 @@ def test_shared_launch_any_split_same_points(blocks):
 
 
 @pytest.mark.parametrize("blend", ["relative", "quaternion"])
-def test_buffer_path_without_shared_memory(monkeypatch, blend):
+@pytest.mark.parametrize("n_pts,n_segs", [(3, 2), (4, 0)])
+def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     """Where the device has no fine-grained SVM, every per-pose array is an ordinary
     buffer that is copied to the device and back (device.HostArray) and the kernels run
     on the calling thread's queue alone: a mixed rig whose point-handle points take R_g
-    (fitted on the device, into the uploaded pose buffer), single poses and batches that
-    regrow the arrays, bitwise as with SVM; R_g by GlobalFit.fit likewise."""
+    (fitted on the device, into the uploaded pose buffer) and a rig of point handles
+    only (its vector stores), single poses and batches that regrow the arrays, bitwise
+    as with SVM (computed before SVM is switched off) and against the reference; R_g by
+    GlobalFit.fit likewise."""
     from nrpose import device
     from nrpose.engine import GlobalFit
 
     rng = np.random.default_rng(23)
-    rest = random_rest(rng, 3, 2)
+    rest = random_rest(rng, n_pts, n_segs)
     points = rng.uniform(-1.5, 1.5, (777, 3))
     svm, ref = both(points, rest, blend=blend)
     poses = [random_pose(rng, rest) for _ in range(3)]
+    singles = [svm.pose(p) for p in poses]
+    batches = [svm.pose_frames(poses), svm.pose_frames(poses[1:])]
     fits = GlobalFit.fit(rest, poses)
     monkeypatch.setattr(device, "fine_grain_svm", lambda: False)
     dev = Deformer(points, rest, blend=blend)
     assert dev._global is not None and not dev._pose.svm and not dev._next.svm
-    for pose in poses:
+    for pose, want in zip(poses, singles):
         got = dev.pose(pose)
-        assert np.array_equal(got, svm.pose(pose))
+        assert np.array_equal(got, want)
         assert np.abs(got - ref.pose(pose)).max() <= TOL * diag(points)
-    assert np.array_equal(dev.pose_frames(poses), svm.pose_frames(poses))       # 3 frames: regrown
-    assert np.array_equal(dev.pose_frames(poses[1:]), svm.pose_frames(poses[1:]))
+    assert not dev._out.svm
+    got = dev.pose_frames(poses)                                  # 3 frames: the arrays regrow
+    assert np.array_equal(got, batches[0])
+    assert np.abs(got - ref.pose_frames(poses)).max() <= TOL * diag(points)
+    assert np.array_equal(dev.pose_frames(poses[1:]), batches[1])
     assert np.array_equal(GlobalFit.fit(rest, poses), fits)
 
 
@@ -692,8 +700,9 @@ def test_global_fit_half_turn_ties():
     """When every optimal rotation is a half turn (collinear handles posed reversed: a
     circle of half turns about the axes perpendicular to the line), the reference and
     the device both take the one whose axis is nearest x, or y where the line is within
-    30 degrees of x; a unique half turn (handles in general position turned by 180
-    degrees) is that turn on both."""
+    30 degrees of x, also 1000 line lengths from the origin, where the device's float32
+    positions leave a noise projection of the identity; a unique half turn (handles in
+    general position turned by 180 degrees) is that turn on both."""
     from nrpose.blend import GlobalRotation
     from nrpose.engine import GlobalFit
 
@@ -706,14 +715,16 @@ def test_global_fit_half_turn_ties():
         n = e - (e @ d) * d
         n /= np.linalg.norm(n)
         want = 2 * np.outer(n, n) - np.eye(3)
-        offset, move = rng.normal(size=(2, 3)) * 5
+        far = [5.0, 100.0, 1000.0][trial % 3]     # up to ~1000 line lengths out
+        offset, move = rng.normal(size=(2, 3)) * far
+        tol = 2e-5 * max(1.0, far / 30)          # float32 positions: ulp(far) / line length
         line = offset + np.array([[0.0], [1.3]]) * d
         reversed_line = move + np.array([[1.3], [0.0]]) * d
         two_points, one_segment = HandleSet.make(points=line), HandleSet.make(segments=line[None])
         for rest, pose in ((two_points, Pose.make(two_points, points=reversed_line)),
                            (one_segment, Pose.make(one_segment, segments=reversed_line[None]))):
             assert np.abs(GlobalRotation(rest)(pose) - want).max() < 1e-9, trial
-            assert np.abs(GlobalFit.fit(rest, [pose])[0] - want).max() < 2e-5, trial
+            assert np.abs(GlobalFit.fit(rest, [pose])[0] - want).max() < tol, trial
     for trial in range(5):
         axis = rng.normal(size=3)
         turn = Rotation.from_rotvec(np.pi * axis / np.linalg.norm(axis))
