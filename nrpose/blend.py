@@ -162,13 +162,17 @@ def _check_matrix(m, shape, what: str) -> np.ndarray:
 
 
 def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight",
-               distances=None, weights=None, k: int | None = None) -> RestTerms:
-    """Rest-only terms of the blend for points (N, 3) and rest handles.
+               distances=None, weights=None, k: int | None = None, per_block=None):
+    """Rest-only terms of the blend for points (N, 3) and rest handles: RestTerms.
 
     distances: optional (N, H) distances replacing the Euclidean ones (e.g.
     geodesic). weights: optional (N, H) non-negative weights used as w_i
     directly (e.g. authored skin weights); excludes ``distances``. k: keep
     only the k most influential handles of each point (None: all).
+    per_block: optional function of the RestTerms of a block of points returning
+    a dict of per-point arrays (first axis: the block's points); then the result
+    is that dict for all points, and the dense (N, H) terms never exist for all
+    points at once (the OpenCL deformer's bind, :func:`nrpose.engine.slot_terms`).
     """
     v = check_points(points)
     alpha = check_alpha(alpha)
@@ -185,11 +189,13 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
                              "every point needs at least one influencing handle")
     elif distances is not None:
         d_all = _check_matrix(distances, (n, H), "distances")
-    def block(a: int) -> tuple[slice, RestTerms]:
+    def block(a: int) -> tuple[slice, dict]:
         b = slice(a, min(a + BLOCK, n))
         given = w_all[b] if weights is not None else None
         dist = d_all[b] if distances is not None else None
-        return b, _rest_block(v[b], rest, alpha, lever, dist, given, k)
+        T = _rest_block(v[b], rest, alpha, lever, dist, given, k)
+        return b, (per_block(T) if per_block is not None
+                   else {f: getattr(T, f) for f in RestTerms.__dataclass_fields__})
 
     # bounded memory: (block, H, 3) temporaries, results filled in place; blocks run on
     # the machine's cores (numpy releases the GIL in the array operations)
@@ -198,12 +204,11 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     workers = min(len(starts), os.cpu_count() or 1, MAX_WORKERS)
     with concurrent.futures.ThreadPoolExecutor(workers) if workers > 1 else contextlib.nullcontext() as pool:
         for b, blk in (pool.map(block, starts) if pool is not None else map(block, starts)):
-            for f in RestTerms.__dataclass_fields__:
-                part = getattr(blk, f)
+            for f, part in blk.items():
                 if f not in out:
                     out[f] = np.empty((n,) + part.shape[1:], part.dtype)
                 out[f][b] = part
-    return RestTerms(**out)
+    return out if per_block is not None else RestTerms(**out)
 
 
 #: points per block of rest_terms' computation

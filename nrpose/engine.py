@@ -3,8 +3,9 @@
     deformer = Deformer(points, rest_handles, alpha=1.0)        # bind: rest-only work
     posed = deformer.pose(pose)                                   # per frame: (N, 3)
 
-Binding computes :class:`nrpose.blend.RestTerms` in float64 on the host and
-uploads them once (float32) to the device; the kernel objects and buffers
+Binding computes :class:`nrpose.blend.RestTerms` in float64 on the host, block
+by block, keeps what the kernel uses (:func:`slot_terms`) and uploads it once
+(float32) to the device; the kernel objects and buffers
 live as long as the deformer. A pose writes (P + 2S)·3 + 9S floats of
 per-handle data (posed positions and the segments' rotations) into memory
 shared with the device and runs its kernels: ``global_rotation`` fits the
@@ -47,10 +48,12 @@ class Deformer:
     its coefficients) instead of all S segments.
 
     ``terms``: the :class:`nrpose.blend.RestTerms` (float64, dense (N, H)). The
-    numpy backend keeps them; the OpenCL deformer drops its host copy once they
-    are on the device (a bound 1M-point, 65-bone cloud then holds 0.6 GB of
-    host memory instead of 2.1 GB) and ``terms`` recomputes them from the
-    arrays given at bind, which it keeps by reference.
+    numpy backend keeps them. The OpenCL deformer never holds them for all points:
+    it computes them block by block and keeps of each block only what the kernel
+    uses (:func:`slot_terms`), then uploads that; ``terms`` recomputes them from
+    the arrays given at bind, which it keeps by reference. Binding a 1M-point,
+    65-bone cloud with k = 8 peaks at 0.9 GB of host memory (2.5 GB while the
+    dense terms were built first) and holds 0.5 GB once bound.
     """
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
@@ -66,11 +69,17 @@ class Deformer:
         self.backend = backend
         self.k = k
         self._bind_inputs = (points, alpha, lever, distances, weights, k)
-        self._terms: RestTerms | None = rest_terms(points, rest, alpha, lever, distances, weights, k)
-        self.n = len(self._terms.u)
         if backend == "opencl":
-            self._bind_device()
-            self._terms = None            # on the device now (see the class docstring)
+            # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
+            # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
+            kept = rest_terms(points, rest, alpha, lever, distances, weights, k,
+                              per_block=lambda T: slot_terms(T, rest, k, lever))
+            self._terms: RestTerms | None = None
+            self.n = len(kept["u"])
+            self._bind_device(kept)
+        else:
+            self._terms = rest_terms(points, rest, alpha, lever, distances, weights, k)
+            self.n = len(self._terms.u)
 
     @property
     def terms(self) -> RestTerms:
@@ -81,13 +90,16 @@ class Deformer:
         return rest_terms(points, self.rest, alpha, lever, distances, weights, k)
 
     # -- device ---------------------------------------------------------------
-    def _bind_device(self) -> None:
+    def _bind_device(self, kept: dict) -> None:
+        """Upload the per-point terms the kernel keeps (:func:`slot_terms`, all points)."""
         import pyopencl as cl
 
         ctx, self._queue = device.context()
-        T, blend = self._terms, self.blend
+        blend = self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
-        arrays, K = device_layout(T, self.rest, self.k, self.lever)
+        refs_global = bool((kept["ref"] == S).any())
+        arrays, K = device_layout(kept, self.rest, self.lever)
+        del kept
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
@@ -104,7 +116,7 @@ class Deformer:
                                 + 3 * P * (S + 1))
         # R_g per pose on the device, when some point takes the global rotation as its reference
         self._global = (GlobalFit(self.rest, self._pose_stride, self._npos + 9 * S)
-                        if blend != "paper" and bool((T.ref == S).any()) else None)
+                        if blend != "paper" and refs_global else None)
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
@@ -189,7 +201,8 @@ class Deformer:
         dense). On OpenCL they are read back from the bound device buffer (diagnostics:
         bench/roofline.py counts the chunks whose 8 lanes disagree)."""
         if self.backend == "numpy":
-            arrays, K = device_layout(self._terms, self.rest, self.k, self.lever)
+            kept = slot_terms(self._terms, self.rest, self.k, self.lever)
+            arrays, K = device_layout(kept, self.rest, self.lever)
             return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
         import pyopencl as cl
 
@@ -288,17 +301,54 @@ class GlobalFit:
         return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
 
 
-def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> tuple[dict, int]:
+def slot_terms(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> dict:
+    """What the pose kernel keeps of the rest terms T of some points, in their order
+    (float64, per point): ``u`` (n, 3); ``ref`` (n,); ``slot`` (n, K) int64, the K
+    segment slots, only with top-k sparsity (k < S: the point's K = k heaviest segments,
+    ties to the lower index, listed by index; dense, slot k is segment k); ``coef`` (n, P + 2K), the q*
+    coefficients: point handles' w, then per slot w(1 - t), w t on the segment's posed
+    ends; ``phat`` (n, P, 3); with the "paper" lever rule ``lever`` (n, P + K), the
+    normalised levers (other rules derive them in the kernel). Computed block by block
+    at bind (:func:`nrpose.blend.rest_terms` ``per_block``), so that the dense (n, H)
+    terms never exist for all points at once."""
+    n, P, S = len(T.u), T.phat.shape[1], T.t.shape[1]
+    ws, t = T.weights[:, P:], T.t
+    K = S if k is None or k >= S else int(k)
+    if K < S:
+        # rest_terms keeps at most k = K non-zero weights per point, so nearly every row's
+        # slots are its non-zero segments: taken from the non-zero pattern; rows with fewer
+        # (filled with their lowest-index zero ones) or more are sorted
+        nz = ws != 0
+        full = nz.sum(axis=1) == K
+        slot = np.empty((n, K), np.int64)
+        slot[full] = np.nonzero(nz[full])[1].reshape(-1, K)
+        if not full.all():
+            slot[~full] = np.sort(np.argsort(-ws[~full], axis=1, kind="stable")[:, :K], axis=1)
+    take = (lambda a: np.take_along_axis(a, slot, axis=1)) if K < S else (lambda a: a)  # noqa: E731
+    wk, tk = take(ws), take(t)
+    kept = {"u": T.u, "ref": T.ref, "phat": T.phat,
+            "coef": np.concatenate([T.weights[:, :P], np.stack([wk * (1 - tk), wk * tk], 2).reshape(n, 2 * K)], 1)}
+    if K < S:
+        kept["slot"] = slot
+    if lever == "paper":
+        kept["lever"] = np.concatenate([T.lever[:, :P], take(T.lever[:, P:])], 1)
+    return kept
+
+
+def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
     """The per-point arrays that kernels/nrmls.cl binds, as rows of all points
     (:func:`chunk_records` packs them into its chunk-major records; its header
     states the rows), and the number K of segment slots per point (S when
-    dense, k < S with top-k sparsity).
+    dense, k < S with top-k sparsity). kept: :func:`slot_terms` of all points.
 
     Points are stored sorted by reference rotation, then by their slots, so
     that a work-item's 8 lanes share them; ``row`` sends each back to the
     caller's row. Returns float32/int32 arrays padded to a multiple of 8 points.
     """
-    n, P, S = len(T.u), T.phat.shape[1], T.t.shape[1]
+    n, P, S = len(kept["u"]), len(rest.points), len(rest.segments)
+    refs = kept["ref"]
+    slots = kept.get("slot")
+    K = S if slots is None else slots.shape[1]
     npad = -(-n // LANES) * LANES
 
     def soa(rows: np.ndarray) -> np.ndarray:  # (rows, N) -> (rows, Npad) float32
@@ -306,43 +356,29 @@ def device_layout(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> t
         out[:, :n] = rows
         return out
 
-    w, t, ws = T.weights, T.t, T.weights[:, P:]
-    K = S if k is None or k >= S else int(k)
-    if K < S:
-        # the K heaviest segments of each point (ties: lower index), listed by segment
-        # index. rest_terms keeps at most k = K non-zero weights per point, so nearly every
-        # row's are its non-zero segments: taken from the non-zero pattern; rows with fewer
-        # (filled with their lowest-index zero ones) or more are sorted
-        nz = ws != 0
-        full = nz.sum(axis=1) == K
-        slots = np.empty((n, K), np.int64)
-        slots[full] = np.nonzero(nz[full])[1].reshape(-1, K)
-        if not full.all():
-            slots[~full] = np.sort(np.argsort(-ws[~full], axis=1, kind="stable")[:, :K], axis=1)
-        order = np.lexsort(tuple(slots.T[::-1]) + (T.ref,))
-    else:
-        slots = np.broadcast_to(np.arange(S), (n, S))
-        order = np.argsort(T.ref, kind="stable")
-    take = lambda a: np.take_along_axis(a, slots, axis=1)[order]  # noqa: E731
-    wk, tk = take(ws), take(t)
-    coef = np.concatenate([w[order, :P].T, np.stack([wk * (1 - tk), wk * tk], 2).reshape(n, 2 * K).T])
+    order = np.lexsort(tuple(slots.T[::-1]) + (refs,)) if K < S else np.argsort(refs, kind="stable")
     ref = np.full(npad, S, np.int32)
-    ref[:n] = T.ref[order]
+    ref[:n] = refs[order]
     row = np.arange(npad, dtype=np.int32)
     row[:n] = order
     slot = np.zeros((K, npad), np.int32)
-    slot[:, :n] = slots[order].T
+    if K < S:
+        slot[:, :n] = slots[order].T
     # the (reference, segment) pairs of the rotation table that some point uses
-    used = np.unique(T.ref[:, None].astype(np.int64) * (S + 1) + slots) if S else np.zeros(0, np.int64)
+    if not S:
+        used = np.zeros(0, np.int64)
+    elif K == S:
+        used = (np.unique(refs).astype(np.int64)[:, None] * (S + 1) + np.arange(S)).ravel()
+    else:
+        used = np.unique(refs[:, None].astype(np.int64) * (S + 1) + slots)
     none = np.zeros(1, np.float32)
     arrays = {
-        "u": soa(T.u[order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
-        "coef": soa(coef),
+        "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
+        "coef": soa(kept["coef"][order].T),
         # levers other than "paper" are derived in the kernel from coef and len2
-        "lever": none if lever != "paper" else soa(np.concatenate([T.lever[order, :P].T,
-                                                                     take(T.lever[:, P:]).T])),
+        "lever": soa(kept["lever"][order].T) if lever == "paper" else none,
         "len2": segment_levers(rest, lever).astype(np.float32) if S else none,
-        "phat": soa(T.phat[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
+        "phat": soa(kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
                   else np.zeros(2, np.int32)),
     }

@@ -81,13 +81,13 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
     """The kernel takes R_ref^T q_p from the per-pose table where a chunk's 8 points share
     their reference rotation and rotates q_p - q* per lane where they do not: both paths
     against the reference, on a layout that has both kinds of chunk."""
-    from nrpose.engine import LANES, device_layout
+    from nrpose.engine import LANES, device_layout, slot_terms
 
     rng = np.random.default_rng(7)
     rest = random_rest(rng, 3, 4)
     points = rng.uniform(-1.5, 1.5, (2001, 3))
     dev, ref = both(points, rest, blend=blend)
-    arrays, _ = device_layout(dev.terms, rest, None, dev.lever)
+    arrays, _ = device_layout(slot_terms(dev.terms, rest, None, dev.lever), rest, dev.lever)
     chunks = arrays["ref"].reshape(-1, LANES)
     shared = (chunks == chunks[:, :1]).all(axis=1)
     assert shared.any() and not shared.all()
@@ -116,10 +116,10 @@ def test_opencl_deformer_recomputes_its_dropped_rest_terms():
 
 
 def test_sparse_slots_are_the_heaviest_segments():
-    """device_layout's K slots per point are its K heaviest segments (ties: lower index),
-    listed by index, for rows with exactly K, fewer (points on a handle) and more (dense
-    rest terms laid out sparse) non-zero segment weights."""
-    from nrpose.engine import device_layout
+    """The K slots per point (slot_terms, stored by device_layout) are its K heaviest
+    segments (ties: lower index), listed by index, for rows with exactly K, fewer (points
+    on a handle) and more (dense rest terms laid out sparse) non-zero segment weights."""
+    from nrpose.engine import device_layout, slot_terms
 
     rng = np.random.default_rng(8)
     rest = random_rest(rng, 2, 7)
@@ -128,7 +128,7 @@ def test_sparse_slots_are_the_heaviest_segments():
     seen = set()
     for k in (1, 3, 5):
         for terms in (rest_terms(points, rest, k=k), rest_terms(points, rest)):
-            arrays, K = device_layout(terms, rest, k, "weight")
+            arrays, K = device_layout(slot_terms(terms, rest, k, "weight"), rest, "weight")
             ws = terms.weights[:, 2:]
             expect = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
             stored = arrays["slot"][:, :len(points)].T
