@@ -96,6 +96,26 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
         assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
 
 
+@pytest.mark.parametrize("k,lever", [(None, "weight"), (3, "weight"), (3, "paper"), (None, "paper")])
+def test_kept_terms_block_by_block_equal_the_whole(monkeypatch, k, lever):
+    """The OpenCL bind keeps, block by block, what the kernel uses of the rest terms
+    (rest_terms(per_block=slot_terms)): the same arrays as slot_terms of the whole
+    dense terms, over several blocks computed on threads, with points on handles."""
+    from nrpose import blend
+    from nrpose.engine import slot_terms
+
+    rng = np.random.default_rng(19)
+    rest = random_rest(rng, 2, 6)
+    points = rng.uniform(-1.2, 1.2, (1001, 3))
+    points[:4] = rest.segments[1, 0]
+    whole = slot_terms(rest_terms(points, rest, 1.5, lever, k=k), rest, k, lever)
+    monkeypatch.setattr(blend, "BLOCK", 96)
+    blocks = rest_terms(points, rest, 1.5, lever, k=k, per_block=lambda T: slot_terms(T, rest, k, lever))
+    assert blocks.keys() == whole.keys() and ("slot" in blocks) == (k is not None)
+    for key in whole:
+        assert np.array_equal(blocks[key], whole[key]), key
+
+
 def test_opencl_deformer_recomputes_its_dropped_rest_terms():
     """The OpenCL deformer does not hold its host copy of the rest terms after binding;
     ``terms`` recomputes them, equal to the numpy deformer's kept ones."""
