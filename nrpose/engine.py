@@ -122,6 +122,7 @@ class Deformer:
         # it on disk) at the first bind of that configuration in a process
         options = ((f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
                    + (("-DDERIVED_LEVER",) if self.lever != "paper" else ()) + (("-DQUAT_BLEND",) if quat else ()))
+        self._options = options
         prg = device.program("nrmls.cl", options)
         self._prepare = cl.Kernel(prg, "nrmls_prepare")
         self._prepare.set_args(np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),
@@ -129,12 +130,10 @@ class Deformer:
                                np.int32(self._derived_stride))
         self._kernel = cl.Kernel(prg, "nrmls_pose")
         self._next = device.HostArray(1, dtype=np.int32, atomics=True)   # the shared block counter
-        b = self._bufs
-        self._kernel.set_args(np.int32(npad), np.int32(S), b["frec"], b["irec"],
-                              b["len2"], None, None, None, np.int32(BLOCK), np.int32(1), np.int32(self._pose_stride),
-                              np.int32(self._derived_stride), self._next.arg)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         self._batch = 1       # frames per launch, as last set on the pose kernel
+        self._reserve(1)
+        self._kernel.set_args(*self._pose_args())
         # PoCL compiles a kernel's work-group function at its first launch on each
         # device (~0.5 s): pay that at bind, not in the first frame
         self._alone_s = float("inf")
@@ -142,6 +141,29 @@ class Deformer:
         # one frame's pose kernel on the calling thread alone: small launches are not shared
         self._alone_s = device.time_alone(
             lambda: device.launch_shared(self._kernel, self._next, workers=False))
+
+    def _pose_args(self) -> list:
+        """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl)."""
+        b = self._bufs
+        return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
+                self._pose.arg, self._derived.arg, self._out.arg, np.int32(BLOCK), np.int32(self._batch),
+                np.int32(self._pose_stride), np.int32(self._derived_stride), self._next.arg]
+
+    def pose_kernel_variant(self, source: str):
+        """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl)
+        with this deformer's build options and bound to its arguments as they are now:
+        ``relaunch(pose_kernel=...)`` runs it in place of the deformer's own
+        (bench/kernel_ab.py). A batch larger than any before replaces the per-frame
+        arrays and leaves it stale. DeviceError if it does not build."""
+        import pyopencl as cl
+
+        try:
+            prg = cl.Program(device.context()[0], device.with_headers(source)).build(options=list(self._options))
+            kernel = cl.Kernel(prg, "nrmls_pose")
+        except (cl.RuntimeError, cl.LogicError) as exc:
+            raise DeviceError(f"the nrmls_pose variant does not build: {exc}") from None
+        kernel.set_args(*self._pose_args())
+        return kernel
 
     def _reserve(self, frames: int) -> None:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames."""
@@ -213,20 +235,21 @@ class Deformer:
         slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
         return rec[:, 0].ravel(), slots
 
-    def relaunch(self, queues=None, workers: bool | None = None) -> tuple[list, list]:
+    def relaunch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> tuple[list, list]:
         """Run the last posing's kernels again (same inputs, same result) and return their
         events ``(before, pose)``, before: the R_g fit (when some point needs it) and
         ``nrmls_prepare`` (:func:`nrpose.device.launch_shared`); queues: as there,
         e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
         (default: when the launch's frames take at least ``device.SHARE_MIN_S`` alone, as
-        timed at bind)."""
+        timed at bind); pose_kernel: a :meth:`pose_kernel_variant` to run instead of
+        the deformer's own."""
         S = len(self.rest.segments)
         before = [self._global.launch(self._batch)] if self._global is not None else []
         before.append((self._prepare, (self._npairs + S + 1, self._batch), None))
         if workers is None:
             workers = self._batch * self._alone_s >= device.SHARE_MIN_S
-        return device.launch_shared(self._kernel, self._next, before=before, queues=queues,
-                                    workers=workers)
+        return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._next,
+                                    before=before, queues=queues, workers=workers)
 
     def _run(self, poses: list) -> np.ndarray:
         """Launch the prepare and pose kernels for the poses; a view of the output array."""

@@ -169,3 +169,36 @@ def test_steal_percent_from_cpu_time_counters():
     assert common.steal_percent(None, after) is None and common.steal_percent(before, before) is None
     now = common.cpu_times()
     assert now is None or (len(now) == 8 and all(x >= 0 for x in now))
+
+
+def test_kernel_ab(tmp_path, monkeypatch, capsys):
+    """bench/kernel_ab.py on the box (project-generated, no shared data): the shipped
+    kernel against itself (both outputs exactly the deformer's), a variant whose output
+    differs (reported, not hidden), and bad input (a missing file, a variant that does
+    not build): exit 2 with one line."""
+    import importlib
+
+    monkeypatch.syspath_prepend(str(pathlib.Path(__file__).resolve().parent.parent / "bench"))
+    kernel_ab = importlib.import_module("kernel_ab")
+    shipped = kernel_ab.SHIPPED.read_text()
+    changed = tmp_path / "changed.cl"
+    changed.write_text(shipped.replace("0.9999999913f", "0.99f"))        # Rodrigues' sinc, off by 1 %
+    for kind in ("points", "segments"):
+        out = tmp_path / f"{kind}.json"
+        assert kernel_ab.main([str(kernel_ab.SHIPPED), "--kind", kind, "--launches", "3", "--json", str(out)]) == 0
+        doc = json.loads(out.read_text())
+        assert doc["schema"] == "nrpose-bench-kernel-ab/1" and doc["row"]["points"] == 6006
+        assert doc["row"]["kind"] == kind and doc["launches"] == 3
+        assert _stats_ok(doc["base_ms"]) and _stats_ok(doc["variant_ms"]) and doc["variant_ms"]["n"] == 3
+        assert _finite_positive(doc["base_over_variant"])
+        assert doc["max_diff_rel_bbox"] == {"base": 0.0, "variant": 0.0}
+        assert doc["files"]["base"]["sha256"] == doc["files"]["variant"]["sha256"]
+        assert kernel_ab.main([str(changed), "--kind", kind, "--launches", "2", "--json", str(out)]) == 0
+        assert json.loads(out.read_text())["max_diff_rel_bbox"]["variant"] > 1e-4
+    capsys.readouterr()
+    broken = tmp_path / "broken.cl"
+    broken.write_text(shipped.replace("__kernel void nrmls_pose(", "__kernel void nrmls_pose_renamed("))
+    for args, what in (([str(tmp_path / "missing.cl")], "no such file"), ([str(broken)], "does not build")):
+        assert kernel_ab.main(args + ["--launches", "2"]) == 2
+        err = capsys.readouterr().err
+        assert what in err and err.count("\n") == 1, err

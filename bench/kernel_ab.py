@@ -1,0 +1,124 @@
+"""Kernel A/B: a variant of kernels/nrmls.cl against the shipped one, in one process.
+
+    python bench/kernel_ab.py VARIANT.cl [--base BASE.cl] [--model box] [--kind points]
+                              [--launches 400] [--json OUT.json]
+
+Why: on the shared 2-core VM a single thread's speed differs by up to ~1.4x between
+processes and drifts within one (the box's segment kernel alone: 33 µs in some
+processes, 45-47 µs in others, same CPU), so comparing old and new code in alternated
+processes resolves only large changes. Here one deformer is bound for a Table-1 row
+(bench/table1.py's model, handles and a pose of that row), both kernels are built with
+its build options and bound to its arrays (``Deformer.pose_kernel_variant``), each
+one's output is checked against the deformer's own, and they are launched alternately,
+``--launches`` times each, on the calling thread alone (``relaunch(workers=False,
+pose_kernel=...)``: the same prepare kernels, then the variant; no worker wake-up), so
+that both see the same machine. A 2-5 % difference between kernels shows up reliably.
+
+Reported (and written with ``--json``): for base and variant, the median, p10, p90 of
+the launches in ms, the ratio of the medians base / variant (> 1: the variant is
+faster) and the largest difference of each output from the deformer's own, relative
+to the model's bounding-box diagonal; the device, the git commit, the files' SHA-256.
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import pathlib
+import sys
+import time
+from importlib import resources
+
+import numpy as np
+
+import common
+import table1
+from nrpose.engine import Deformer
+from nrpose.errors import NrposeError
+from nrpose.handles import Pose
+
+SHIPPED = pathlib.Path(str(resources.files("nrpose.kernels").joinpath("nrmls.cl")))
+
+
+def row_deformer(model: str, kind: str, data: pathlib.Path) -> tuple[Deformer, np.ndarray, float]:
+    """(deformer bound for the Table-1 row, its output for the row's first pose, bbox diagonal)."""
+    name, count, handles, _, rel = next(r for r in table1.TABLE1 if r[0] == model)
+    v, _ = table1.load_model(name, count, rel, data, False)
+    rest = table1.chain_handles(v, handles) if kind == "segments" else table1.fps_handles(v, handles)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    rng = np.random.default_rng(0)
+    args = table1.chain_pose_args(rest, rng) if kind == "segments" else table1.point_pose_args(rest, rng, diag)
+    deformer = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
+    return deformer, deformer.pose(Pose.make(rest, **args)).copy(), diag
+
+
+def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box", kind: str = "points",
+        launches: int = 400, data: pathlib.Path = table1.DEFAULT_DATA) -> dict:
+    """The A/B record (see the module docstring)."""
+    deformer, want, diag = row_deformer(model, kind, pathlib.Path(data))
+    files = {"base": pathlib.Path(base), "variant": pathlib.Path(variant)}
+    kernels, max_diff = {}, {}
+    for which, path in files.items():
+        kernels[which] = deformer.pose_kernel_variant(path.read_text())
+        deformer.relaunch(workers=False, pose_kernel=kernels[which])
+        deformer._out.download()
+        got = deformer._out.host[: 3 * deformer._npad].reshape(-1, 3)[: deformer.n]
+        max_diff[which] = float(np.abs(got - want).max() / diag)
+    times: dict[str, list[float]] = {"base": [], "variant": []}
+    for _ in range(launches):
+        for which, kernel in kernels.items():
+            t = time.perf_counter()
+            deformer.relaunch(workers=False, pose_kernel=kernel)
+            times[which].append(time.perf_counter() - t)
+    ms = {which: common.stats(t) for which, t in times.items()}
+    return {
+        "schema": "nrpose-bench-kernel-ab/1",
+        "timestamp": common.now(), "git_commit": common.git("rev-parse", "HEAD"),
+        "environment": common.environment(),
+        "row": {"model": model, "kind": kind, "points": deformer.n,
+                "handles": deformer.rest.count, "build_options": list(deformer._options)},
+        "files": {which: {"path": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest()}
+                  for which, p in files.items()},
+        "launches": launches,
+        "timing": "relaunch(workers=False, pose_kernel=...) on the calling thread, base and variant "
+                  "alternated; ms per launch (prepare kernels + pose kernel + enqueue/wait)",
+        "base_ms": ms["base"], "variant_ms": ms["variant"],
+        "base_over_variant": ms["base"]["median"] / ms["variant"]["median"],
+        "max_diff_rel_bbox": max_diff,
+    }
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("variant", help="the variant of kernels/nrmls.cl (a .cl file)")
+    ap.add_argument("--base", default=str(SHIPPED), help="the kernel to compare against (default: shipped)")
+    ap.add_argument("--model", default="box", choices=[r[0] for r in table1.TABLE1])
+    ap.add_argument("--kind", default="points", choices=table1.KINDS)
+    ap.add_argument("--launches", type=int, default=400, help="launches of each kernel (default 400)")
+    ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (meshes/...)")
+    ap.add_argument("--json", help="write the record here too")
+    a = ap.parse_args(argv)
+    for path in (a.variant, a.base):
+        if not pathlib.Path(path).is_file():
+            print(f"kernel_ab: {path}: no such file (give a .cl file)", file=sys.stderr)
+            return 2
+    if a.launches < 1:
+        print("kernel_ab: --launches must be at least 1", file=sys.stderr)
+        return 2
+    try:
+        doc = run(pathlib.Path(a.variant), pathlib.Path(a.base), a.model, a.kind, a.launches, pathlib.Path(a.data))
+    except NrposeError as exc:
+        print(f"kernel_ab: {exc}", file=sys.stderr)
+        return 2
+    b, v = doc["base_ms"], doc["variant_ms"]
+    print(f"{a.model} {a.kind}: base {b['median']:.4f} ms (p10 {b['p10']:.4f}), variant {v['median']:.4f} ms "
+          f"(p10 {v['p10']:.4f}); base/variant {doc['base_over_variant']:.3f}; max |diff| / bbox "
+          f"base {doc['max_diff_rel_bbox']['base']:.1e}, variant {doc['max_diff_rel_bbox']['variant']:.1e}")
+    if a.json:
+        common.atomic_write(pathlib.Path(a.json), (json.dumps(doc, indent=1) + "\n").encode())
+        print(f"wrote {a.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
