@@ -84,9 +84,9 @@ FLOP_COUNT = {
     "point handle: y = R_ref^T q_p - Y* (3 sub; R_ref^T q_p is per-pose table data)": (3, 0, 0, 0),
     "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0, 0),
     "point handle: |c|^2 (3 mul + 2 add)": (5, 0, 0, 0),
-    "point handle: 1/|c| by rsqrt8 as built on x86 with AVX (denormal pre-scale 1 mul, the rsqrtps "
-    "estimate 1, one Newton step of 4 mul + 1 sub, post-scale 1 mul; the portable build's bit-trick "
-    "seed + 3 Newton steps would be 17), |c| = |c|^2 * that (1 mul)": (9, 0, 0, 0),
+    "point handle: 1/|c| by rsqrt8_normal as built on x86 with AVX (the rsqrtps estimate 1, one "
+    "Newton step of 4 mul + 1 sub; the portable build's bit-trick seed + 3 Newton steps would be 15), "
+    "|c| = |c|^2 * that (1 mul)": (7, 0, 0, 0),
     "point handle: phat.y (3 mul + 2 add)": (5, 0, 0, 0),
     "point handle: atan2pos8 (lo/hi 1 div, t = a*a, t^2 and t^4 2 mul, degree-7 polynomial in t by "
     "Estrin's scheme 7 mul + 7 add, *a, 2 octant subs)": (21, 0, 0, 0),

@@ -58,28 +58,35 @@ static inline int or8(const int8 v)
 #define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \
                                 (p)[(i).s4], (p)[(i).s5], (p)[(i).s6], (p)[(i).s7]))
 
-/* 1/sqrt(x) for finite x >= 0 without PoCL's out-of-line rsqrt/sqrt calls. On x86
- * with AVX: the hardware estimate (rsqrtps, relative error <= 3.7e-4) and one Newton
- * step (-> ~1e-7); point rows' pose wall 1.01-1.12x faster than the portable way
- * (alternated processes). Elsewhere (or built with -DPORTABLE_RSQRT): the exponent-halving bit trick, then three Newton
- * steps (relative error 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding). The seed needs a normal float: denormal x
- * (< 2^-126; |c|^2 of a point handle on a model ~1e-19 across) is scaled by 2^64
- * first and the result by 2^32. rsqrt8(0) is large but finite (~1.9e29, so that
- * 0 * rsqrt8(0) = 0); infinite x gives a wrong value (callers use finite x). */
+/* 1/sqrt(x) for a normal float x > 0 (x >= FLT_MIN, finite) without PoCL's out-of-line
+ * rsqrt/sqrt calls. On x86 with AVX: the hardware estimate (rsqrtps, relative error
+ * <= 3.7e-4) and one Newton step (-> ~1e-7); point rows' pose wall 1.01-1.12x faster
+ * than the portable way (alternated processes). Elsewhere (or built with
+ * -DPORTABLE_RSQRT): the exponent-halving bit trick, then three Newton steps (relative
+ * error 3.4e-2 -> 1.7e-3 -> 4.4e-6 -> float rounding). 0 and denormal x give a wrong
+ * (on AVX non-finite) value: callers that can meet them mask those lanes, or use rsqrt8. */
+static inline float8 rsqrt8_normal(const float8 x)
+{
+#if defined(__AVX__) && !defined(PORTABLE_RSQRT)
+    const float8 y = __builtin_ia32_rsqrtps256(x);
+    return y * (1.5f - 0.5f * x * y * y);
+#else
+    float8 y = as_float8((int8)0x5f375a86 - (as_int8(x) >> 1));
+    y = y * (1.5f - 0.5f * x * y * y);
+    y = y * (1.5f - 0.5f * x * y * y);
+    return y * (1.5f - 0.5f * x * y * y);
+#endif
+}
+
+/* 1/sqrt(x) for finite x >= 0: rsqrt8_normal, with denormal x (< 2^-126; |c|^2 of a
+ * point handle on a model ~1e-19 across) scaled by 2^64 first and the result by 2^32.
+ * rsqrt8(0) is large but finite (2^95, so that 0 * rsqrt8(0) = 0); infinite x gives a
+ * wrong value (callers use finite x). */
 static inline float8 rsqrt8(const float8 x)
 {
     const int8 tiny = x < 1.17549435e-38f;
     const float8 xs = tiny ? x * 18446744073709551616.0f : x;          /* 2^64 */
-#if defined(__AVX__) && !defined(PORTABLE_RSQRT)
-    /* rsqrtps(0) is +inf: 0 (and scaled denormals that flushed to 0) take 2^-126 */
-    const float8 xp = xs > 0.0f ? xs : (float8)1.17549435e-38f;
-    float8 y = __builtin_ia32_rsqrtps256(xp);
-    y = y * (1.5f - 0.5f * xp * y * y);
-#else
-    float8 y = as_float8((int8)0x5f375a86 - (as_int8(xs) >> 1));
-    y = y * (1.5f - 0.5f * xs * y * y);
-    y = y * (1.5f - 0.5f * xs * y * y);
-    y = y * (1.5f - 0.5f * xs * y * y);
-#endif
+    /* 0 (and scaled denormals that flushed to 0) take 2^-126 */
+    const float8 y = rsqrt8_normal(xs > 0.0f ? xs : (float8)1.17549435e-38f);
     return (tiny ? (float8)4294967296.0f : (float8)1.0f) * y;                    /* 2^32 */
 }

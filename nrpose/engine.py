@@ -394,14 +394,20 @@ def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
         used = (np.unique(refs).astype(np.int64)[:, None] * (S + 1) + np.arange(S)).ravel()
     else:
         used = np.unique(refs[:, None].astype(np.int64) * (S + 1) + slots)
+    # phat and len2 scaled by 2^-e and 2^-2e, e the binary exponent of phat's largest
+    # |component|: exact, the kernel's blend does not change (it uses phat's direction and
+    # levers normalised per point), and |phat x y|^2 stays a normal float32 on tiny models
+    # (kernels/nrmls.cl, the point-handle loop)
+    big = float(np.abs(kept["phat"]).max()) if P and n else 0.0
+    scale = 2.0 ** -np.frexp(big)[1] if big > 0 else 1.0
     none = np.zeros(1, np.float32)
     arrays = {
         "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
         "coef": soa(kept["coef"][order].T),
         # levers other than "paper" are derived in the kernel from coef and len2
         "lever": soa(kept["lever"][order].T) if lever == "paper" else none,
-        "len2": segment_levers(rest, lever).astype(np.float32) if S else none,
-        "phat": soa(kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
+        "len2": (segment_levers(rest, lever) * scale ** 2).astype(np.float32) if S else none,
+        "phat": soa(scale * kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
                   else np.zeros(2, np.int32)),
     }

@@ -130,8 +130,9 @@ def test_fresh_process_context():
 def test_rsqrt8_against_float64():
     """kernels/lanes.h rsqrt8, both ways (x86's estimate + one Newton step, and the
     portable bit trick + three, forced by -DPORTABLE_RSQRT), against float64 1/sqrt:
-    within 3e-7 relative from denormals to 1e30, and 0 * rsqrt8(0) = 0 (finite). On
-    x86-64 the two builds differ in some bits (the switch took effect)."""
+    within 3e-7 relative from denormals to 1e30, and 0 * rsqrt8(0) = 0 (finite); its
+    core rsqrt8_normal likewise on normal floats. On x86-64 the two builds differ in
+    some bits (the switch took effect)."""
     import platform
 
     import pyopencl as cl
@@ -139,7 +140,9 @@ def test_rsqrt8_against_float64():
     ctx, queue = device.context()
     src = device.with_headers('#include "lanes.h"\n'
                               "__kernel void rs(__global const float8 *x, __global float8 *y)\n"
-                              "{ y[get_global_id(0)] = rsqrt8(x[get_global_id(0)]); }\n")
+                              "{ y[get_global_id(0)] = rsqrt8(x[get_global_id(0)]); }\n"
+                              "__kernel void rs_normal(__global const float8 *x, __global float8 *y)\n"
+                              "{ y[get_global_id(0)] = rsqrt8_normal(x[get_global_id(0)]); }\n")
     rng = np.random.default_rng(1)
     x = np.concatenate([[0.0, 1e-45, 3e-40, 1.1754942e-38, 1.2e-38, 1e-30, 1.0, 4.0, 1e30],
                         10.0 ** rng.uniform(-37, 30, 1000)]).astype(np.float32)
@@ -149,12 +152,19 @@ def test_rsqrt8_against_float64():
     yb = cl.Buffer(ctx, mf.WRITE_ONLY, x.nbytes)
     results = []
     for options in ([], ["-DPORTABLE_RSQRT"]):
-        cl.Program(ctx, src).build(options=options).rs(queue, (len(x) // 8,), None, xb, yb)
+        prg = cl.Program(ctx, src).build(options=options)
+        prg.rs(queue, (len(x) // 8,), None, xb, yb)
         y = np.empty_like(x)
         cl.enqueue_copy(queue, y, yb)
         assert np.isfinite(y).all() and y[0] > 1e18 and np.float32(0) * y[0] == 0, options
         pos = x > 0
         assert np.abs(y[pos] / (1.0 / np.sqrt(x[pos].astype(np.float64))) - 1).max() < 3e-7, options
         results.append(y)
+        # rsqrt8_normal, for normal x only: the same to 3e-7 there
+        normal = x >= np.float32(1.17549435e-38)
+        prg.rs_normal(queue, (len(x) // 8,), None, xb, yb)
+        yn = np.empty_like(x)
+        cl.enqueue_copy(queue, yn, yb)
+        assert np.abs(yn[normal] / (1.0 / np.sqrt(x[normal].astype(np.float64))) - 1).max() < 3e-7, options
     if platform.machine() in ("x86_64", "AMD64"):
         assert not np.array_equal(*results)

@@ -173,12 +173,13 @@ def test_kernel_matches_reference_large_point_handle_angles(angle):
         assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
 
 
-@pytest.mark.parametrize("scale", [1e-9, 1e-6, 1e8])
+@pytest.mark.parametrize("scale", [1e-12, 1e-9, 1e-6, 1e8])
 @pytest.mark.parametrize("lever", ["weight", "paper"])
 def test_kernel_matches_reference_tiny_and_huge_models(scale, lever):
-    """Point handles on models 1e-9 to 1e8 across: |p̂ × ŷ|² is denormal on the tiny
-    ones, where the kernel's inline sqrt must still be right (kernels/nrmls.cl sqrt8). Below
-    ~1e-9 float32 denormals lose digits in the levers too (the builtin sqrt did no better)."""
+    """Point handles on models 1e-12 to 1e8 across: |p̂ × ŷ|² and |p̂|² would be denormal
+    on the tiny ones; the device binds p̂ scaled by a power of two (engine.device_layout),
+    which keeps them normal floats (before, a model 1e-12 across was posed 10 % of its
+    size off)."""
     rng = np.random.default_rng(int(-np.log10(scale)) + 40)
     rest = random_rest(rng, 5, 0)
     points = rng.uniform(-1.5, 1.5, (301, 3))
