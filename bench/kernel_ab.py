@@ -22,10 +22,13 @@ to the model's bounding-box diagonal; the device, the git commit, the files' SHA
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import json
+import os
 import pathlib
 import sys
+import tempfile
 import time
 from importlib import resources
 
@@ -38,6 +41,21 @@ from nrpose.errors import NrposeError
 from nrpose.handles import Pose
 
 SHIPPED = pathlib.Path(str(resources.files("nrpose.kernels").joinpath("nrmls.cl")))
+
+
+@contextlib.contextmanager
+def compiler_quiet():
+    """File descriptor 2 into a temporary file for the block: PoCL's compiler writes its
+    diagnostics there directly; the build error reaches the user through DeviceError."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as sink:
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
 
 
 def row_deformer(model: str, kind: str, data: pathlib.Path) -> tuple[Deformer, np.ndarray, float]:
@@ -59,7 +77,8 @@ def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box",
     files = {"base": pathlib.Path(base), "variant": pathlib.Path(variant)}
     kernels, max_diff = {}, {}
     for which, path in files.items():
-        kernels[which] = deformer.pose_kernel_variant(path.read_text())
+        with compiler_quiet():
+            kernels[which] = deformer.pose_kernel_variant(path.read_text())
         deformer.relaunch(workers=False, pose_kernel=kernels[which])
         deformer._out.download()
         got = deformer._out.host[: 3 * deformer._npad].reshape(-1, 3)[: deformer.n]

@@ -73,7 +73,7 @@ class Deformer:
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
             # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
             kept = rest_terms(points, rest, alpha, lever, distances, weights, k,
-                              per_block=lambda T: slot_terms(T, rest, k, lever))
+                              per_block=lambda T: slot_terms(T, k, lever))
             self._terms: RestTerms | None = None
             self.n = len(kept["u"])
             self._bind_device(kept)
@@ -150,19 +150,21 @@ class Deformer:
                 np.int32(self._pose_stride), np.int32(self._derived_stride), self._next.arg]
 
     def pose_kernel_variant(self, source: str):
-        """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl)
-        with this deformer's build options and bound to its arguments as they are now:
-        ``relaunch(pose_kernel=...)`` runs it in place of the deformer's own
-        (bench/kernel_ab.py). A batch larger than any before replaces the per-frame
-        arrays and leaves it stale. DeviceError if it does not build."""
+        """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl,
+        with the shipped headers pasted) with this deformer's build options:
+        ``relaunch(pose_kernel=...)`` binds it to the deformer's current arguments and runs
+        it in place of the deformer's own (bench/kernel_ab.py). DeviceError, naming the
+        first compiler error, if it does not build or does not take nrmls_pose's arguments."""
         import pyopencl as cl
 
         try:
             prg = cl.Program(device.context()[0], device.with_headers(source)).build(options=list(self._options))
             kernel = cl.Kernel(prg, "nrmls_pose")
-        except (cl.RuntimeError, cl.LogicError) as exc:
-            raise DeviceError(f"the nrmls_pose variant does not build: {exc}") from None
-        kernel.set_args(*self._pose_args())
+            kernel.set_args(*self._pose_args())
+        except (cl.RuntimeError, cl.LogicError, TypeError) as exc:
+            errors = [line.strip() for line in str(exc).splitlines() if "error:" in line]
+            raise DeviceError("the nrmls_pose variant does not build or take nrmls_pose's arguments: "
+                              + (errors[0] if errors else str(exc).splitlines()[0])) from None
         return kernel
 
     def _reserve(self, frames: int) -> None:
@@ -223,7 +225,7 @@ class Deformer:
         dense). On OpenCL they are read back from the bound device buffer (diagnostics:
         bench/roofline.py counts the chunks whose 8 lanes disagree)."""
         if self.backend == "numpy":
-            kept = slot_terms(self._terms, self.rest, self.k, self.lever)
+            kept = slot_terms(self._terms, self.k, self.lever)
             arrays, K = device_layout(kept, self.rest, self.lever)
             return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
         import pyopencl as cl
@@ -248,6 +250,8 @@ class Deformer:
         before.append((self._prepare, (self._npairs + S + 1, self._batch), None))
         if workers is None:
             workers = self._batch * self._alone_s >= device.SHARE_MIN_S
+        if pose_kernel is not None:
+            pose_kernel.set_args(*self._pose_args())   # the current arrays and batch size
         return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._next,
                                     before=before, queues=queues, workers=workers)
 
@@ -324,7 +328,7 @@ class GlobalFit:
         return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
 
 
-def slot_terms(T: RestTerms, rest: HandleSet, k: int | None, lever: str) -> dict:
+def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:
     """What the pose kernel keeps of the rest terms T of some points, in their order
     (float64, per point): ``u`` (n, 3); ``ref`` (n,); ``slot`` (n, K) int64, the K
     segment slots, only with top-k sparsity (k < S: the point's K = k heaviest segments,
@@ -400,13 +404,18 @@ def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
     # (kernels/nrmls.cl, the point-handle loop)
     big = float(np.abs(kept["phat"]).max()) if P and n else 0.0
     scale = 2.0 ** -np.frexp(big)[1] if big > 0 else 1.0
+    len2 = segment_levers(rest, lever) if S else np.zeros(0)
+    if len2.size and len2.max() > 0:
+        # at most 2^50 / the longest lever: where every p* sits on a point handle, phat is
+        # rounding residue (~1e-19) and its scale would overflow len2 * scale^2 in float32
+        scale = min(scale, 2.0 ** (50 - np.frexp(np.sqrt(len2.max()))[1]))
     none = np.zeros(1, np.float32)
     arrays = {
         "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
         "coef": soa(kept["coef"][order].T),
         # levers other than "paper" are derived in the kernel from coef and len2
         "lever": soa(kept["lever"][order].T) if lever == "paper" else none,
-        "len2": (segment_levers(rest, lever) * scale ** 2).astype(np.float32) if S else none,
+        "len2": (len2 * scale ** 2).astype(np.float32) if S else none,
         "phat": soa(scale * kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
                   else np.zeros(2, np.int32)),

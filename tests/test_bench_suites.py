@@ -171,11 +171,12 @@ def test_steal_percent_from_cpu_time_counters():
     assert now is None or (len(now) == 8 and all(x >= 0 for x in now))
 
 
-def test_kernel_ab(tmp_path, monkeypatch, capsys):
+def test_kernel_ab(tmp_path, monkeypatch, capfd):
     """bench/kernel_ab.py on the box (project-generated, no shared data): the shipped
     kernel against itself (both outputs exactly the deformer's), a variant whose output
-    differs (reported, not hidden), and bad input (a missing file, a variant that does
-    not build): exit 2 with one line."""
+    differs (reported, not hidden), and bad input (a missing file, a variant with a
+    syntax error, one without nrmls_pose, one whose nrmls_pose takes other arguments):
+    exit 2 with one line on stderr (the compiler's own diagnostics included)."""
     import importlib
 
     monkeypatch.syspath_prepend(str(pathlib.Path(__file__).resolve().parent.parent / "bench"))
@@ -195,10 +196,16 @@ def test_kernel_ab(tmp_path, monkeypatch, capsys):
         assert doc["files"]["base"]["sha256"] == doc["files"]["variant"]["sha256"]
         assert kernel_ab.main([str(changed), "--kind", kind, "--launches", "2", "--json", str(out)]) == 0
         assert json.loads(out.read_text())["max_diff_rel_bbox"]["variant"] > 1e-4
-    capsys.readouterr()
-    broken = tmp_path / "broken.cl"
-    broken.write_text(shipped.replace("__kernel void nrmls_pose(", "__kernel void nrmls_pose_renamed("))
-    for args, what in (([str(tmp_path / "missing.cl")], "no such file"), ([str(broken)], "does not build")):
+    capfd.readouterr()
+    variants = {"renamed": shipped.replace("__kernel void nrmls_pose(", "__kernel void nrmls_pose_renamed("),
+                "syntax": shipped.replace("const float8 ux = LOAD8(0, u)", "const float8 ux = LOAD8(0, u) +"),
+                "arguments": shipped.replace("volatile __global int *next)", "volatile __global int *next, const int extra)")}
+    cases = [([str(tmp_path / "missing.cl")], "no such file")]
+    for name, text in variants.items():
+        assert text != shipped, name
+        (tmp_path / f"{name}.cl").write_text(text)
+        cases.append(([str(tmp_path / f"{name}.cl")], "does not build"))
+    for args, what in cases:
         assert kernel_ab.main(args + ["--launches", "2"]) == 2
-        err = capsys.readouterr().err
+        err = capfd.readouterr().err
         assert what in err and err.count("\n") == 1, err

@@ -87,7 +87,7 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
     rest = random_rest(rng, 3, 4)
     points = rng.uniform(-1.5, 1.5, (2001, 3))
     dev, ref = both(points, rest, blend=blend)
-    arrays, _ = device_layout(slot_terms(dev.terms, rest, None, dev.lever), rest, dev.lever)
+    arrays, _ = device_layout(slot_terms(dev.terms, None, dev.lever), rest, dev.lever)
     chunks = arrays["ref"].reshape(-1, LANES)
     shared = (chunks == chunks[:, :1]).all(axis=1)
     assert shared.any() and not shared.all()
@@ -108,9 +108,9 @@ def test_kept_terms_block_by_block_equal_the_whole(monkeypatch, k, lever):
     rest = random_rest(rng, 2, 6)
     points = rng.uniform(-1.2, 1.2, (1001, 3))
     points[:4] = rest.segments[1, 0]
-    whole = slot_terms(rest_terms(points, rest, 1.5, lever, k=k), rest, k, lever)
+    whole = slot_terms(rest_terms(points, rest, 1.5, lever, k=k), k, lever)
     monkeypatch.setattr(blend, "BLOCK", 96)
-    blocks = rest_terms(points, rest, 1.5, lever, k=k, per_block=lambda T: slot_terms(T, rest, k, lever))
+    blocks = rest_terms(points, rest, 1.5, lever, k=k, per_block=lambda T: slot_terms(T, k, lever))
     assert blocks.keys() == whole.keys() and ("slot" in blocks) == (k is not None)
     for key in whole:
         assert np.array_equal(blocks[key], whole[key]), key
@@ -148,7 +148,7 @@ def test_sparse_slots_are_the_heaviest_segments():
     seen = set()
     for k in (1, 3, 5):
         for terms in (rest_terms(points, rest, k=k), rest_terms(points, rest)):
-            arrays, K = device_layout(slot_terms(terms, rest, k, "weight"), rest, "weight")
+            arrays, K = device_layout(slot_terms(terms, k, "weight"), rest, "weight")
             ws = terms.weights[:, 2:]
             expect = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
             stored = arrays["slot"][:, :len(points)].T
@@ -187,6 +187,27 @@ def test_kernel_matches_reference_tiny_and_huge_models(scale, lever):
     dev, ref = both(points * scale, HandleSet.make(rest.points * scale), lever=lever)
     scaled = Pose.make(dev.rest, pose.handles.points * scale)
     assert np.abs(dev.pose(scaled) - ref.pose(scaled)).max() <= TOL * diag(points * scale)
+
+
+@pytest.mark.parametrize("lever", ["weight", "length"])
+def test_point_handle_at_every_centroid(lever):
+    """Authored weights that put every point's p* on the point handle (up to rounding):
+    p̂ is rounding residue (~1e-19) beside a 30-unit bone. The device's power-of-two
+    scaling of p̂ (engine.device_layout) must not overflow the bone's lever in float32
+    (it did: every point NaN); posed as the reference poses it."""
+    rng = np.random.default_rng(1)
+    a = np.array([1.1e-3, 0.0, 0.0])
+    rest = HandleSet.make([a], [[a, a + [30.0, 0, 0]]])
+    points = a - np.column_stack([rng.uniform(0.1, 2, 200), np.zeros((200, 2))])
+    weights = rng.uniform(0.05, 1, (200, 2))
+    R = Rotation.from_rotvec([0, 0, 0.5]).as_matrix()
+    q = a + [0, 0.1, 0]
+    pose = Pose.make(rest, [q], [[q, q + R @ [30.0, 0, 0]]], rotations=R[None])
+    for blend in ("relative", "paper", "quaternion"):
+        dev, ref = both(points, rest, lever=lever, blend=blend, weights=weights)
+        out = dev.pose(pose)
+        assert np.isfinite(out).all(), blend
+        assert np.abs(out - ref.pose(pose)).max() <= TOL * 32.0, blend
 
 
 @pytest.mark.parametrize("scale", [1e-4, 1e8])
@@ -529,6 +550,31 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     assert np.abs(got - ref.pose_frames(poses)).max() <= TOL * diag(points)
     assert np.array_equal(dev.pose_frames(poses[1:]), batches[1])
     assert np.array_equal(GlobalFit.fit(rest, poses), fits)
+
+
+def test_pose_kernel_variant_follows_the_deformers_arrays():
+    """A kernel variant (Deformer.pose_kernel_variant, for bench/kernel_ab.py) run by
+    relaunch(pose_kernel=) uses the deformer's arrays and batch size as they are at the
+    launch: after a larger batch (new arrays) and a smaller one, the shipped source as a
+    variant gives the deformer's own results bitwise; a source that does not build is a
+    DeviceError naming the compiler's error."""
+    from nrpose import DeviceError, device
+
+    rng = np.random.default_rng(41)
+    rest = random_rest(rng, 2, 3)
+    dev = Deformer(rng.uniform(-1, 1, (300, 3)), rest)
+    source = device.kernel_source("nrmls.cl")
+    variant = dev.pose_kernel_variant(source)
+    poses = [random_pose(rng, rest) for _ in range(3)]
+    for batch in (poses, poses[:1]):                     # 3 frames (the arrays regrow), then 1
+        want = dev.pose_frames(batch)
+        dev._out.host[:] = np.nan
+        dev.relaunch(pose_kernel=variant)
+        dev._out.download()
+        got = dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, :300]
+        assert np.array_equal(got, want)
+    with pytest.raises(DeviceError, match="does not build.*error:"):
+        dev.pose_kernel_variant(source.replace("const float8 ux = LOAD8(0, u)", "const float8 ux = +"))
 
 
 @pytest.mark.parametrize("backend", ["opencl", "numpy"])
