@@ -58,27 +58,16 @@ def median_ms(fn, repeat: int) -> float:
     return float(np.median(times) * 1e3)
 
 
-def profiling_queues() -> tuple:
-    """``(worker queue or None, calling-thread queue)`` with profiling, on the devices of
-    the shared ones (device.launch_shared's ``queues``)."""
-    import pyopencl as cl
-    ctx, q = device.context()
-    wq = device.worker_queue()
-    prof = cl.command_queue_properties.PROFILING_ENABLE
-    return (None if wq is None else cl.CommandQueue(ctx, wq.device, properties=prof),
-            cl.CommandQueue(ctx, q.device, properties=prof))
-
-
 def kernel_ms(deformer: Deformer, frame_mats, repeat: int) -> float:
     """Kernel execution time of one frame, launched as a pose launches it (shared with the
     workers or not, device.launch_shared), from profiling events on private queues: the
     first start to the last end over the devices that ran it."""
     deformer.pose(frame_mats)                 # a launch of one frame to repeat
-    queues = profiling_queues()
+    queues = device.profiling_queues()
     times = []
     for _ in range(repeat):
         _, events = deformer.relaunch(queues=queues)
-        times.append((max(e.profile.end for e in events) - min(e.profile.start for e in events)) * 1e-6)
+        times.append(device.events_span_s(events) * 1e3)
     return float(np.median(times))
 
 

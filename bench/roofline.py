@@ -165,13 +165,8 @@ class Roofs:
 
     def __init__(self, quick: bool = False):
         import pyopencl as cl
-        self.cl = cl
-        ctx, q = device.context()
-        self.ctx = ctx
-        prof = cl.command_queue_properties.PROFILING_ENABLE
-        wq = device.worker_queue()
-        self.q = cl.CommandQueue(ctx, q.device, properties=prof)
-        self.queues = (cl.CommandQueue(ctx, wq.device, properties=prof) if wq is not None else None, self.q)
+        ctx, _ = device.context()
+        self.queues = device.profiling_queues()
         src = device.with_headers(ROOF_SOURCE)
         prg = cl.Program(ctx, src).build(options=[f"-DCOPY_BLOCK={COPY_BLOCK}"])
         self.k_flops = cl.Kernel(prg, "peak_flops")
@@ -199,7 +194,7 @@ class Roofs:
         t = time.perf_counter()
         _, events = device.launch_shared(kernel, self.next, queues=self.queues, workers=workers)
         wall = time.perf_counter() - t
-        return span_s(events), wall
+        return device.events_span_s(events), wall
 
     def flops(self, n: int) -> list[float]:
         """n samples of the arithmetic kernel's rate, GFLOP/s."""
@@ -251,12 +246,8 @@ class Roofs:
         fit, when some point needs it, and nrmls_prepare); the pose kernel's time spans the
         devices it ran on."""
         pre, events = deformer.relaunch(queues=self.queues)
-        return span_s(pre), span_s(events)
+        return device.events_span_s(pre), device.events_span_s(events)
 
-
-def span_s(events) -> float:
-    """Seconds from the first start to the last end of profiling events."""
-    return (max(e.profile.end for e in events) - min(e.profile.start for e in events)) * 1e-9
 
 
 def lane_divergence(deformer) -> dict:

@@ -194,6 +194,12 @@ def work_items(queues=None) -> list[tuple]:
 SHARE_MIN_S = 90e-6
 
 
+def worth_sharing(units: int, alone_s: float) -> bool:
+    """True when a launch of ``units`` units (frames), each taking ``alone_s`` seconds on
+    the calling thread alone (:func:`time_alone`), is worth waking the workers for."""
+    return units * alone_s >= SHARE_MIN_S
+
+
 def time_alone(run_alone, runs: int = 5) -> float:
     """Seconds that ``run_alone()`` (a kernel launched on the calling thread only, waited
     for) takes: the best of ``runs`` runs (the first ones after a bind run cold), stopping
@@ -249,6 +255,24 @@ def launch_shared(kernel, counter: "HostArray", before=(), queues=None, workers:
     for q, _ in plan[:-1]:              # the workers': nearly always done by now
         q.finish()
     return pre, events
+
+
+def profiling_queues() -> tuple:
+    """``(worker queue or None, calling-thread queue)`` with profiling enabled, on the
+    devices of the shared queues: :func:`launch_shared`'s ``queues`` for timing launches
+    with events (:func:`events_span_s`)."""
+    cl = _cl()
+    ctx, q = context()
+    wq = worker_queue()
+    prof = cl.command_queue_properties.PROFILING_ENABLE
+    return (None if wq is None else cl.CommandQueue(ctx, wq.device, properties=prof),
+            cl.CommandQueue(ctx, q.device, properties=prof))
+
+
+def events_span_s(events) -> float:
+    """Seconds from the first start to the last end of profiling events (a launch over
+    several devices)."""
+    return (max(e.profile.end for e in events) - min(e.profile.start for e in events)) * 1e-9
 
 
 def describe() -> dict:

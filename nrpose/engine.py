@@ -133,7 +133,6 @@ class Deformer:
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         self._batch = 1       # frames per launch, as last set on the pose kernel
         self._reserve(1)
-        self._kernel.set_args(*self._pose_args())
         # PoCL compiles a kernel's work-group function at its first launch on each
         # device (~0.5 s): pay that at bind, not in the first frame
         self._alone_s = float("inf")
@@ -180,9 +179,7 @@ class Deformer:
             self._global.kernel.set_arg(0, self._pose.arg)
         self._prepare.set_arg(4, self._pose.arg)
         self._prepare.set_arg(5, self._derived.arg)
-        self._kernel.set_arg(5, self._pose.arg)
-        self._kernel.set_arg(6, self._derived.arg)
-        self._kernel.set_arg(7, self._out.arg)
+        self._kernel.set_args(*self._pose_args())
         self._frames = frames
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
@@ -249,7 +246,7 @@ class Deformer:
         before = [self._global.launch(self._batch)] if self._global is not None else []
         before.append((self._prepare, (self._npairs + S + 1, self._batch), None))
         if workers is None:
-            workers = self._batch * self._alone_s >= device.SHARE_MIN_S
+            workers = device.worth_sharing(self._batch, self._alone_s)
         if pose_kernel is not None:
             pose_kernel.set_args(*self._pose_args())   # the current arrays and batch size
         return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._next,
@@ -388,7 +385,7 @@ def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
     ref[:n] = refs[order]
     row = np.arange(npad, dtype=np.int32)
     row[:n] = order
-    slot = np.zeros((K, npad), np.int32)
+    slot = np.zeros((K, npad) if K < S else 1, np.int32)     # stored only when sparse
     if K < S:
         slot[:, :n] = slots[order].T
     # the (reference, segment) pairs of the rotation table that some point uses
@@ -411,7 +408,7 @@ def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
         scale = min(scale, 2.0 ** (50 - np.frexp(np.sqrt(len2.max()))[1]))
     none = np.zeros(1, np.float32)
     arrays = {
-        "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot if K < S else np.zeros(1, np.int32),
+        "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot,
         "coef": soa(kept["coef"][order].T),
         # levers other than "paper" are derived in the kernel from coef and len2
         "lever": soa(kept["lever"][order].T) if lever == "paper" else none,

@@ -372,7 +372,7 @@ class Deformer:
         PoCL's worker threads (default: when the launch's frames take at least
         ``device.SHARE_MIN_S`` alone, as timed at bind)."""
         if workers is None:
-            workers = self._batch * self._alone_s >= device.SHARE_MIN_S
+            workers = device.worth_sharing(self._batch, self._alone_s)
         return device.launch_shared(self._kernel, self._next, queues=queues, workers=workers)
 
     def pose_dual_quaternions(self, dq) -> np.ndarray:
