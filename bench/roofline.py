@@ -41,9 +41,9 @@ ROOF_SOURCE = r"""
 #include "share.h"
 
 __kernel void peak_flops(__global float8 *out, const float m, const float c, const int iters,
-                         const int items, volatile __global int *next)
+                         volatile __global int *jobs, const int role)
 {
-    FOR_EACH_BLOCK(g, next, items) {
+    FOR_EACH_JOB(jobs, role) FOR_EACH_BLOCK(g, jobs) {
         float8 a0 = (float8)(g), a1 = a0 + 1.0f, a2 = a0 + 2.0f, a3 = a0 + 3.0f,
                a4 = a0 + 4.0f, a5 = a0 + 5.0f, a6 = a0 + 6.0f, a7 = a0 + 7.0f;
         for (int i = 0; i < iters; ++i) {
@@ -54,16 +54,16 @@ __kernel void peak_flops(__global float8 *out, const float m, const float c, con
     }
 }
 
-__kernel void copy8(__global const float8 *src, __global float8 *dst, const int blocks,
-                    volatile __global int *next)
+__kernel void copy8(__global const float8 *src, __global float8 *dst,
+                    volatile __global int *jobs, const int role)
 {
-    FOR_EACH_BLOCK(b, next, blocks) {
+    FOR_EACH_JOB(jobs, role) FOR_EACH_BLOCK(b, jobs) {
         for (int i = b * COPY_BLOCK; i < (b + 1) * COPY_BLOCK; ++i)
             dst[i] = src[i];
     }
 }
 
-__kernel void empty(volatile __global int *next)
+__kernel void empty(volatile __global int *jobs, const int role)
 {
 }
 """
@@ -172,13 +172,13 @@ class Roofs:
         self.k_flops = cl.Kernel(prg, "peak_flops")
         self.k_copy = cl.Kernel(prg, "copy8")
         self.k_empty = cl.Kernel(prg, "empty")
-        self.next = device.HostArray(1, dtype=np.int32, atomics=True)
+        self.jobs = device.Jobs()
         self.quick = quick
         self.items = 512 if quick else PEAK_ITEMS
         self.iters = 256 if quick else ITERS
         self.flops_out = device.HostArray(8 * self.items)
         self.k_flops.set_args(self.flops_out.arg, np.float32(0.999), np.float32(1e-3), np.int32(self.iters),
-                              np.int32(self.items), self.next.arg)
+                              self.jobs.box.arg, np.int32(0))
         self.copy = {}
         for name, mb in (("dram", 8 if quick else COPY_DRAM_MB), ("l3", 1 if quick else COPY_L3_MB)):
             nbytes = mb << 20
@@ -186,33 +186,34 @@ class Roofs:
             src_.host[:] = 1.0
             dst.host[:] = 0.0
             self.copy[name] = (src_, dst, nbytes)
-        self.k_empty.set_args(self.next.arg)
+        self.k_empty.set_args(self.jobs.box.arg, np.int32(0))
 
-    def _launch_s(self, kernel, workers: bool = True) -> tuple[float, float]:
+    def _launch_s(self, kernel, blocks: int, workers: bool = True) -> tuple[float, float]:
         """(event seconds, wall seconds) of one shared launch of ``kernel``: from the first
         device's start to the last one's end, and the caller's enqueue-to-return time."""
         t = time.perf_counter()
-        _, events = device.launch_shared(kernel, self.next, queues=self.queues, workers=workers)
+        _, events = device.launch_shared(kernel, self.jobs, blocks, queues=self.queues, workers=workers)
         wall = time.perf_counter() - t
         return device.events_span_s(events), wall
 
     def flops(self, n: int) -> list[float]:
         """n samples of the arithmetic kernel's rate, GFLOP/s."""
         work = 2 * 8 * ACCS * self.iters * self.items
-        self._launch_s(self.k_flops)
-        return [work / self._launch_s(self.k_flops)[0] * 1e-9 for _ in range(n)]
+        self._launch_s(self.k_flops, self.items)
+        return [work / self._launch_s(self.k_flops, self.items)[0] * 1e-9 for _ in range(n)]
 
     def bandwidth(self, which: str, n: int) -> list[float]:
         """n samples of the copy kernel's read + write rate over buffer ``which``, GB/s."""
         src, dst, nbytes = self.copy[which]
-        self.k_copy.set_args(src.arg, dst.arg, np.int32(nbytes // (32 * COPY_BLOCK)), self.next.arg)
-        self._launch_s(self.k_copy)
-        return [2 * nbytes / self._launch_s(self.k_copy)[0] * 1e-9 for _ in range(n)]
+        blocks = nbytes // (32 * COPY_BLOCK)
+        self.k_copy.set_args(src.arg, dst.arg, self.jobs.box.arg, np.int32(0))
+        self._launch_s(self.k_copy, blocks)
+        return [2 * nbytes / self._launch_s(self.k_copy, blocks)[0] * 1e-9 for _ in range(n)]
 
     def empty_kernel(self, n: int, workers: bool = True) -> dict:
         """Launch floor: an empty kernel's launch time (events) and its enqueue-to-return wall
         time (ms), shared with the workers or (workers=False) on the calling thread alone."""
-        ev, wall = zip(*(self._launch_s(self.k_empty, workers) for _ in range(n)))
+        ev, wall = zip(*(self._launch_s(self.k_empty, 0, workers) for _ in range(n)))
         return {"event_ms": float(np.median(ev) * 1e3), "wall_ms": float(np.median(wall) * 1e3)}
 
     def measure(self, rounds: int) -> dict:

@@ -258,12 +258,15 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
                          __global const float *len2,
                          __global const float *pose, __global const float *derived,
                          __global float *out_frames, const int block,
-                         const int F, const int pose_stride, const int derived_stride,
-                         volatile __global int *next)
+                         const int pose_stride, const int derived_stride,
+                         volatile __global int *jobs, const int role)
 {
-    /* blocks of `block` chunks, shared by the devices of the launch (share.h) */
+    /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
+     * host publishes ceil(chunks / block) blocks and the job's frames F */
     const int chunks = np / 8;
-    FOR_EACH_BLOCK(b, next, (chunks + block - 1) / block) {
+    FOR_EACH_JOB(jobs, role) {
+    FOR_EACH_BLOCK(b, jobs) {
+    const int F = jobs[JOB_FRAMES];
     const int g_end = (b + 1) * block;
     for (int g = b * block; g < (g_end < chunks ? g_end : chunks); ++g) {
     /* frames innermost: a chunk's bound data is read from memory once and
@@ -494,7 +497,8 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     const int8 o = LOADI8(1, ints);
     STORE_ROWS(ox, oy, oz, out, o);
 #endif
-    }
-    }
-    }
+    }   /* f */
+    }   /* g */
+    }   /* b */
+    }   /* job */
 }

@@ -1,9 +1,108 @@
-/* Work shared by the devices of one launch (nrpose/device.py launch_shared):
+/* Work shared by the devices of one launch (nrpose/device.py Jobs, launch_shared):
  * the same kernel runs at once on PoCL's worker threads and on the calling
- * thread, and each work-item takes the next block of work from one counter
- * (zeroed by the host before the launch) until none are left. Blocks are
- * handed out in order, so a work-item that starts late finds fewer or none.
- * `next` is a fine-grained SVM int with atomics shared by the devices (or an
- * ordinary buffer when only one device runs the kernel). */
-#define FOR_EACH_BLOCK(b, next, nblocks) \
-    for (int b = atomic_inc(next); b < (nblocks); b = atomic_inc(next))
+ * thread, and each work-item takes the next block of work until none are left.
+ * Blocks are handed out in order, so a work-item that starts late finds fewer
+ * or none. Which work-item takes a block does not change its result.
+ *
+ * The host publishes each launch (a "job") in `jobs`, a fine-grained SVM int
+ * array with atomics shared by the devices (an ordinary buffer when only the
+ * calling thread runs the kernel):
+ *   jobs[JOB_NEXT]    tag << JOB_TAG_SHIFT | next block to take; the tag (11 bits)
+ *                     changes with every job, so that a work-item still holding
+ *                     an earlier job's tag cannot take a block of the next one
+ *   jobs[JOB_DONE]    blocks finished, counted after each block's writes
+ *   jobs[JOB_BLOCKS]  blocks in the job
+ *   jobs[JOB_FRAMES]  frames in the job (read again after each block is taken: a
+ *                     standing work-item serves jobs of different batch sizes)
+ *   jobs[JOB_QUIT]    set by the host: a standing work-item returns
+ *   jobs[JOB_STANDING] set by the host when it enqueues a standing work-item, cleared
+ *                     by the work-item when it returns
+ * The host writes JOB_DONE, JOB_BLOCKS and JOB_FRAMES before JOB_NEXT.
+ *
+ * `role`, the kernel's last argument, says what a work-item does:
+ *   ROLE_CALLER (0)  the calling thread: takes blocks of the published job, then
+ *                    waits until every block is done (some by the workers), so that
+ *                    the host's wait on its queue is the wait for the whole job
+ *   ROLE_ONCE (-1)   a worker: takes blocks of the published job and returns
+ *   n > 0            a standing worker: takes blocks of the published job, then
+ *                    polls `jobs` for the next one and serves it too, until n polls
+ *                    in a row find none or the host sets JOB_QUIT; a pose then costs
+ *                    no wake-up of PoCL's worker thread (13-19 us of the calling
+ *                    thread's time, and the worker started 20-40 us late).
+ *
+ * Usage, with `jobs` and `role` the kernel's last two arguments:
+ *     FOR_EACH_JOB(jobs, role) {
+ *         FOR_EACH_BLOCK(b, jobs) {
+ *             const int F = jobs[JOB_FRAMES];
+ *             ... block b ...
+ *         }
+ *     }
+ */
+#define JOB_NEXT 0
+#define JOB_DONE 1
+#define JOB_BLOCKS 2
+#define JOB_FRAMES 3
+#define JOB_QUIT 4
+#define JOB_STANDING 5
+#define JOB_TAG_SHIFT 20
+#define JOB_BLOCK_MASK ((1 << JOB_TAG_SHIFT) - 1)
+#define ROLE_CALLER 0
+#define ROLE_ONCE (-1)
+
+/* a spin-wait hint to the core (x86: pause; it spares the sibling hyperthread) */
+#if defined(__x86_64__) || defined(__i386__)
+#define SPIN_PAUSE() __builtin_ia32_pause()
+#else
+#define SPIN_PAUSE() ((void)0)
+#endif
+
+/* The next block of the job tagged `tag`, taken; -1 when the job has none left (or
+ * is no longer the published one). */
+static inline int take_block(volatile __global int *jobs, const int tag)
+{
+    for (;;) {
+        const int v = jobs[JOB_NEXT];
+        if ((v >> JOB_TAG_SHIFT) != tag || (v & JOB_BLOCK_MASK) >= jobs[JOB_BLOCKS])
+            return -1;
+        if (atomic_cmpxchg(jobs + JOB_NEXT, v, v + 1) == v)
+            return v & JOB_BLOCK_MASK;
+    }
+}
+
+/* Whether to serve a job (again): sets *tag to the job's. The caller and one-shot
+ * workers serve the published job once (the caller then waits for the workers'
+ * blocks); a standing worker serves each newly published job that has blocks left
+ * and returns 0 after `role` idle polls or on JOB_QUIT. *served: jobs served so far. */
+static inline int next_job(volatile __global int *jobs, const int role, int *tag, int *served)
+{
+    if (role <= 0) {
+        if (*served) {
+            if (role == ROLE_CALLER)
+                while (atomic_add(jobs + JOB_DONE, 0) < jobs[JOB_BLOCKS])
+                    SPIN_PAUSE();
+            return 0;
+        }
+        *tag = jobs[JOB_NEXT] >> JOB_TAG_SHIFT;
+        *served = 1;
+        return 1;
+    }
+    for (int idle = 0; idle < role && !jobs[JOB_QUIT]; ++idle) {
+        const int v = jobs[JOB_NEXT];
+        if ((v >> JOB_TAG_SHIFT) != *tag && (v & JOB_BLOCK_MASK) < jobs[JOB_BLOCKS]) {
+            *tag = v >> JOB_TAG_SHIFT;
+            ++*served;
+            return 1;
+        }
+        SPIN_PAUSE();
+    }
+    atomic_xchg(jobs + JOB_STANDING, 0);
+    return 0;
+}
+
+#define FOR_EACH_JOB(jobs, role) \
+    for (int job_tag_ = -1, jobs_served_ = 0; next_job((jobs), (role), &job_tag_, &jobs_served_); )
+
+/* each block's writes are done before JOB_DONE counts it (atomics order them) */
+#define FOR_EACH_BLOCK(b, jobs) \
+    for (int b = take_block((jobs), job_tag_); b >= 0; \
+         b = (atomic_inc((jobs) + JOB_DONE), take_block((jobs), job_tag_)))

@@ -21,11 +21,11 @@
  *
  * Launch (nrpose/device.py launch_shared): any number of work-items, local
  * size 1, on PoCL's worker threads and the calling thread at once. Each takes
- * the next block of `block` groups from the shared counter `next` (share.h;
- * zeroed by the host) until none are left, and poses every group of its block
- * for the F frames, frames innermost: a group's bound data (rest, joints,
- * weights) is read from memory once and reused from L1 for every frame. Which
- * work-item takes a block does not change its result.
+ * the next block of `block` groups of the job published in `jobs` (share.h:
+ * ceil(G / block) blocks, F frames) until none are left, and poses every group
+ * of its block for the F frames, frames innermost: a group's bound data (rest,
+ * joints, weights) is read from memory once and reused from L1 for every frame.
+ * Which work-item takes a block does not change its result.
  *
  * Because influences are sorted by decreasing weight, once every lane of a
  * group has weight 0 at influence k all later influences are 0 too: the loop
@@ -46,10 +46,12 @@ __kernel void lbs(__global const float *restrict rest,
                   __global const float *restrict weights,
                   __global const float *restrict mats,
                   __global float *restrict out,
-                  const int K, const int J, const int G, const int F,
-                  const int block, volatile __global int *next)
+                  const int K, const int J, const int G,
+                  const int block, volatile __global int *jobs, const int role)
 {
-    FOR_EACH_BLOCK(b, next, (G + block - 1) / block) {
+    FOR_EACH_JOB(jobs, role) {
+    FOR_EACH_BLOCK(b, jobs) {
+    const int F = jobs[JOB_FRAMES];
     const int g_end = (b + 1) * block;
     for (int g = b * block; g < (g_end < G ? g_end : G); ++g) {
     for (int f = 0; f < F; ++f) {
@@ -88,6 +90,7 @@ __kernel void lbs(__global const float *restrict rest,
     }   /* f */
     }   /* g */
     }   /* b */
+    }   /* job */
 }
 
 __kernel void dqs(__global const float *restrict rest,
@@ -95,10 +98,12 @@ __kernel void dqs(__global const float *restrict rest,
                   __global const float *restrict weights,
                   __global const float *restrict dq,
                   __global float *restrict out,
-                  const int K, const int J, const int G, const int F,
-                  const int block, volatile __global int *next)
+                  const int K, const int J, const int G,
+                  const int block, volatile __global int *jobs, const int role)
 {
-    FOR_EACH_BLOCK(b, next, (G + block - 1) / block) {
+    FOR_EACH_JOB(jobs, role) {
+    FOR_EACH_BLOCK(b, jobs) {
+    const int F = jobs[JOB_FRAMES];
     const int g_end = (b + 1) * block;
     for (int g = b * block; g < (g_end < G ? g_end : G); ++g) {
     /* dominant joint (influence 0) of each lane, for the hemisphere test */
@@ -153,4 +158,5 @@ __kernel void dqs(__global const float *restrict rest,
     }   /* f */
     }   /* g */
     }   /* b */
+    }   /* job */
 }

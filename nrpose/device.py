@@ -20,6 +20,7 @@ thread alone (:func:`time_alone`, :data:`SHARE_MIN_S`).
 """
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import os
@@ -216,45 +217,233 @@ def time_alone(run_alone, runs: int = 5) -> float:
     return best
 
 
-def launch_shared(kernel, counter: "HostArray", before=(), queues=None, workers: bool = True
-                  ) -> tuple[list, list]:
+#: how long a standing worker waits for the next job after serving one (seconds;
+#: ``NRPOSE_STANDBY_US`` overrides it, 0 turns standing workers off): posing in a loop
+#: then costs no wake-up of PoCL's worker thread, for at most this much of one CPU spent
+#: polling after the last pose (as OpenMP runtimes spin before they sleep)
+STANDBY_S = 1e-3
+
+# the job mailbox's fields and roles (kernels/share.h)
+JOB_NEXT, JOB_DONE, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(6)
+JOB_TAG_SHIFT = 20
+ROLE_CALLER, ROLE_ONCE = 0, -1
+
+_STANDBY_PROBE = """#include "share.h"
+__kernel void standby_probe(volatile __global int *jobs, const int role)
+{
+    FOR_EACH_JOB(jobs, role) { FOR_EACH_BLOCK(b, jobs) {} }
+}
+"""
+
+
+def standby_s() -> float:
+    """The standing workers' wait for the next job, seconds: ``NRPOSE_STANDBY_US``
+    (microseconds, >= 0) where set, else :data:`STANDBY_S`. DeviceError naming the
+    variable when it is not a number >= 0."""
+    text = os.environ.get("NRPOSE_STANDBY_US", "")
+    if not text.strip():
+        return STANDBY_S
+    try:
+        us = float(text)
+    except ValueError:
+        us = float("nan")
+    if not us >= 0 or us == float("inf"):
+        raise DeviceError(f"NRPOSE_STANDBY_US must be a number of microseconds >= 0 (0: no "
+                          f"standing workers), got {text!r}")
+    return us * 1e-6
+
+
+@functools.lru_cache(maxsize=None)
+def _polls_per_s(ctx, wq) -> float:
+    """Idle polls per second of a standing worker (share.h next_job), measured once per
+    context: a worker with no job to serve, launched with two poll budgets, timed to its
+    end (best of 3 each; the difference cancels the launch)."""
+    import time
+    cl = _cl()
+    kernel = cl.Kernel(cl.Program(ctx, with_headers(_STANDBY_PROBE)).build(), "standby_probe")
+    box = HostArray(8, dtype=np.int32, atomics=True)
+    box.host[:] = 0                     # no job published: the worker only polls
+    kernel.set_arg(0, box.arg)
+
+    def run(polls: int) -> float:
+        best = float("inf")
+        for _ in range(3):
+            kernel.set_arg(1, np.int32(polls))
+            t = time.perf_counter()
+            cl.enqueue_nd_range_kernel(wq, kernel, (1,), (1,))
+            wq.finish()
+            best = min(best, time.perf_counter() - t)
+        return best
+
+    run(1)                              # the first launch builds the work-group function
+    few, many = 1000, 30000
+    span = run(many) - run(few)
+    return (many - few) / span if span > 0 else 1e7
+
+
+class Jobs:
+    """The job mailbox of a kernel's shared launches (kernels/share.h): a small
+    int32 :class:`HostArray` (``box``) that a kernel takes as its last-but-one argument,
+    its ``role`` being the last (both set by :func:`launch_shared`). One per deformer.
+
+    ``alone_s``: seconds one frame of the kernel takes on the calling thread alone
+    (:func:`time_alone`, set by the owner at bind; until then launches are shared).
+    ``keep``: the arrays the kernel's launches use (set by the owner, kept alive while
+    a standing worker may still read them). :meth:`stop` ends this mailbox's standing
+    worker, if any: owners call it before they free or replace such arrays.
+    """
+
+    def __init__(self, svm: bool | None = None):
+        self.box = HostArray(8, svm=svm, dtype=np.int32, atomics=True)
+        self.box.host[:] = 0
+        self.box.upload()
+        self.alone_s = float("inf")
+        self.keep: tuple = ()
+        self._tag = 0
+        self._last = float("-inf")      # perf_counter() at the end of the last launch
+        self._standing = None           # (kernel, event, arrays kept) of a standing worker
+
+    def publish(self, blocks: int, frames: int) -> None:
+        """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
+        blocks of (share.h: its counters first, the tagged block counter last)."""
+        if not 0 <= blocks < 1 << JOB_TAG_SHIFT:
+            raise DeviceError(f"a launch of {blocks} blocks exceeds the job mailbox's "
+                              f"{(1 << JOB_TAG_SHIFT) - 1}; pose fewer points per deformer")
+        self._tag = self._tag % 2047 + 1
+        b = self.box.host
+        b[JOB_DONE] = 0
+        b[JOB_BLOCKS] = blocks
+        b[JOB_FRAMES] = frames
+        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT
+        self.box.upload()
+
+    def wants_workers(self, kernel, frames: int, standby: float) -> bool:
+        """Whether a launch of ``kernel`` for ``frames`` frames should share its blocks with
+        PoCL's workers (:func:`launch_shared` with ``workers=None``): always while a standing
+        worker of this kernel polls this mailbox (it costs nothing); else when the frames
+        take at least :data:`SHARE_MIN_S` on the calling thread alone; else, with standing
+        workers on (``standby`` > 0 seconds), when this mailbox's last launch ended less than
+        ``standby`` ago: frames posed in a loop, where the worker woken now stands for the
+        next ones."""
+        import time
+        return ((standby > 0 and self.standing(kernel)) or worth_sharing(frames, self.alone_s)
+                or time.perf_counter() - self._last < standby)
+
+    def standing(self, kernel) -> bool:
+        """True while a standing worker of ``kernel`` polls this mailbox."""
+        return (self._standing is not None and self._standing[0] is kernel
+                and bool(self.box.host[JOB_STANDING]))
+
+    def stand(self, kernel, wq, seconds: float) -> None:
+        """Enqueue a standing worker of ``kernel`` on the workers' queue ``wq`` (ending any
+        other first), taking the published job's blocks and then polling for the next
+        for about ``seconds``."""
+        global _standing
+        if _standing is not None:
+            _standing.stop()
+        polls = max(1, int(seconds * _polls_per_s(context()[0], wq)))
+        self.box.host[JOB_QUIT] = 0
+        self.box.host[JOB_STANDING] = 1
+        kernel.set_arg(kernel.num_args - 1, np.int32(polls))
+        n = wq.device.max_compute_units
+        self._standing = (kernel, _cl().enqueue_nd_range_kernel(wq, kernel, (n,), (1,)), self.keep)
+        wq.flush()
+        _standing = self
+
+    def stop(self) -> None:
+        """End this mailbox's standing worker (if any) and wait until it has returned."""
+        global _standing
+        if self._standing is None:
+            return
+        self.box.host[JOB_QUIT] = 1
+        self._standing[1].wait()
+        self._standing = None
+        if _standing is self:
+            _standing = None
+
+
+_standing: Jobs | None = None      # the mailbox whose standing worker holds the worker device
+
+
+def stop_standing() -> None:
+    """End the standing worker, if one holds PoCL's worker device (before anything else
+    is enqueued there, and at exit)."""
+    if _standing is not None:
+        _standing.stop()
+
+
+atexit.register(stop_standing)
+
+
+def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), queues=None,
+                  workers: bool | None = None) -> tuple[list, list]:
     """Run ``kernel`` on every device of the context at once, and wait for it.
 
-    kernel: a ``cl.Kernel`` whose work-items take blocks of work from ``counter``
-    (``FOR_EACH_BLOCK``, kernels/share.h) until none are left; its arguments set,
-    ``counter`` (a 1-element int32 HostArray) among them. It is reset to 0 here.
-    workers: False runs it on the calling thread's queue only (small kernels, see
-    :func:`time_alone`). Without SVM (``counter.svm`` False) only that queue runs it
-    too: two devices may not write one ordinary buffer at once.
-    before: launches ``[(kernel, global_size, local_size), ...]`` that must complete
-    first (they run on the calling thread's queue). queues: ``(worker queue or None,
-    calling-thread queue)`` to use instead of the shared ones (profiling queues).
+    kernel: a ``cl.Kernel`` whose work-items take blocks of the job published in
+    ``jobs`` (``FOR_EACH_JOB`` / ``FOR_EACH_BLOCK``, kernels/share.h) until none are
+    left; its arguments set but the last two (the mailbox and the role, set here).
+    blocks, frames: the job's size. before: launches ``[(kernel, global_size,
+    local_size), ...]`` that must complete first (they run on the calling thread's
+    queue). queues: ``(worker queue or None, calling-thread queue)`` to use instead of
+    the shared ones (profiling queues; no standing worker then).
 
-    The calling thread enqueues the ``before`` launches and runs them (``finish``:
-    a few us on the basic device), wakes the workers, then takes blocks itself; a
-    worker that wakes after the last block finds none. Returns the events
-    ``(before, kernel)``.
+    workers: True shares the blocks with PoCL's worker threads, False runs the kernel
+    on the calling thread's queue alone, None (default) decides (:meth:`Jobs.wants_workers`).
+
+    Shared, with standing workers on (:func:`standby_s` > 0, shared memory, the default
+    queues), the workers are a standing worker (share.h): it serves this job, then polls
+    for the next for up to standby_s; the calling thread waits in the kernel for the
+    worker's blocks. Otherwise workers are woken for this job only. Without shared
+    memory (``jobs.box.svm`` False) only the calling thread's queue runs the kernel.
+    Returns the events ``(before, kernel)`` (a standing worker's is not among them).
     """
+    import time
     cl = _cl()
     plan = work_items(queues)
-    if not (workers and counter.svm):
-        plan = work_items((None, plan[-1][0]))
     host_q = plan[-1][0]
-    counter.host[0] = 0
-    counter.upload()
-    if not counter.svm and plan[-1][0] != counter._queue:
-        counter._queue.finish()         # uploads go to the shared queue: done before these queues run
+    worker_q = plan[0][0] if len(plan) > 1 else None
+    if worker_q is not None and not jobs.box.svm:
+        worker_q = None
+    standby = standby_s() if queues is None and worker_q is not None else 0.0
+    if workers is None:
+        workers = jobs.wants_workers(kernel, frames, standby)
+    if not workers:
+        jobs.stop()                     # alone means alone
+        worker_q = None
+    if worker_q is None and len(plan) > 1:
+        plan = [(host_q, 1)]
+    if _standing is not None and not (workers and standby > 0 and _standing is jobs
+                                      and jobs.standing(kernel)):
+        if any(q.device == _standing_device() for q, _ in plan):
+            stop_standing()             # it holds the device these queues run on
     pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
-    if len(plan) > 1 and pre:
+    if pre and (worker_q is not None or jobs.standing(kernel)):
         host_q.finish()                 # the workers read what `before` wrote
+    jobs.publish(blocks, frames)
+    role = kernel.num_args - 1
     events = []
-    for q, n in plan:
-        events.append(cl.enqueue_nd_range_kernel(q, kernel, (n,), (1,)))
-        q.flush()
-    host_q.finish()                     # the calling thread's share of the blocks
-    for q, _ in plan[:-1]:              # the workers': nearly always done by now
-        q.finish()
+    if worker_q is not None:
+        if standby > 0:
+            if not jobs.standing(kernel):
+                jobs.stop()             # reap one that has returned (or serves another kernel)
+                jobs.stand(kernel, worker_q, standby)
+        else:
+            kernel.set_arg(role, np.int32(ROLE_ONCE))
+            events.append(cl.enqueue_nd_range_kernel(worker_q, kernel, (plan[0][1],), (1,)))
+            worker_q.flush()
+    kernel.set_arg(role, np.int32(ROLE_CALLER if len(plan) > 1 or jobs._standing else ROLE_ONCE))
+    events.append(cl.enqueue_nd_range_kernel(host_q, kernel, (plan[-1][1],), (1,)))
+    host_q.finish()                     # the calling thread's blocks, then (in the kernel) the workers'
+    for e in events[:-1]:               # woken workers: nearly always done by now
+        e.wait()
+    jobs._last = time.perf_counter()
     return pre, events
+
+
+def _standing_device():
+    """The device a standing worker runs on: PoCL's worker-thread device."""
+    wq = worker_queue()
+    return None if wq is None else wq.device
 
 
 def profiling_queues() -> tuple:

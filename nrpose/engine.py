@@ -129,24 +129,31 @@ class Deformer:
                                self._bufs["pairs"], None, None, np.int32(self._pose_stride),
                                np.int32(self._derived_stride))
         self._kernel = cl.Kernel(prg, "nrmls_pose")
-        self._next = device.HostArray(1, dtype=np.int32, atomics=True)   # the shared block counter
+        self._jobs = device.Jobs()        # the pose kernel's job mailbox (kernels/share.h)
+        self._blocks = -(-npad // (LANES * BLOCK))
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
-        self._batch = 1       # frames per launch, as last set on the pose kernel
+        self._batch = 1       # frames of the last launch
         self._reserve(1)
         # PoCL compiles a kernel's work-group function at its first launch on each
-        # device (~0.5 s): pay that at bind, not in the first frame
-        self._alone_s = float("inf")
+        # device (~0.5 s): pay that at bind (the mailbox shares launches until
+        # alone_s is timed), not in the first frame
         self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
         # one frame's pose kernel on the calling thread alone: small launches are not shared
-        self._alone_s = device.time_alone(
-            lambda: device.launch_shared(self._kernel, self._next, workers=False))
+        self._jobs.alone_s = device.time_alone(
+            lambda: device.launch_shared(self._kernel, self._jobs, self._blocks, workers=False))
+
+    def __del__(self):
+        jobs = getattr(self, "_jobs", None)
+        if jobs is not None:
+            jobs.stop()     # a standing worker reads this deformer's arrays
 
     def _pose_args(self) -> list:
         """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl)."""
         b = self._bufs
         return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
-                self._pose.arg, self._derived.arg, self._out.arg, np.int32(BLOCK), np.int32(self._batch),
-                np.int32(self._pose_stride), np.int32(self._derived_stride), self._next.arg]
+                self._pose.arg, self._derived.arg, self._out.arg, np.int32(BLOCK),
+                np.int32(self._pose_stride), np.int32(self._derived_stride), self._jobs.box.arg,
+                np.int32(device.ROLE_CALLER)]
 
     def pose_kernel_variant(self, source: str):
         """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl,
@@ -170,6 +177,7 @@ class Deformer:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames."""
         if frames <= self._frames:
             return
+        self._jobs.stop()       # a standing worker may read the arrays replaced here
         self._pose = device.HostArray(frames * self._pose_stride)
         blocks = self._pose.host.reshape(frames, self._pose_stride)
         blocks[:, -9:] = np.eye(3).ravel()                      # R_g, unless GlobalFit writes it
@@ -180,6 +188,7 @@ class Deformer:
         self._prepare.set_arg(4, self._pose.arg)
         self._prepare.set_arg(5, self._derived.arg)
         self._kernel.set_args(*self._pose_args())
+        self._jobs.keep = (self._pose, self._derived, self._out)
         self._frames = frames
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
@@ -239,18 +248,17 @@ class Deformer:
         events ``(before, pose)``, before: the R_g fit (when some point needs it) and
         ``nrmls_prepare`` (:func:`nrpose.device.launch_shared`); queues: as there,
         e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
-        (default: when the launch's frames take at least ``device.SHARE_MIN_S`` alone, as
-        timed at bind); pose_kernel: a :meth:`pose_kernel_variant` to run instead of
-        the deformer's own."""
+        (True), run it on the calling thread alone (False) or let
+        :func:`nrpose.device.launch_shared` decide (None, default); pose_kernel: a
+        :meth:`pose_kernel_variant` to run instead of the deformer's own."""
         S = len(self.rest.segments)
         before = [self._global.launch(self._batch)] if self._global is not None else []
         before.append((self._prepare, (self._npairs + S + 1, self._batch), None))
-        if workers is None:
-            workers = device.worth_sharing(self._batch, self._alone_s)
         if pose_kernel is not None:
-            pose_kernel.set_args(*self._pose_args())   # the current arrays and batch size
-        return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._next,
-                                    before=before, queues=queues, workers=workers)
+            pose_kernel.set_args(*self._pose_args())   # the current arrays
+        return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._jobs,
+                                    self._blocks, self._batch, before=before, queues=queues,
+                                    workers=workers)
 
     def _run(self, poses: list) -> np.ndarray:
         """Launch the prepare and pose kernels for the poses; a view of the output array."""
@@ -263,9 +271,7 @@ class Deformer:
             rows[3 * len(h.points): k] = h.segments.ravel()
             rows[k: k + pose.rotations.size] = pose.rotations.ravel()
         self._pose.upload()
-        if F != self._batch:
-            self._kernel.set_arg(9, np.int32(F))
-            self._batch = F
+        self._batch = F
         self.relaunch()
         self._out.download()
         return self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]

@@ -31,10 +31,11 @@ see ``kernels/skinning.cl``; each vertex's influences are sorted by
 decreasing weight at bind (influence 0 is the dominant joint). A launch
 (:func:`nrpose.device.launch_shared`) runs the kernel on PoCL's worker
 threads and the calling thread at once: each takes blocks of :data:`BLOCK`
-groups from a shared counter until none are left and poses every frame of the
-launch for them (frames innermost). Launches whose frames take less than
-``device.SHARE_MIN_S`` on the calling thread alone (timed at bind) stay on
-the calling thread. Per-pose parameters, results and the counter live in
+groups of the job published in the deformer's mailbox (:class:`nrpose.device.Jobs`)
+until none are left and poses every frame of the launch for them (frames
+innermost); the device module decides whether to share a launch (small ones
+stay on the calling thread unless a standing worker polls or frames come in
+a loop). Per-pose parameters, results and the mailbox live in
 fine-grained SVM when the device offers it (PoCL does): one pose is then a
 kernel enqueue plus ``finish`` per device; other devices get write + launch +
 read on one queue. :meth:`pose_frames` poses F frames in one
@@ -295,24 +296,30 @@ class Deformer:
         self._kernel.set_arg(2, self._weights)
         self._kernel.set_arg(5, np.int32(k))
         self._kernel.set_arg(7, np.int32(g))
-        self._kernel.set_arg(9, np.int32(BLOCK))
-        # Per-pose parameters, posed vertices and the shared block counter:
+        self._kernel.set_arg(8, np.int32(BLOCK))
+        self._blocks = -(-g // BLOCK)
+        # Per-pose parameters, posed vertices and the job mailbox:
         # device.HostArray (fine-grained SVM when the device has it). Setting
         # ``_svm = False`` forces the copying buffer path (tests use it on PoCL):
         # the next pose replaces the arrays, and launches run on one queue.
         self._svm = device.fine_grain_svm()
         self._in: device.HostArray | None = None     # per-pose parameters
         self._out: device.HostArray | None = None    # posed vertices
-        self._next: device.HostArray | None = None   # the shared block counter
+        self._jobs: device.Jobs | None = None       # the kernel's job mailbox (share.h)
         self._joints_bound = -1
-        self._batch = 0       # frames per launch, as last set on the kernel
+        self._batch = 0       # frames of the last launch
         # PoCL compiles a kernel's work-group function at its first launch on each
-        # device: pay that at bind (an identity pose, shared), not in the first frame
-        self._alone_s = float("inf")
+        # device: pay that at bind (an identity pose, shared: the mailbox shares
+        # launches until alone_s is timed), not in the first frame
         self.pose(np.tile(np.eye(4), (self.max_joint + 1, 1, 1)))
         # one frame of the kernel on the calling thread alone: small launches are not shared
-        self._alone_s = device.time_alone(
-            lambda: device.launch_shared(self._kernel, self._next, workers=False))
+        self._jobs.alone_s = device.time_alone(
+            lambda: device.launch_shared(self._kernel, self._jobs, self._blocks, workers=False))
+
+    def __del__(self):
+        jobs = getattr(self, "_jobs", None)
+        if jobs is not None:
+            jobs.stop()     # a standing worker reads this deformer's arrays
 
     # -- per pose -------------------------------------------------------------
     def pose(self, mats) -> np.ndarray:
@@ -340,6 +347,8 @@ class Deformer:
         """
         cur = getattr(self, which)
         if cur is None or cur.host.size < n or cur.svm != self._svm:
+            if self._jobs is not None:
+                self._jobs.stop()       # a standing worker may read the array replaced here
             cur = device.HostArray(n, svm=self._svm, **kw)
             self._kernel.set_arg(arg, cur.arg)
             setattr(self, which, cur)
@@ -351,13 +360,18 @@ class Deformer:
         npad = self.n_groups * LANES
         arr_in = self._array("_in", f * j * width, 3)
         arr_out = self._array("_out", f * npad * 3, 4)
-        self._array("_next", 1, 10, dtype=np.int32, atomics=True)
+        if self._jobs is None or self._jobs.box.svm != self._svm:
+            alone_s = float("inf") if self._jobs is None else self._jobs.alone_s
+            if self._jobs is not None:
+                self._jobs.stop()
+            self._jobs = device.Jobs(svm=self._svm)
+            self._jobs.alone_s = alone_s
+            self._kernel.set_arg(9, self._jobs.box.arg)
+        self._jobs.keep = (arr_in, arr_out)
         if j != self._joints_bound:
             self._kernel.set_arg(6, np.int32(j))
             self._joints_bound = j
-        if f != self._batch:
-            self._kernel.set_arg(8, np.int32(f))
-            self._batch = f
+        self._batch = f
         arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
         arr_in.upload()
         self.relaunch()
@@ -369,11 +383,10 @@ class Deformer:
         """Run the last posing's kernel again (same inputs, same result) and return its
         events ``(before, kernel)`` (:func:`nrpose.device.launch_shared`; ``before`` is
         empty); queues: as there, e.g. profiling queues; workers: share the kernel with
-        PoCL's worker threads (default: when the launch's frames take at least
-        ``device.SHARE_MIN_S`` alone, as timed at bind)."""
-        if workers is None:
-            workers = device.worth_sharing(self._batch, self._alone_s)
-        return device.launch_shared(self._kernel, self._next, queues=queues, workers=workers)
+        PoCL's worker threads (True), run it on the calling thread alone (False) or let
+        launch_shared decide (None, default)."""
+        return device.launch_shared(self._kernel, self._jobs, self._blocks, self._batch,
+                                    queues=queues, workers=workers)
 
     def pose_dual_quaternions(self, dq) -> np.ndarray:
         """DQS only: posed vertices (N, 3) from per-joint unit dual quaternions dq (J, 8)."""

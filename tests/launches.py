@@ -4,10 +4,23 @@ from nrpose import device
 
 
 def splits() -> dict[str, dict]:
-    """``{name: relaunch keyword arguments}``: the calling thread alone, shared, and (where
-    the context has PoCL's worker device) the workers alone."""
-    runs = {"alone": {"workers": False}, "shared": {"workers": True}}
+    """``{name: relaunch keyword arguments, plus "standby_us"}``: the calling thread
+    alone, shared with a standing worker, shared with workers woken for the launch, and
+    (where the context has PoCL's worker device) the workers alone. Run them with
+    :func:`relaunch`."""
+    runs = {"alone": {"workers": False},
+            "standing worker": {"workers": True, "standby_us": "1000"},
+            "woken workers": {"workers": True, "standby_us": "0"}}
     wq = device.worker_queue()
     if wq is not None:
         runs["workers only"] = {"queues": (None, wq)}
     return runs
+
+
+def relaunch(deformer, split: dict, monkeypatch) -> None:
+    """``deformer.relaunch`` as ``split`` (a value of :func:`splits`) says, twice: a
+    standing worker started by the first launch serves the second."""
+    kw = dict(split)
+    monkeypatch.setenv("NRPOSE_STANDBY_US", kw.pop("standby_us", "1000"))
+    deformer.relaunch(**kw)
+    deformer.relaunch(**kw)

@@ -199,7 +199,7 @@ def test_kernel_ab(tmp_path, monkeypatch, capfd):
     capfd.readouterr()
     variants = {"renamed": shipped.replace("__kernel void nrmls_pose(", "__kernel void nrmls_pose_renamed("),
                 "syntax": shipped.replace("const float8 ux = LOAD8(0, u)", "const float8 ux = LOAD8(0, u) +"),
-                "arguments": shipped.replace("volatile __global int *next)", "volatile __global int *next, const int extra)")}
+                "arguments": shipped.replace("const int role)", "const int role, const int extra)")}
     cases = [([str(tmp_path / "missing.cl")], "no such file")]
     for name, text in variants.items():
         assert text != shipped, name

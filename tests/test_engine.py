@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from launches import splits
+from launches import relaunch, splits
 
 from nrpose import Deformer, HandleError, HandleSet, InputError, Pose
 from nrpose.blend import deform_reference, rest_terms
@@ -493,9 +493,10 @@ def test_pose_frames_batch_matches_single_poses(mixed):
 
 
 @pytest.mark.parametrize("blocks", [1, 3])
-def test_shared_launch_any_split_same_points(blocks):
+def test_shared_launch_any_split_same_points(blocks, monkeypatch):
     """The pose kernel's blocks of points (engine.BLOCK chunks of 8) may be taken by the
-    calling thread alone, by PoCL's workers alone or by both (device.launch_shared):
+    calling thread alone, by PoCL's workers alone or by both, the workers standing or
+    woken for the launch (device.launch_shared):
     bitwise the same result each way, equal to the reference; a last block that is
     partly filled and a padded last chunk included."""
     from nrpose.engine import BLOCK, LANES
@@ -510,7 +511,7 @@ def test_shared_launch_any_split_same_points(blocks):
     assert np.abs(shared - expected).max() <= TOL * diag(points)
     for name, kw in splits().items():
         dev._out.host[:] = np.nan
-        dev.relaunch(**kw)
+        relaunch(dev, kw, monkeypatch)
         dev._out.download()
         got = dev._out.host[: 3 * dev._npad].reshape(-1, 3)[: len(points)]
         assert np.array_equal(got, shared), name
@@ -539,7 +540,7 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     fits = GlobalFit.fit(rest, poses)
     monkeypatch.setattr(device, "fine_grain_svm", lambda: False)
     dev = Deformer(points, rest, blend=blend)
-    assert dev._global is not None and not dev._pose.svm and not dev._next.svm
+    assert dev._global is not None and not dev._pose.svm and not dev._jobs.box.svm
     for pose, want in zip(poses, singles):
         got = dev.pose(pose)
         assert np.array_equal(got, want)
@@ -593,21 +594,37 @@ def test_pose_out_shape_is_checked(backend):
 
 
 def test_small_launches_stay_on_the_calling_thread(monkeypatch):
-    """A bind times one frame of the pose kernel on the calling thread alone; launches
-    whose frames take less than device.SHARE_MIN_S together are not shared."""
+    """A bind times one frame of the pose kernel on the calling thread alone (the job
+    mailbox's alone_s); a launch whose frames take less than device.SHARE_MIN_S together
+    runs there alone, unless it follows the deformer's last launch within the standby time
+    (frames in a loop) or a standing worker polls; larger ones are shared."""
+    import time
+
     from nrpose import device
 
     rng = np.random.default_rng(4)
     rest = random_rest(rng, 0, 2)
     dev = Deformer(rng.uniform(-1, 1, (40, 3)), rest)
-    assert 0 < dev._alone_s < float("inf")
-    calls = []
-    real = device.launch_shared
-    monkeypatch.setattr(device, "launch_shared", lambda *a, **kw: calls.append(kw["workers"]) or real(*a, **kw))
-    dev._alone_s = device.SHARE_MIN_S / 4
-    dev.pose_frames([random_pose(rng, rest)] * 3)
-    dev.pose_frames([random_pose(rng, rest)] * 4)
-    assert calls == [False, True]
+    jobs = dev._jobs
+    assert 0 < jobs.alone_s < float("inf")
+    decided = []
+    real = device.Jobs.wants_workers
+    monkeypatch.setattr(device.Jobs, "wants_workers",
+                        lambda self, *a: decided.append(real(self, *a)) or decided[-1])
+    jobs.alone_s = device.SHARE_MIN_S / 4
+    for standby_us in ("0", "1000"):
+        monkeypatch.setenv("NRPOSE_STANDBY_US", standby_us)
+        jobs.stop()
+        jobs._last = time.perf_counter() - 1.0            # a second since the last launch
+        dev.pose_frames([random_pose(rng, rest)] * 3)      # alone
+        jobs._last = time.perf_counter() - 1.0
+        dev.pose_frames([random_pose(rng, rest)] * 4)      # shared
+    assert decided == [False, True, False, True]
+    assert jobs.standing(dev._kernel)                      # the last launch left one standing
+    jobs.stop()
+    jobs._last = time.perf_counter()
+    assert jobs.wants_workers(dev._kernel, 1, 1e-3)          # in a loop: shared
+    assert not jobs.wants_workers(dev._kernel, 1, 0.0)       # standing workers off: alone
 
 
 def test_minimal_rotation_conventions():

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from launches import splits
+from launches import relaunch, splits
 from scipy.spatial.transform import Rotation
 
 from nrpose.errors import InputError
@@ -119,9 +119,10 @@ def test_padded_influences_and_buffer_fallback(method):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
-def test_shared_launch_any_split_same_vertices(method):
+def test_shared_launch_any_split_same_vertices(method, monkeypatch):
     """The kernel's blocks (skinning.BLOCK groups of 8 vertices) may be taken by the
-    calling thread alone, by PoCL's workers alone or by both (device.launch_shared):
+    calling thread alone, by PoCL's workers alone or by both, the workers standing or
+    woken for the launch (device.launch_shared):
     bitwise the same result each way for a batch of frames, equal to the reference; a
     last block that is partly filled and a padded last group included."""
     from nrpose import device
@@ -131,7 +132,7 @@ def test_shared_launch_any_split_same_vertices(method):
     n, j, frames = 3 * BLOCK * LANES + 5, 11, 3
     rest, joints, weights = make_rig(rng, n, j, 4)
     d = Deformer(rest, joints, weights, method=method)
-    assert 0 < d._alone_s < float("inf")
+    assert 0 < d._jobs.alone_s < float("inf")
     mats = np.stack([rigid(rng, j) if method == "dqs" else affine(rng, j) for _ in range(frames)])
     shared = d.pose_frames(mats)
     ref = lbs_reference if method == "lbs" else dqs_reference
@@ -141,7 +142,7 @@ def test_shared_launch_any_split_same_vertices(method):
     want = shared.astype(np.float32)
     for name, kw in splits().items():
         d._out.host[:] = np.nan
-        d.relaunch(**kw)
+        relaunch(d, kw, monkeypatch)
         d._out.download()
         got = d._out.host[: frames * npad * 3].reshape(frames, npad, 3)[:, :n]
         assert np.array_equal(got, want), name
@@ -149,20 +150,26 @@ def test_shared_launch_any_split_same_vertices(method):
 
 def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     """A bind times one frame of the kernel on the calling thread alone; launches whose
-    frames take less than device.SHARE_MIN_S together are not shared."""
+    frames take less than device.SHARE_MIN_S together run there alone (when they do not
+    follow the last one within the standby time); larger ones are shared."""
+    import time
+
     from nrpose import device
 
     rng = np.random.default_rng(32)
     rest, joints, weights = make_rig(rng, 40, 5, 2)
     d = LbsDeformer(rest, joints, weights)
-    calls = []
-    real = device.launch_shared
-    monkeypatch.setattr(device, "launch_shared", lambda *a, **kw: calls.append(kw["workers"]) or real(*a, **kw))
-    d._alone_s = device.SHARE_MIN_S / 4
+    decided = []
+    real = device.Jobs.wants_workers
+    monkeypatch.setattr(device.Jobs, "wants_workers",
+                        lambda self, *a: decided.append(real(self, *a)) or decided[-1])
+    d._jobs.alone_s = device.SHARE_MIN_S / 4
     mats = rigid(rng, 5)
-    d.pose_frames(np.stack([mats] * 3))
-    d.pose_frames(np.stack([mats] * 4))
-    assert calls == [False, True]
+    for frames in (3, 4):
+        d._jobs.stop()
+        d._jobs._last = time.perf_counter() - 1.0
+        d.pose_frames(np.stack([mats] * frames))
+    assert decided == [False, True]
 
 
 def test_lbs_scale_is_honoured_dqs_ignores_it():
