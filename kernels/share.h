@@ -17,7 +17,10 @@
  *   jobs[JOB_QUIT]    set by the host: a standing work-item returns
  *   jobs[JOB_STANDING] set by the host when it enqueues a standing work-item, cleared
  *                     by the work-item when it returns
- * The host writes JOB_DONE, JOB_BLOCKS and JOB_FRAMES before JOB_NEXT.
+ * The host publishes a job in three steps: JOB_NEXT = the new tag with block index
+ * JOB_BLOCK_MASK (closed: no job has that many blocks, and a work-item holding the
+ * last job's tag no longer matches), then JOB_DONE, JOB_BLOCKS and JOB_FRAMES, then
+ * JOB_NEXT = the new tag with block 0 (open).
  *
  * `role`, the kernel's last argument, says what a work-item does:
  *   ROLE_CALLER (0)  the calling thread: takes blocks of the published job, then

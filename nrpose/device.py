@@ -226,6 +226,7 @@ STANDBY_S = 1e-3
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_DONE, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(6)
 JOB_TAG_SHIFT = 20
+JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index of a job being published
 ROLE_CALLER, ROLE_ONCE = 0, -1
 
 _STANDBY_PROBE = """#include "share.h"
@@ -306,15 +307,18 @@ class Jobs:
     def publish(self, blocks: int, frames: int) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
         blocks of (share.h: its counters first, the tagged block counter last)."""
-        if not 0 <= blocks < 1 << JOB_TAG_SHIFT:
+        if not 0 <= blocks < JOB_CLOSED:
             raise DeviceError(f"a launch of {blocks} blocks exceeds the job mailbox's "
-                              f"{(1 << JOB_TAG_SHIFT) - 1}; pose fewer points per deformer")
+                              f"{JOB_CLOSED - 1}; pose fewer points per deformer")
         self._tag = self._tag % 2047 + 1
         b = self.box.host
+        # closed first: from here no block can be taken, neither by a work-item still
+        # holding the last job's tag (it would read this job's counts) nor of this job
+        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | JOB_CLOSED
         b[JOB_DONE] = 0
         b[JOB_BLOCKS] = blocks
         b[JOB_FRAMES] = frames
-        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT
+        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT          # open: block 0 is next
         self.box.upload()
 
     def wants_workers(self, kernel, frames: int, standby: float) -> bool:

@@ -1,0 +1,228 @@
+"""The job mailbox of shared launches (kernels/share.h, nrpose.device.Jobs and
+launch_shared): every block of every job is taken exactly once, by the calling thread
+or a worker (standing or woken), with the job's own frame count; standing workers
+serve jobs in a loop, return when idle or told to, and give way to other launches."""
+import gc
+import time
+
+import numpy as np
+import pytest
+
+from nrpose import device
+from nrpose.errors import DeviceError
+
+pytest.importorskip("pyopencl")
+
+MARK = """#include "share.h"
+/* who[b] = 2,000,000 (standing worker) or 1,000,000 (calling thread or a woken worker)
+ * + the job's frames, for each block b taken; `work` iterations of arithmetic per block */
+__kernel void mark(__global int *who, const int work, volatile __global int *jobs, const int role)
+{
+    FOR_EACH_JOB(jobs, role) {
+        FOR_EACH_BLOCK(b, jobs) {
+            const int F = jobs[JOB_FRAMES];
+            float acc = 0.0f;
+            for (int i = 0; i < work; ++i)
+                acc = acc * 0.5f + (float)i;
+            who[b] = (role > 0 ? 2000000 : 1000000) + F + (acc < 0.0f);
+        }
+    }
+}
+"""
+STANDING, CALLER = 2_000_000, 1_000_000
+
+
+def _workers_or_skip():
+    if device.worker_queue() is None or not device.fine_grain_svm():
+        pytest.skip("no PoCL worker device with shared memory here: launches run on one queue")
+
+
+class Marker:
+    """The `mark` kernel with its mailbox and a `who` array of `size` blocks."""
+
+    def __init__(self, size: int = 4096, work: int = 200):
+        import pyopencl as cl
+
+        ctx, _ = device.context()
+        self.kernel = cl.Kernel(cl.Program(ctx, device.with_headers(MARK)).build(), "mark")
+        self.jobs = device.Jobs()
+        self.who = device.HostArray(size, dtype=np.int32)
+        self.jobs.keep = (self.who,)
+        self.kernel.set_args(self.who.arg, np.int32(work), self.jobs.box.arg, np.int32(0))
+
+    def launch(self, blocks: int, frames: int = 1, **kw) -> np.ndarray:
+        """who after one launch of `blocks` blocks (cleared first)."""
+        self.who.host[:] = 0
+        device.launch_shared(self.kernel, self.jobs, blocks, frames, **kw)
+        return self.who.host.copy()
+
+
+@pytest.fixture
+def standby(monkeypatch):
+    """Set NRPOSE_STANDBY_US for the test; any standing worker is stopped after it."""
+    yield lambda us: monkeypatch.setenv("NRPOSE_STANDBY_US", str(us))
+    device.stop_standing()
+
+
+def test_every_block_once_with_its_frames_across_many_jobs(standby):
+    """2,100 shared launches (the 11-bit job tag wraps past 2,047) of 1-64 blocks and 1-5
+    frames, one standing worker serving them in a loop: every block of every job taken
+    once, with that job's frames, none beyond the job; the standing worker took some and
+    the calling thread some."""
+    _workers_or_skip()
+    standby(20_000)
+    m = Marker()
+    takers = {STANDING: 0, CALLER: 0}
+    for j in range(2100):
+        blocks, frames = 1 + (j * 37) % 64, 1 + j % 5
+        who = m.launch(blocks, frames, workers=True)
+        assert np.all(who[:blocks] % 1000 == frames), j
+        assert np.all(np.isin(who[:blocks] - frames, (STANDING, CALLER))), j
+        assert not who[blocks:].any(), j
+        for k in takers:
+            takers[k] += int(np.count_nonzero(who[:blocks] - frames == k))
+    assert takers[STANDING] > 0 and takers[CALLER] > 0, takers
+
+
+def test_idle_standing_worker_returns_and_a_later_launch_stands_again(standby):
+    """With a 1 us standby the standing worker returns almost at once; the next job is
+    then the calling thread's alone (none lost) and its launch stands a new worker."""
+    _workers_or_skip()
+    standby(1)
+    m = Marker()
+    m.launch(8, workers=True)
+    deadline = time.perf_counter() + 5.0
+    while m.jobs.box.host[device.JOB_STANDING] and time.perf_counter() < deadline:
+        time.sleep(1e-3)
+    assert not m.jobs.standing(m.kernel)
+    who = m.launch(40, 2, workers=True)
+    assert np.all(np.isin(who[:40], (STANDING + 2, CALLER + 2))) and not who[40:].any()
+
+
+def test_stop_ends_a_polling_worker_at_once(standby):
+    """A standing worker that would poll for 10 s returns as soon as stop() asks."""
+    _workers_or_skip()
+    standby(10_000_000)
+    m = Marker()
+    m.launch(4, workers=True)
+    assert m.jobs.standing(m.kernel) and device._standing is m.jobs
+    t = time.perf_counter()
+    m.jobs.stop()
+    assert time.perf_counter() - t < 0.5
+    assert m.jobs.box.host[device.JOB_STANDING] == 0 and device._standing is None
+
+
+def test_standing_workers_give_way(standby):
+    """One standing worker holds PoCL's worker device: another mailbox's shared launch
+    ends it first; a launch on the calling thread alone leaves it standing; a launch on
+    the workers' own queue (no calling thread) ends it too."""
+    _workers_or_skip()
+    standby(10_000_000)
+    a, b = Marker(), Marker()
+    a.launch(16, workers=True)
+    assert a.jobs.standing(a.kernel)
+    assert (b.launch(16, workers=True)[:16] >= CALLER).all()
+    assert not a.jobs.standing(a.kernel) and b.jobs.standing(b.kernel)
+    assert (a.launch(16, workers=False)[:16] == CALLER + 1).all()
+    assert b.jobs.standing(b.kernel)
+    who = a.launch(16, queues=(None, device.worker_queue()))
+    assert (who[:16] == CALLER + 1).all() and device._standing is None
+
+
+def test_standby_setting(standby):
+    """NRPOSE_STANDBY_US: 0 wakes workers for each shared launch and leaves none standing;
+    a value that is not a number >= 0 is a DeviceError naming the variable."""
+    _workers_or_skip()
+    standby(0)
+    m = Marker()
+    who = m.launch(64, 3, workers=True)
+    assert np.all(np.isin(who[:64], (CALLER + 3,))) and device._standing is None
+    for bad in ("fast", "-5", "nan", "inf"):
+        standby(bad)
+        with pytest.raises(DeviceError, match="NRPOSE_STANDBY_US must be a number of microseconds"):
+            m.launch(4, workers=True)
+
+
+def test_too_many_blocks_for_the_mailbox():
+    m = Marker(size=8)
+    with pytest.raises(DeviceError, match="exceeds the job mailbox"):
+        m.jobs.publish(1 << device.JOB_TAG_SHIFT, 1)
+
+
+def test_deleted_deformer_leaves_no_standing_worker(standby):
+    """A deformer's standing worker reads its arrays: deleting the deformer ends it."""
+    _workers_or_skip()
+    from nrpose.engine import Deformer
+    from nrpose.handles import HandleSet
+
+    standby(10_000_000)
+    rng = np.random.default_rng(5)
+    rest = HandleSet.make(segments=np.array([[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]], float))
+    dev = Deformer(rng.uniform(-1, 3, (5000, 3)), rest)
+    dev.relaunch(workers=True)
+    assert dev._jobs.standing(dev._kernel)
+    jobs = dev._jobs
+    del dev
+    gc.collect()
+    assert device._standing is None and jobs.box.host[device.JOB_STANDING] == 0
+
+
+CLAIM = """#include "share.h"
+__kernel void claim(__global int *out, const int tag, volatile __global int *jobs)
+{
+    out[0] = take_block(jobs, tag);
+}
+"""
+
+
+@pytest.mark.parametrize("next_tag,next_block,blocks,tag,taken", [
+    (5, 3, 10, 5, 3),                       # the job's own tag: block 3 taken
+    (5, 3, 10, 4, -1),                      # the last job's tag: nothing, whatever the counts
+    (5, 10, 10, 5, -1),                     # no block left
+    (6, device.JOB_CLOSED, device.JOB_CLOSED - 1, 6, -1),   # being published
+])
+def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, tag, taken):
+    """share.h take_block: a block is taken (the counter advanced) only when the job's tag
+    matches the taker's and a block is left; a closed job has none."""
+    import pyopencl as cl
+
+    ctx, queue = device.context()
+    kernel = cl.Kernel(cl.Program(ctx, device.with_headers(CLAIM)).build(), "claim")
+    jobs, out = device.HostArray(8, dtype=np.int32, atomics=True), device.HostArray(1, dtype=np.int32)
+    jobs.host[:] = 0
+    jobs.host[device.JOB_NEXT] = next_tag << device.JOB_TAG_SHIFT | next_block
+    jobs.host[device.JOB_BLOCKS] = blocks
+    jobs.upload()
+    kernel.set_args(out.arg, np.int32(tag), jobs.arg)
+    cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
+    out.download()
+    jobs.download()
+    assert out.host[0] == taken
+    assert jobs.host[device.JOB_NEXT] & ((1 << device.JOB_TAG_SHIFT) - 1) == next_block + (taken >= 0)
+
+
+def test_publish_closes_the_job_before_it_opens_it():
+    """Jobs.publish writes the block counter first with the new tag and the closed index,
+    then the counts, then opens it at block 0; each job gets a new tag (1..2047, cycling)."""
+    jobs = device.Jobs()
+    writes = []
+
+    class Recorder(np.ndarray):
+        def __setitem__(self, i, v):
+            writes.append((i, int(v)))
+            super().__setitem__(i, v)
+
+    jobs.box.host = jobs.box.host.view(Recorder)
+    tags = []
+    for blocks in (7, 3000):
+        writes.clear()
+        jobs.publish(blocks, 4)
+        tag = writes[0][1] >> device.JOB_TAG_SHIFT
+        tags.append(tag)
+        assert writes[0] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT | device.JOB_CLOSED)
+        assert sorted(writes[1:-1]) == [(device.JOB_DONE, 0), (device.JOB_BLOCKS, blocks), (device.JOB_FRAMES, 4)]
+        assert writes[-1] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)
+    assert tags[0] != tags[1] and all(1 <= t <= 2047 for t in tags)
+    jobs._tag = 2047
+    jobs.publish(1, 1)
+    assert jobs.box.host[device.JOB_NEXT] >> device.JOB_TAG_SHIFT == 1
