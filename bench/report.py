@@ -100,6 +100,8 @@ def suites_block(doc: dict) -> str:
                     "enqueue+wait"
                     + (f", on the calling thread alone {c['launch_alone']['event_ms'] * 1e3:.1f} µs event, "
                        f"{c['launch_alone']['wall_ms'] * 1e3:.0f} µs enqueue+wait" if "launch_alone" in c else "")
+                    + (f", with a standing worker {c['launch_standing']['wall_ms'] * 1e3:.0f} µs enqueue+wait"
+                       if "launch_standing" in c else "")
                     + ".", "",
                 _table(["row", "flop/pt", "B/pt", "pose ms", "kernel ms", "GFLOP/s", "% arith",
                         "batched kernel ms/frame", "batched % arith", "bound"],

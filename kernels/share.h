@@ -23,15 +23,16 @@
  * JOB_NEXT = the new tag with block 0 (open).
  *
  * `role`, the kernel's last argument, says what a work-item does:
- *   ROLE_CALLER (0)  the calling thread: takes blocks of the published job, then
- *                    waits until every block is done (some by the workers), so that
- *                    the host's wait on its queue is the wait for the whole job
- *   ROLE_ONCE (-1)   a worker: takes blocks of the published job and returns
+ *   ROLE_CALLER (0)  takes blocks of the published job, then waits until every block
+ *                    is done (some perhaps by other work-items), so that the host's
+ *                    wait on the calling thread's queue is the wait for the whole job
  *   n > 0            a standing worker: takes blocks of the published job, then
  *                    polls `jobs` for the next one and serves it too, until n polls
  *                    in a row find none or the host sets JOB_QUIT; a pose then costs
  *                    no wake-up of PoCL's worker thread (13-19 us of the calling
  *                    thread's time, and the worker started 20-40 us late).
+ * (The host sets role 0 once, with the other arguments, and gives a standing worker a
+ * clone of the kernel: pyopencl's set_arg of an int takes ~15 us, too much per pose.)
  *
  * Usage, with `jobs` and `role` the kernel's last two arguments:
  *     FOR_EACH_JOB(jobs, role) {
@@ -50,7 +51,6 @@
 #define JOB_TAG_SHIFT 20
 #define JOB_BLOCK_MASK ((1 << JOB_TAG_SHIFT) - 1)
 #define ROLE_CALLER 0
-#define ROLE_ONCE (-1)
 
 /* a spin-wait hint to the core (x86: pause; it spares the sibling hyperthread) */
 #if defined(__x86_64__) || defined(__i386__)
@@ -72,17 +72,16 @@ static inline int take_block(volatile __global int *jobs, const int tag)
     }
 }
 
-/* Whether to serve a job (again): sets *tag to the job's. The caller and one-shot
- * workers serve the published job once (the caller then waits for the workers'
- * blocks); a standing worker serves each newly published job that has blocks left
- * and returns 0 after `role` idle polls or on JOB_QUIT. *served: jobs served so far. */
+/* Whether to serve a job (again): sets *tag to the job's. ROLE_CALLER serves the
+ * published job once, then waits for the blocks others took; a standing worker serves
+ * each newly published job that has blocks left and returns 0 after `role` idle polls
+ * or on JOB_QUIT. *served: jobs served so far. */
 static inline int next_job(volatile __global int *jobs, const int role, int *tag, int *served)
 {
-    if (role <= 0) {
+    if (role == ROLE_CALLER) {
         if (*served) {
-            if (role == ROLE_CALLER)
-                while (atomic_add(jobs + JOB_DONE, 0) < jobs[JOB_BLOCKS])
-                    SPIN_PAUSE();
+            while (atomic_add(jobs + JOB_DONE, 0) < jobs[JOB_BLOCKS])
+                SPIN_PAUSE();
             return 0;
         }
         *tag = jobs[JOB_NEXT] >> JOB_TAG_SHIFT;

@@ -25,6 +25,7 @@ import contextlib
 import functools
 import os
 import re
+import time
 from importlib import resources
 
 import numpy as np
@@ -206,7 +207,6 @@ def time_alone(run_alone, runs: int = 5) -> float:
     for) takes: the best of ``runs`` runs (the first ones after a bind run cold), stopping
     early once one is 10x :data:`SHARE_MIN_S` or longer. A launch of F such units is worth
     sharing with the workers when F times this reaches SHARE_MIN_S."""
-    import time
     best = float("inf")
     for _ in range(runs):
         t = time.perf_counter()
@@ -227,7 +227,7 @@ STANDBY_S = 1e-3
 JOB_NEXT, JOB_DONE, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(6)
 JOB_TAG_SHIFT = 20
 JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index of a job being published
-ROLE_CALLER, ROLE_ONCE = 0, -1
+ROLE_CALLER = 0
 
 _STANDBY_PROBE = """#include "share.h"
 __kernel void standby_probe(volatile __global int *jobs, const int role)
@@ -242,8 +242,11 @@ def standby_s() -> float:
     (microseconds, >= 0) where set, else :data:`STANDBY_S`. DeviceError naming the
     variable when it is not a number >= 0."""
     text = os.environ.get("NRPOSE_STANDBY_US", "")
-    if not text.strip():
-        return STANDBY_S
+    return _standby_s(text) if text.strip() else STANDBY_S
+
+
+@functools.lru_cache(maxsize=8)
+def _standby_s(text: str) -> float:
     try:
         us = float(text)
     except ValueError:
@@ -329,7 +332,6 @@ class Jobs:
         workers on (``standby`` > 0 seconds), when this mailbox's last launch ended less than
         ``standby`` ago: frames posed in a loop, where the worker woken now stands for the
         next ones."""
-        import time
         return ((standby > 0 and self.standing(kernel)) or worth_sharing(frames, self.alone_s)
                 or time.perf_counter() - self._last < standby)
 
@@ -341,16 +343,18 @@ class Jobs:
     def stand(self, kernel, wq, seconds: float) -> None:
         """Enqueue a standing worker of ``kernel`` on the workers' queue ``wq`` (ending any
         other first), taking the published job's blocks and then polling for the next
-        for about ``seconds``."""
+        for about ``seconds``. It runs a clone of the kernel (its arguments as they are
+        now, the role set to the poll budget), so that ``kernel`` keeps ROLE_CALLER."""
         global _standing
         if _standing is not None:
             _standing.stop()
         polls = max(1, int(seconds * _polls_per_s(context()[0], wq)))
+        worker = kernel.clone()
+        worker.set_arg(worker.num_args - 1, np.int32(polls))
         self.box.host[JOB_QUIT] = 0
         self.box.host[JOB_STANDING] = 1
-        kernel.set_arg(kernel.num_args - 1, np.int32(polls))
         n = wq.device.max_compute_units
-        self._standing = (kernel, _cl().enqueue_nd_range_kernel(wq, kernel, (n,), (1,)), self.keep)
+        self._standing = (kernel, _cl().enqueue_nd_range_kernel(wq, worker, (n,), (1,)), self.keep)
         wq.flush()
         _standing = self
 
@@ -401,13 +405,10 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
     memory (``jobs.box.svm`` False) only the calling thread's queue runs the kernel.
     Returns the events ``(before, kernel)`` (a standing worker's is not among them).
     """
-    import time
     cl = _cl()
     plan = work_items(queues)
     host_q = plan[-1][0]
-    worker_q = plan[0][0] if len(plan) > 1 else None
-    if worker_q is not None and not jobs.box.svm:
-        worker_q = None
+    worker_q = plan[0][0] if len(plan) > 1 and jobs.box.svm else None
     standby = standby_s() if queues is None and worker_q is not None else 0.0
     if workers is None:
         workers = jobs.wants_workers(kernel, frames, standby)
@@ -416,29 +417,24 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
         worker_q = None
     if worker_q is None and len(plan) > 1:
         plan = [(host_q, 1)]
-    if _standing is not None and not (workers and standby > 0 and _standing is jobs
-                                      and jobs.standing(kernel)):
-        if any(q.device == _standing_device() for q, _ in plan):
-            stop_standing()             # it holds the device these queues run on
+    if (_standing is not None and not (worker_q is not None and standby > 0 and _standing is jobs)
+            and any(q.device == _standing_device() for q, _ in plan)):
+        stop_standing()                 # it holds the device these queues run on
     pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
-    if pre and (worker_q is not None or jobs.standing(kernel)):
+    if pre and (worker_q is not None or jobs._standing is not None):
         host_q.finish()                 # the workers read what `before` wrote
     jobs.publish(blocks, frames)
-    role = kernel.num_args - 1
     events = []
-    if worker_q is not None:
-        if standby > 0:
-            if not jobs.standing(kernel):
-                jobs.stop()             # reap one that has returned (or serves another kernel)
-                jobs.stand(kernel, worker_q, standby)
-        else:
-            kernel.set_arg(role, np.int32(ROLE_ONCE))
-            events.append(cl.enqueue_nd_range_kernel(worker_q, kernel, (plan[0][1],), (1,)))
-            worker_q.flush()
-    kernel.set_arg(role, np.int32(ROLE_CALLER if len(plan) > 1 or jobs._standing else ROLE_ONCE))
+    if worker_q is not None and standby > 0:
+        if not jobs.standing(kernel):
+            jobs.stop()                 # reap one that has returned (or serves another kernel)
+            jobs.stand(kernel, worker_q, standby)
+    elif worker_q is not None:
+        events.append(cl.enqueue_nd_range_kernel(worker_q, kernel, (plan[0][1],), (1,)))
+        worker_q.flush()
     events.append(cl.enqueue_nd_range_kernel(host_q, kernel, (plan[-1][1],), (1,)))
-    host_q.finish()                     # the calling thread's blocks, then (in the kernel) the workers'
-    for e in events[:-1]:               # woken workers: nearly always done by now
+    host_q.finish()                     # the calling thread's blocks, then (in the kernel) the others'
+    for e in events[:-1]:               # woken workers: done by now (the kernel waited for them)
         e.wait()
     jobs._last = time.perf_counter()
     return pre, events

@@ -297,6 +297,7 @@ class Deformer:
         self._kernel.set_arg(5, np.int32(k))
         self._kernel.set_arg(7, np.int32(g))
         self._kernel.set_arg(8, np.int32(BLOCK))
+        self._kernel.set_arg(10, np.int32(device.ROLE_CALLER))     # the role (share.h)
         self._blocks = -(-g // BLOCK)
         # Per-pose parameters, posed vertices and the job mailbox:
         # device.HostArray (fine-grained SVM when the device has it). Setting
