@@ -10,13 +10,20 @@ environment says otherwise, PoCL starts two devices, ``pthread`` with one
 worker thread per CPU but one and ``basic``, which runs a kernel in the thread
 that waits for it. The pose kernels are enqueued on both at once
 (:func:`launch_shared`): the workers and the calling thread take blocks of
-points from one counter until none are left, so the calling thread computes
-instead of sleeping until a worker wakes it, and a worker that wakes late
-finds less to do. Measured on the 2-core VM: an empty kernel's enqueue + wait
-takes 0.04-0.07 ms on the pthread device and 2.6 us on the basic device;
-waking the worker costs the calling thread 13-19 us and the worker starts
-20-40 us later, so launches too small to pay for that run on the calling
-thread alone (:func:`time_alone`, :data:`SHARE_MIN_S`).
+points of the job published in a mailbox (:class:`Jobs`, kernels/share.h)
+until none are left, so the calling thread computes instead of sleeping until
+a worker wakes it, and a worker that wakes late finds less to do. Measured on
+the 2-core VM: an empty kernel's enqueue + wait takes 0.04-0.07 ms on the
+pthread device and 2.6 us on the basic device; waking the worker costs the
+calling thread 13-19 us and the worker starts 20-40 us later. So the worker
+*stands*: after a job it polls the mailbox for the next one for
+:func:`standby_s` (1 ms unless ``NRPOSE_STANDBY_US`` says otherwise), and
+frames posed in a loop cost no wake-up at all (as OpenMP runtimes spin
+before they sleep); a launch too small to pay for a wake-up, not following
+another within that time, runs on the calling thread alone
+(:func:`time_alone`, :data:`SHARE_MIN_S`). The price is up to standby_s of
+one CPU spent polling after the last pose: set ``NRPOSE_STANDBY_US=0`` where
+processes outnumber CPUs.
 """
 from __future__ import annotations
 

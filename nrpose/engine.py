@@ -14,8 +14,9 @@ global rotation R_g when some point takes it as its reference
 points use (relative rotation vectors, or sign-aligned quaternions for the
 quaternion blend), ``nrmls_pose`` poses the points. The calling thread runs the kernels
 before ``nrmls_pose`` and takes blocks of points of ``nrmls_pose`` alongside PoCL's worker threads
-(:func:`nrpose.device.launch_shared`), or alone when the launch is too small
-to be worth waking them (timed at bind). ``pose_frames`` does the same for F
+(:func:`nrpose.device.launch_shared`; in a loop of poses a standing worker,
+which polls for the next pose), or alone when the launch is too small to be
+worth waking them (timed at bind). ``pose_frames`` does the same for F
 poses in one launch of each.
 
 ``backend="numpy"`` runs :func:`nrpose.blend.pose_reference` instead (float64);
