@@ -2,7 +2,7 @@
 
 Two device ceilings, measured with OpenCL profiling events on private queues, each
 kernel launched as the pose kernels are (:func:`nrpose.device.launch_shared`: PoCL's
-worker threads and the calling thread take blocks of work from one counter; the
+worker threads and the calling thread take blocks of one job from a mailbox; the
 time of a launch is from the first device's start to the last one's end):
 
 * **arithmetic**: ``peak_flops`` -- every block runs ``ACCS`` independent
@@ -251,7 +251,7 @@ class Roofs:
                 "copy_buffers_mb": {k: v[2] >> 20 for k, v in self.copy.items()},
                 "launch": "every kernel launched as the pose kernels are (nrpose.device.launch_shared): "
                           f"{', '.join(f'{q.device.name} x {n}' for q, n in device.work_items(self.queues))} "
-                          "work-items taking blocks from one counter",
+                          "work-items taking blocks of one job (nrpose.device.Jobs)",
                 "timing": "OpenCL profiling events on private queues, first start to last end over the "
                           "devices of a launch; medians"}
 

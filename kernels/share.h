@@ -59,29 +59,44 @@
 #define SPIN_PAUSE() ((void)0)
 #endif
 
+/* Ordering of a block's reads and writes against the mailbox, for the compiler (the
+ * hardware's is x86's, where the host enables standing workers: nrpose/device.py
+ * standing_workers_possible): OpenCL 1.x atomics promise none, PoCL's mem_fence
+ * compiles to nothing, clang's fences are compiler barriers here (release, acquire). */
+#if defined(__clang__)
+#define JOB_RELEASE() __atomic_thread_fence(__ATOMIC_RELEASE)
+#define JOB_ACQUIRE() __atomic_thread_fence(__ATOMIC_ACQUIRE)
+#else
+#define JOB_RELEASE() mem_fence(CLK_GLOBAL_MEM_FENCE)
+#define JOB_ACQUIRE() mem_fence(CLK_GLOBAL_MEM_FENCE)
+#endif
+
 /* The next block of the job tagged `tag`, taken; -1 when the job has none left (or
- * is no longer the published one). */
+ * is no longer the published one). The block's reads come after the taking. */
 static inline int take_block(volatile __global int *jobs, const int tag)
 {
     for (;;) {
         const int v = jobs[JOB_NEXT];
         if ((v >> JOB_TAG_SHIFT) != tag || (v & JOB_BLOCK_MASK) >= jobs[JOB_BLOCKS])
             return -1;
-        if (atomic_cmpxchg(jobs + JOB_NEXT, v, v + 1) == v)
+        if (atomic_cmpxchg(jobs + JOB_NEXT, v, v + 1) == v) {
+            JOB_ACQUIRE();
             return v & JOB_BLOCK_MASK;
+        }
     }
 }
 
 /* Whether to serve a job (again): sets *tag to the job's. ROLE_CALLER serves the
  * published job once, then waits for the blocks others took; a standing worker serves
  * each newly published job that has blocks left and returns 0 after `role` idle polls
- * or on JOB_QUIT. *served: jobs served so far. */
+ * or on JOB_QUIT. *served: whether the caller has served its job. */
 static inline int next_job(volatile __global int *jobs, const int role, int *tag, int *served)
 {
     if (role == ROLE_CALLER) {
         if (*served) {
             while (atomic_add(jobs + JOB_DONE, 0) < jobs[JOB_BLOCKS])
                 SPIN_PAUSE();
+            JOB_ACQUIRE();      /* the others' blocks are written */
             return 0;
         }
         *tag = jobs[JOB_NEXT] >> JOB_TAG_SHIFT;
@@ -92,7 +107,6 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
         const int v = jobs[JOB_NEXT];
         if ((v >> JOB_TAG_SHIFT) != *tag && (v & JOB_BLOCK_MASK) < jobs[JOB_BLOCKS]) {
             *tag = v >> JOB_TAG_SHIFT;
-            ++*served;
             return 1;
         }
         SPIN_PAUSE();
@@ -102,9 +116,9 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
 }
 
 #define FOR_EACH_JOB(jobs, role) \
-    for (int job_tag_ = -1, jobs_served_ = 0; next_job((jobs), (role), &job_tag_, &jobs_served_); )
+    for (int job_tag_ = -1, job_served_ = 0; next_job((jobs), (role), &job_tag_, &job_served_); )
 
-/* each block's writes are done before JOB_DONE counts it (atomics order them) */
+/* each block's writes are done before JOB_DONE counts it */
 #define FOR_EACH_BLOCK(b, jobs) \
     for (int b = take_block((jobs), job_tag_); b >= 0; \
-         b = (atomic_inc((jobs) + JOB_DONE), take_block((jobs), job_tag_)))
+         b = (JOB_RELEASE(), atomic_inc((jobs) + JOB_DONE), take_block((jobs), job_tag_)))

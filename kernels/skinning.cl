@@ -44,8 +44,8 @@
 __kernel void lbs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
-                  __global const float *restrict mats,
-                  __global float *restrict out,
+                  __global const float *mats,          /* per pose: not restrict, a standing worker sees it change */
+                  __global float *out,
                   const int K, const int J, const int G,
                   const int block, volatile __global int *jobs, const int role)
 {
@@ -96,8 +96,8 @@ __kernel void lbs(__global const float *restrict rest,
 __kernel void dqs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
-                  __global const float *restrict dq,
-                  __global float *restrict out,
+                  __global const float *dq,            /* per pose, likewise */
+                  __global float *out,
                   const int K, const int J, const int G,
                   const int block, volatile __global int *jobs, const int role)
 {

@@ -229,6 +229,8 @@ def time_alone(run_alone, runs: int = 5) -> float:
 #: then costs no wake-up of PoCL's worker thread, for at most this much of one CPU spent
 #: polling after the last pose (as OpenMP runtimes spin before they sleep)
 STANDBY_S = 1e-3
+#: the longest standby NRPOSE_STANDBY_US may ask for (seconds)
+STANDBY_MAX_S = 10.0
 
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_DONE, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(6)
@@ -244,32 +246,46 @@ __kernel void standby_probe(volatile __global int *jobs, const int role)
 """
 
 
+def standing_workers_possible() -> bool:
+    """Standing workers need the host's stores to the mailbox to reach a running kernel in
+    program order (x86's total store order; :meth:`Jobs.publish` relies on it): elsewhere
+    launches wake their workers each time."""
+    import platform
+    return platform.machine().lower() in ("x86_64", "amd64", "i386", "i686", "x86")
+
+
 def standby_s() -> float:
     """The standing workers' wait for the next job, seconds: ``NRPOSE_STANDBY_US``
-    (microseconds, >= 0) where set, else :data:`STANDBY_S`. DeviceError naming the
-    variable when it is not a number >= 0."""
+    (microseconds, 0 to :data:`STANDBY_MAX_S`) where set, else :data:`STANDBY_S`; 0 where
+    :func:`standing_workers_possible` is False. DeviceError naming the variable when it is
+    not such a number."""
     text = os.environ.get("NRPOSE_STANDBY_US", "")
-    return _standby_s(text) if text.strip() else STANDBY_S
+    return _standby_s(text.strip(), _X86)
+
+
+_X86 = standing_workers_possible()
 
 
 @functools.lru_cache(maxsize=8)
-def _standby_s(text: str) -> float:
-    try:
-        us = float(text)
-    except ValueError:
-        us = float("nan")
-    if not us >= 0 or us == float("inf"):
-        raise DeviceError(f"NRPOSE_STANDBY_US must be a number of microseconds >= 0 (0: no "
-                          f"standing workers), got {text!r}")
-    return us * 1e-6
+def _standby_s(text: str, possible: bool) -> float:
+    if not text:
+        seconds = STANDBY_S
+    else:
+        try:
+            seconds = float(text) * 1e-6
+        except ValueError:
+            seconds = float("nan")
+        if not 0 <= seconds <= STANDBY_MAX_S:
+            raise DeviceError(f"NRPOSE_STANDBY_US must be a number of microseconds from 0 (no "
+                              f"standing workers) to {STANDBY_MAX_S * 1e6:.0f}, got {text!r}")
+    return seconds if possible else 0.0
 
 
 @functools.lru_cache(maxsize=None)
 def _polls_per_s(ctx, wq) -> float:
     """Idle polls per second of a standing worker (share.h next_job), measured once per
-    context: a worker with no job to serve, launched with two poll budgets, timed to its
-    end (best of 3 each; the difference cancels the launch)."""
-    import time
+    context: a worker with no job to serve, launched with a few polls and with enough
+    for 2 ms or more, each timed to its end (best of 3; the difference cancels the launch)."""
     cl = _cl()
     kernel = cl.Kernel(cl.Program(ctx, with_headers(_STANDBY_PROBE)).build(), "standby_probe")
     box = HostArray(8, dtype=np.int32, atomics=True)
@@ -287,21 +303,28 @@ def _polls_per_s(ctx, wq) -> float:
         return best
 
     run(1)                              # the first launch builds the work-group function
-    few, many = 1000, 30000
-    span = run(many) - run(few)
-    return (many - few) / span if span > 0 else 1e7
+    few, many = 1000, 16000
+    while True:
+        span = run(many) - run(few)
+        if span >= 2e-3 or many >= 1 << 28:
+            return (many - few) / max(span, 1e-6)
+        many *= 4
 
 
 class Jobs:
     """The job mailbox of a kernel's shared launches (kernels/share.h): a small
     int32 :class:`HostArray` (``box``) that a kernel takes as its last-but-one argument,
-    its ``role`` being the last (both set by :func:`launch_shared`). One per deformer.
+    its ``role`` (:data:`ROLE_CALLER`) being the last; the owner sets both with the
+    kernel's other arguments. One per deformer.
 
     ``alone_s``: seconds one frame of the kernel takes on the calling thread alone
     (:func:`time_alone`, set by the owner at bind; until then launches are shared).
     ``keep``: the arrays the kernel's launches use (set by the owner, kept alive while
-    a standing worker may still read them). :meth:`stop` ends this mailbox's standing
-    worker, if any: owners call it before they free or replace such arrays.
+    a standing worker may still read them). A standing worker runs a clone of the
+    kernel made when it first stood, with the arguments of then: owners call
+    :meth:`arguments_changed` before they set any argument again (or free an array
+    the kernel reads), :meth:`stop` to end the standing worker.
+    Not thread-safe: launch a deformer's kernels from one thread at a time.
     """
 
     def __init__(self, svm: bool | None = None):
@@ -312,11 +335,13 @@ class Jobs:
         self.keep: tuple = ()
         self._tag = 0
         self._last = float("-inf")      # perf_counter() at the end of the last launch
-        self._standing = None           # (kernel, event, arrays kept) of a standing worker
+        self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker
+        self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
 
     def publish(self, blocks: int, frames: int) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
-        blocks of (share.h: its counters first, the tagged block counter last)."""
+        blocks of (share.h: closed, then its counts, then opened at block 0). The mailbox
+        is uploaded (no-op with shared memory) on the context's queue."""
         if not 0 <= blocks < JOB_CLOSED:
             raise DeviceError(f"a launch of {blocks} blocks exceeds the job mailbox's "
                               f"{JOB_CLOSED - 1}; pose fewer points per deformer")
@@ -331,16 +356,25 @@ class Jobs:
         b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT          # open: block 0 is next
         self.box.upload()
 
-    def wants_workers(self, kernel, frames: int, standby: float) -> bool:
-        """Whether a launch of ``kernel`` for ``frames`` frames should share its blocks with
-        PoCL's workers (:func:`launch_shared` with ``workers=None``): always while a standing
-        worker of this kernel polls this mailbox (it costs nothing); else when the frames
-        take at least :data:`SHARE_MIN_S` on the calling thread alone; else, with standing
-        workers on (``standby`` > 0 seconds), when this mailbox's last launch ended less than
-        ``standby`` ago: frames posed in a loop, where the worker woken now stands for the
-        next ones."""
-        return ((standby > 0 and self.standing(kernel)) or worth_sharing(frames, self.alone_s)
-                or time.perf_counter() - self._last < standby)
+    def mode(self, kernel, frames: int, blocks: int, standby: float) -> str:
+        """How a launch of ``kernel`` (``frames`` frames, ``blocks`` blocks) uses PoCL's
+        workers when the caller leaves it to :func:`launch_shared` (``workers=None``):
+
+        * ``"standing"``: a standing worker of this kernel polls this mailbox (it costs
+          nothing), or, with standing workers on (``standby`` > 0 seconds), this
+          mailbox's last launch ended less than ``standby`` ago and the job has 2 blocks
+          or more: frames posed in a loop, where the worker woken now stands for the
+          next ones;
+        * ``"woken"``: the frames take at least :data:`SHARE_MIN_S` on the calling thread
+          alone (:func:`worth_sharing`): workers woken for this launch only (launches
+          spaced further apart than ``standby``, e.g. one frame per display refresh,
+          spend no CPU polling between frames);
+        * ``"alone"``: otherwise, the calling thread alone.
+        """
+        if standby > 0 and (self.standing(kernel) or (
+                blocks >= 2 and time.perf_counter() - self._last < standby)):
+            return "standing"
+        return "woken" if worth_sharing(frames, self.alone_s) else "alone"
 
     def standing(self, kernel) -> bool:
         """True while a standing worker of ``kernel`` polls this mailbox."""
@@ -350,31 +384,42 @@ class Jobs:
     def stand(self, kernel, wq, seconds: float) -> None:
         """Enqueue a standing worker of ``kernel`` on the workers' queue ``wq`` (ending any
         other first), taking the published job's blocks and then polling for the next
-        for about ``seconds``. It runs a clone of the kernel (its arguments as they are
-        now, the role set to the poll budget), so that ``kernel`` keeps ROLE_CALLER."""
+        for about ``seconds``. It runs the kernel's clone (made at its first standing,
+        its arguments as they were then, the role set to the poll budget), so that
+        ``kernel`` keeps ROLE_CALLER and no argument is set per launch (pyopencl's
+        set_arg of an int takes ~15 us)."""
         global _standing
-        if _standing is not None:
-            _standing.stop()
-        polls = max(1, int(seconds * _polls_per_s(context()[0], wq)))
-        worker = kernel.clone()
-        worker.set_arg(worker.num_args - 1, np.int32(polls))
+        stop_standing()
+        polls = min(max(1, int(seconds * _polls_per_s(context()[0], wq))), 2**31 - 1)
+        clone = self._clones.get(kernel)
+        if clone is None or clone[1] != polls:
+            worker = kernel.clone()
+            worker.set_arg(worker.num_args - 1, np.int32(polls))
+            self._clones[kernel] = clone = (worker, polls)
         self.box.host[JOB_QUIT] = 0
         self.box.host[JOB_STANDING] = 1
         n = wq.device.max_compute_units
-        self._standing = (kernel, _cl().enqueue_nd_range_kernel(wq, worker, (n,), (1,)), self.keep)
+        event = _cl().enqueue_nd_range_kernel(wq, clone[0], (n,), (1,))
+        self._standing = (kernel, event, self.keep, os.getpid())
         wq.flush()
         _standing = self
 
     def stop(self) -> None:
-        """End this mailbox's standing worker (if any) and wait until it has returned."""
+        """End this mailbox's standing worker (if any) and wait until it has returned (in
+        a process forked since it stood, only forget it: its thread is not there)."""
         global _standing
-        if self._standing is None:
-            return
-        self.box.host[JOB_QUIT] = 1
-        self._standing[1].wait()
-        self._standing = None
+        standing, self._standing = self._standing, None
         if _standing is self:
             _standing = None
+        if standing is not None and standing[3] == os.getpid():
+            self.box.host[JOB_QUIT] = 1
+            standing[1].wait()
+
+    def arguments_changed(self) -> None:
+        """Before an owner sets an argument of its kernel again (or frees an array it
+        reads): end the standing worker and drop the clones, which hold the old ones."""
+        self.stop()
+        self._clones.clear()
 
 
 _standing: Jobs | None = None      # the mailbox whose standing worker holds the worker device
@@ -396,21 +441,20 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
 
     kernel: a ``cl.Kernel`` whose work-items take blocks of the job published in
     ``jobs`` (``FOR_EACH_JOB`` / ``FOR_EACH_BLOCK``, kernels/share.h) until none are
-    left; its arguments set but the last two (the mailbox and the role, set here).
+    left; its arguments set, the mailbox and :data:`ROLE_CALLER` the last two.
     blocks, frames: the job's size. before: launches ``[(kernel, global_size,
     local_size), ...]`` that must complete first (they run on the calling thread's
     queue). queues: ``(worker queue or None, calling-thread queue)`` to use instead of
-    the shared ones (profiling queues; no standing worker then).
+    the shared ones (profiling queues; workers are woken, never standing, then).
 
-    workers: True shares the blocks with PoCL's worker threads, False runs the kernel
-    on the calling thread's queue alone, None (default) decides (:meth:`Jobs.wants_workers`).
-
-    Shared, with standing workers on (:func:`standby_s` > 0, shared memory, the default
-    queues), the workers are a standing worker (share.h): it serves this job, then polls
-    for the next for up to standby_s; the calling thread waits in the kernel for the
-    worker's blocks. Otherwise workers are woken for this job only. Without shared
-    memory (``jobs.box.svm`` False) only the calling thread's queue runs the kernel.
-    Returns the events ``(before, kernel)`` (a standing worker's is not among them).
+    workers: True shares the blocks with PoCL's worker threads (a standing worker where
+    :func:`standby_s` > 0, else woken ones), False runs the kernel on the calling
+    thread's queue alone, None (default) decides (:meth:`Jobs.mode`). A standing worker
+    (share.h) serves this job, then polls for the next for up to standby_s. The calling
+    thread waits in the kernel until every block is done, whoever took it. Without
+    shared memory (``jobs.box.svm`` False) only the calling thread's queue runs the
+    kernel. Returns the events ``(before, kernel)`` (a standing worker's is not among
+    them).
     """
     cl = _cl()
     plan = work_items(queues)
@@ -418,25 +462,28 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
     worker_q = plan[0][0] if len(plan) > 1 and jobs.box.svm else None
     standby = standby_s() if queues is None and worker_q is not None else 0.0
     if workers is None:
-        workers = jobs.wants_workers(kernel, frames, standby)
-    if not workers:
-        jobs.stop()                     # alone means alone
-        worker_q = None
-    if worker_q is None and len(plan) > 1:
-        plan = [(host_q, 1)]
-    if (_standing is not None and not (worker_q is not None and standby > 0 and _standing is jobs)
-            and any(q.device == _standing_device() for q, _ in plan)):
-        stop_standing()                 # it holds the device these queues run on
+        mode = jobs.mode(kernel, frames, blocks, standby)
+    else:
+        mode = ("standing" if standby > 0 else "woken") if workers else "alone"
+    if worker_q is None or mode == "alone":
+        worker_q, mode = None, "alone"
+        if len(plan) > 1:
+            plan = [(host_q, 1)]
+    if jobs._standing is not None and not (mode == "standing" and jobs.standing(kernel)):
+        jobs.stop()                     # of another kernel, returned, or not wanted here
+    if _standing is not None and _standing is not jobs and any(q.device == _standing_device()
+                                                                for q, _ in plan):
+        stop_standing()                 # another mailbox's: it holds these queues' device
     pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
-    if pre and (worker_q is not None or jobs._standing is not None):
+    if pre and mode != "alone":
         host_q.finish()                 # the workers read what `before` wrote
     jobs.publish(blocks, frames)
+    if not jobs.box.svm and host_q != jobs.box._queue:
+        jobs.box._queue.finish()        # its upload and the owner's, on the context's queue
     events = []
-    if worker_q is not None and standby > 0:
-        if not jobs.standing(kernel):
-            jobs.stop()                 # reap one that has returned (or serves another kernel)
-            jobs.stand(kernel, worker_q, standby)
-    elif worker_q is not None:
+    if mode == "standing" and not jobs.standing(kernel):
+        jobs.stand(kernel, worker_q, standby)
+    elif mode == "woken":
         events.append(cl.enqueue_nd_range_kernel(worker_q, kernel, (plan[0][1],), (1,)))
         worker_q.flush()
     events.append(cl.enqueue_nd_range_kernel(host_q, kernel, (plan[-1][1],), (1,)))
@@ -537,7 +584,7 @@ class HostArray:
     size: number of elements; svm: force (True) or refuse (False) shared
     memory, default: whatever the device offers; dtype: float32 (default) or
     int32; atomics: kernels on several devices update it atomically at once
-    (the counter of :func:`launch_shared`). ``host``: the (size,) numpy view;
+    (the job mailbox of :func:`launch_shared`). ``host``: the (size,) numpy view;
     ``arg``: what to pass to ``Kernel.set_arg``.
     """
 

@@ -33,7 +33,7 @@ from .handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
 LANES = 8      # points per float8 chunk
-BLOCK = 32     # chunks (of 8 points) per block of work taken from the shared counter
+BLOCK = 32     # chunks (of 8 points) per block of work taken from the job mailbox (share.h)
 
 
 class Deformer:
@@ -178,7 +178,7 @@ class Deformer:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames."""
         if frames <= self._frames:
             return
-        self._jobs.stop()       # a standing worker may read the arrays replaced here
+        self._jobs.arguments_changed()      # a standing worker reads the arrays replaced here
         self._pose = device.HostArray(frames * self._pose_stride)
         blocks = self._pose.host.reshape(frames, self._pose_stride)
         blocks[:, -9:] = np.eye(3).ravel()                      # R_g, unless GlobalFit writes it

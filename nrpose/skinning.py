@@ -58,7 +58,7 @@ __all__ = ["LbsDeformer", "DqsDeformer", "Deformer", "lbs_reference", "dqs_refer
            "dqs_reference_dq", "dual_quaternions", "prepare_influences"]
 
 LANES = 8          # vertices per group (float8 lanes)
-BLOCK = 32         # groups (of 8 vertices) per block of work taken from the shared counter
+BLOCK = 32         # groups (of 8 vertices) per block of work taken from the job mailbox (share.h)
 
 
 # --------------------------------------------------------------------------- validation
@@ -349,7 +349,7 @@ class Deformer:
         cur = getattr(self, which)
         if cur is None or cur.host.size < n or cur.svm != self._svm:
             if self._jobs is not None:
-                self._jobs.stop()       # a standing worker may read the array replaced here
+                self._jobs.arguments_changed()    # a standing worker reads the array replaced here
             cur = device.HostArray(n, svm=self._svm, **kw)
             self._kernel.set_arg(arg, cur.arg)
             setattr(self, which, cur)
@@ -370,6 +370,7 @@ class Deformer:
             self._kernel.set_arg(9, self._jobs.box.arg)
         self._jobs.keep = (arr_in, arr_out)
         if j != self._joints_bound:
+            self._jobs.arguments_changed()        # a standing worker's clone has the old J
             self._kernel.set_arg(6, np.int32(j))
             self._joints_bound = j
         self._batch = f

@@ -595,36 +595,37 @@ def test_pose_out_shape_is_checked(backend):
 
 def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     """A bind times one frame of the pose kernel on the calling thread alone (the job
-    mailbox's alone_s); a launch whose frames take less than device.SHARE_MIN_S together
-    runs there alone, unless it follows the deformer's last launch within the standby time
-    (frames in a loop) or a standing worker polls; larger ones are shared."""
+    mailbox's alone_s). A launch whose frames take less than device.SHARE_MIN_S together
+    runs there alone; larger ones wake the workers; a launch following the deformer's last
+    one within the standby time (frames in a loop) and of 2 blocks or more stands a worker,
+    and one that finds it standing uses it."""
     import time
 
     from nrpose import device
+    from nrpose.engine import BLOCK, LANES
 
     rng = np.random.default_rng(4)
     rest = random_rest(rng, 0, 2)
-    dev = Deformer(rng.uniform(-1, 1, (40, 3)), rest)
+    dev = Deformer(rng.uniform(-1, 1, (2 * BLOCK * LANES, 3)), rest)
     jobs = dev._jobs
-    assert 0 < jobs.alone_s < float("inf")
+    assert 0 < jobs.alone_s < float("inf") and dev._blocks == 2
     decided = []
-    real = device.Jobs.wants_workers
-    monkeypatch.setattr(device.Jobs, "wants_workers",
-                        lambda self, *a: decided.append(real(self, *a)) or decided[-1])
+    real = device.Jobs.mode
+    monkeypatch.setattr(device.Jobs, "mode", lambda self, *a: decided.append(real(self, *a)) or decided[-1])
     jobs.alone_s = device.SHARE_MIN_S / 4
-    for standby_us in ("0", "1000"):
-        monkeypatch.setenv("NRPOSE_STANDBY_US", standby_us)
+    monkeypatch.setenv("NRPOSE_STANDBY_US", "10000000")
+    for frames in (3, 4, 1):
         jobs.stop()
-        jobs._last = time.perf_counter() - 1.0            # a second since the last launch
-        dev.pose_frames([random_pose(rng, rest)] * 3)      # alone
-        jobs._last = time.perf_counter() - 1.0
-        dev.pose_frames([random_pose(rng, rest)] * 4)      # shared
-    assert decided == [False, True, False, True]
-    assert jobs.standing(dev._kernel)                      # the last launch left one standing
+        jobs._last = time.perf_counter() - 20.0             # long since the last launch
+        dev.pose_frames([random_pose(rng, rest)] * frames)
+    dev.pose_frames([random_pose(rng, rest)])              # right after: in a loop
+    assert jobs.standing(dev._kernel)
+    dev.pose_frames([random_pose(rng, rest)])              # finds it standing
+    assert decided == ["alone", "woken", "alone", "standing", "standing"]
+    assert jobs.mode(dev._kernel, 1, 1, 10.0) == "standing"           # it still stands
     jobs.stop()
-    jobs._last = time.perf_counter()
-    assert jobs.wants_workers(dev._kernel, 1, 1e-3)          # in a loop: shared
-    assert not jobs.wants_workers(dev._kernel, 1, 0.0)       # standing workers off: alone
+    assert jobs.mode(dev._kernel, 1, 1, 10.0) == "alone"              # one block: nothing to share
+    assert jobs.mode(dev._kernel, 1, 2, 0.0) == "alone"               # standing workers off
 
 
 def test_minimal_rotation_conventions():

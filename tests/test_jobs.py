@@ -15,7 +15,7 @@ pytest.importorskip("pyopencl")
 
 MARK = """#include "share.h"
 /* who[b] = 2,000,000 (standing worker) or 1,000,000 (calling thread or a woken worker)
- * + the job's frames, for each block b taken; `work` iterations of arithmetic per block */
+ * + BY + the job's frames, for each block b taken; `work` iterations of arithmetic per block */
 __kernel void mark(__global int *who, const int work, volatile __global int *jobs, const int role)
 {
     FOR_EACH_JOB(jobs, role) {
@@ -24,7 +24,7 @@ __kernel void mark(__global int *who, const int work, volatile __global int *job
             float acc = 0.0f;
             for (int i = 0; i < work; ++i)
                 acc = acc * 0.5f + (float)i;
-            who[b] = (role > 0 ? 2000000 : 1000000) + F + (acc < 0.0f);
+            who[b] = (role > 0 ? 2000000 : 1000000) + BY + F + (acc < 0.0f);
         }
     }
 }
@@ -38,14 +38,16 @@ def _workers_or_skip():
 
 
 class Marker:
-    """The `mark` kernel with its mailbox and a `who` array of `size` blocks."""
+    """The `mark` kernel (marking blocks with `by` added) with its mailbox (or `jobs`, shared
+    with another Marker) and a `who` array of `size` blocks."""
 
-    def __init__(self, size: int = 4096, work: int = 200):
+    def __init__(self, size: int = 4096, work: int = 200, jobs: device.Jobs | None = None, by: int = 0):
         import pyopencl as cl
 
         ctx, _ = device.context()
-        self.kernel = cl.Kernel(cl.Program(ctx, device.with_headers(MARK)).build(), "mark")
-        self.jobs = device.Jobs()
+        self.kernel = cl.Kernel(cl.Program(ctx, device.with_headers(MARK)).build(options=[f"-DBY={by}"]),
+                                "mark")
+        self.jobs = jobs or device.Jobs()
         self.who = device.HostArray(size, dtype=np.int32)
         self.jobs.keep = (self.who,)
         self.kernel.set_args(self.who.arg, np.int32(work), self.jobs.box.arg, np.int32(0))
@@ -95,8 +97,30 @@ def test_idle_standing_worker_returns_and_a_later_launch_stands_again(standby):
     while m.jobs.box.host[device.JOB_STANDING] and time.perf_counter() < deadline:
         time.sleep(1e-3)
     assert not m.jobs.standing(m.kernel)
+    standby(10_000_000)
     who = m.launch(40, 2, workers=True)
     assert np.all(np.isin(who[:40], (STANDING + 2, CALLER + 2))) and not who[40:].any()
+    assert m.jobs.standing(m.kernel)
+
+
+def test_a_standing_worker_serves_only_its_own_kernel(standby):
+    """A mailbox's standing worker runs one kernel: a launch of another kernel on the same
+    mailbox (a kernel variant) ends it before publishing, so every block is the new
+    kernel's; so does a launch meant for the calling thread alone."""
+    _workers_or_skip()
+    standby(10_000_000)
+    a = Marker()
+    b = Marker(jobs=a.jobs, by=1000)
+    b.who = a.who
+    b.kernel.set_arg(0, a.who.arg)
+    a.launch(64, workers=True)
+    assert a.jobs.standing(a.kernel)
+    who = b.launch(64, workers=True)
+    assert np.all(np.isin(who[:64], (STANDING + 1001, CALLER + 1001)))
+    assert b.jobs.standing(b.kernel) and not b.jobs.standing(a.kernel)
+    for _ in range(20):
+        who = a.launch(64, queues=(None, device.context()[1]))     # the calling thread's queue alone
+        assert np.all(who[:64] == CALLER + 1)
 
 
 def test_stop_ends_a_polling_worker_at_once(standby):
@@ -131,16 +155,51 @@ def test_standing_workers_give_way(standby):
 
 def test_standby_setting(standby):
     """NRPOSE_STANDBY_US: 0 wakes workers for each shared launch and leaves none standing;
-    a value that is not a number >= 0 is a DeviceError naming the variable."""
+    a value that is not a number of microseconds from 0 to 10 s is a DeviceError naming
+    the variable."""
     _workers_or_skip()
     standby(0)
     m = Marker()
     who = m.launch(64, 3, workers=True)
     assert np.all(np.isin(who[:64], (CALLER + 3,))) and device._standing is None
-    for bad in ("fast", "-5", "nan", "inf"):
+    for bad in ("fast", "-5", "nan", "inf", "2e7"):
         standby(bad)
         with pytest.raises(DeviceError, match="NRPOSE_STANDBY_US must be a number of microseconds"):
             m.launch(4, workers=True)
+    standby(10_000_000)                     # the longest: its poll budget fits the kernel's int
+    assert (m.launch(4, workers=True)[:4] >= CALLER).all() and m.jobs.standing(m.kernel)
+
+
+def test_forked_child_forgets_the_standing_worker(standby):
+    """A process forked while a worker stands has no such thread: stopping there (at exit,
+    or a deformer's deletion) forgets it instead of waiting for ever."""
+    _workers_or_skip()
+    import os
+    if not hasattr(os, "fork"):
+        pytest.skip("no os.fork here")
+    standby(10_000_000)
+    m = Marker()
+    m.launch(8, workers=True)
+    assert m.jobs.standing(m.kernel)
+    pid = os.fork()
+    if pid == 0:                                           # the child: must not hang
+        try:
+            device.stop_standing()
+            os._exit(0 if device._standing is None else 1)
+        finally:
+            os._exit(2)
+    deadline = time.perf_counter() + 20
+    while time.perf_counter() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        time.sleep(0.01)
+    else:
+        os.kill(pid, 9)
+        os.waitpid(pid, 0)
+        pytest.fail("the forked child hung stopping the parent's standing worker")
+    assert os.waitstatus_to_exitcode(status) == 0
+    assert m.jobs.standing(m.kernel)                       # the parent's still stands
 
 
 def test_too_many_blocks_for_the_mailbox():

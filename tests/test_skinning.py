@@ -160,16 +160,42 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     rest, joints, weights = make_rig(rng, 40, 5, 2)
     d = LbsDeformer(rest, joints, weights)
     decided = []
-    real = device.Jobs.wants_workers
-    monkeypatch.setattr(device.Jobs, "wants_workers",
-                        lambda self, *a: decided.append(real(self, *a)) or decided[-1])
+    real = device.Jobs.mode
+    monkeypatch.setattr(device.Jobs, "mode", lambda self, *a: decided.append(real(self, *a)) or decided[-1])
     d._jobs.alone_s = device.SHARE_MIN_S / 4
     mats = rigid(rng, 5)
     for frames in (3, 4):
         d._jobs.stop()
-        d._jobs._last = time.perf_counter() - 1.0
+        d._jobs._last = time.perf_counter() - 20.0
         d.pose_frames(np.stack([mats] * frames))
-    assert decided == [False, True]
+    assert decided == ["alone", "woken"]
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_joint_count_change_under_a_standing_worker(method, monkeypatch):
+    """A standing worker runs the kernel with the arguments it stood with: a batch with
+    more (or fewer) joints than the last one, within the standby time and fitting the
+    same arrays, ends it first (else its frames would be read with the old stride)."""
+    from nrpose import device
+    from nrpose.skinning import BLOCK, LANES
+
+    if device.worker_queue() is None or not device.fine_grain_svm():
+        pytest.skip("no PoCL worker device with shared memory: no standing workers")
+    monkeypatch.setenv("NRPOSE_STANDBY_US", "10000000")
+    rng = np.random.default_rng(33)
+    n = 8 * BLOCK * LANES
+    rest, joints, weights = make_rig(rng, n, 10, 4)
+    d = Deformer(rest, joints, weights, method=method)
+    ref = lbs_reference if method == "lbs" else dqs_reference
+    make = rigid if method == "dqs" else affine
+    for count, frames in ((10, 4), (12, 3), (11, 3), (10, 2)):
+        mats = np.stack([make(rng, count) for _ in range(frames)])
+        d.relaunch(workers=True)                       # a worker stands with the last arguments
+        assert d._jobs.standing(d._kernel)
+        got = d.pose_frames(mats)
+        for f in range(frames):
+            assert_close(got[f], ref(rest, joints, weights, mats[f]))
+    device.stop_standing()
 
 
 def test_lbs_scale_is_honoured_dqs_ignores_it():
