@@ -88,6 +88,22 @@ def _mem_total_gb():
     return None
 
 
+def table1_row(model: str, kind: str, data: pathlib.Path, poses: int = 1, seed: int = 0,
+               quick: bool = False) -> tuple:
+    """A Table-1 row as table1.py builds it: (points (N, 3) float64, rest HandleSet, bounding-box
+    diagonal, ``poses`` Pose objects of the row's kind drawn from ``seed``); quick: 500 points."""
+    from nrpose.handles import Pose
+
+    name, count, handles, _, rel = next(r for r in table1.TABLE1 if r[0] == model)
+    v, _ = table1.load_model(name, count, rel, pathlib.Path(data), quick)
+    rest = table1.chain_handles(v, handles) if kind == "segments" else table1.fps_handles(v, handles)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    rng = np.random.default_rng(seed)
+    make = (lambda: table1.chain_pose_args(rest, rng)) if kind == "segments" else (
+        lambda: table1.point_pose_args(rest, rng, diag))
+    return v, rest, diag, [Pose.make(rest, **make()) for _ in range(poses)]
+
+
 def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
 

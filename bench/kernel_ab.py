@@ -38,7 +38,6 @@ import common
 import table1
 from nrpose.engine import Deformer
 from nrpose.errors import NrposeError
-from nrpose.handles import Pose
 
 SHIPPED = pathlib.Path(str(resources.files("nrpose.kernels").joinpath("nrmls.cl")))
 
@@ -60,14 +59,9 @@ def compiler_quiet():
 
 def row_deformer(model: str, kind: str, data: pathlib.Path) -> tuple[Deformer, np.ndarray, float]:
     """(deformer bound for the Table-1 row, its output for the row's first pose, bbox diagonal)."""
-    name, count, handles, _, rel = next(r for r in table1.TABLE1 if r[0] == model)
-    v, _ = table1.load_model(name, count, rel, data, False)
-    rest = table1.chain_handles(v, handles) if kind == "segments" else table1.fps_handles(v, handles)
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    rng = np.random.default_rng(0)
-    args = table1.chain_pose_args(rest, rng) if kind == "segments" else table1.point_pose_args(rest, rng, diag)
+    v, rest, diag, (pose,) = common.table1_row(model, kind, data)
     deformer = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
-    return deformer, deformer.pose(Pose.make(rest, **args)).copy(), diag
+    return deformer, deformer.pose(pose).copy(), diag
 
 
 def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box", kind: str = "points",

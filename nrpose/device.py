@@ -231,6 +231,10 @@ def time_alone(run_alone, runs: int = 5) -> float:
 STANDBY_S = 1e-3
 #: the longest standby NRPOSE_STANDBY_US may ask for (seconds)
 STANDBY_MAX_S = 10.0
+#: fewer blocks than this are posed on the calling thread alone even in a loop: the box's
+#: segment row cut to 500 points (2 blocks) was 0.90-1.08x as fast with a standing worker
+#: as alone, 1,000 points (4 blocks) 1.12-1.16x, 3,000 1.22x (poses in a loop, one process)
+STANDING_MIN_BLOCKS = 4
 
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_DONE, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(6)
@@ -362,9 +366,9 @@ class Jobs:
 
         * ``"standing"``: a standing worker of this kernel polls this mailbox (it costs
           nothing), or, with standing workers on (``standby`` > 0 seconds), this
-          mailbox's last launch ended less than ``standby`` ago and the job has 2 blocks
-          or more: frames posed in a loop, where the worker woken now stands for the
-          next ones;
+          mailbox's last launch ended less than ``standby`` ago and the job has
+          :data:`STANDING_MIN_BLOCKS` blocks or more: frames posed in a loop, where the
+          worker woken now stands for the next ones;
         * ``"woken"``: the frames take at least :data:`SHARE_MIN_S` on the calling thread
           alone (:func:`worth_sharing`): workers woken for this launch only (launches
           spaced further apart than ``standby``, e.g. one frame per display refresh,
@@ -372,7 +376,7 @@ class Jobs:
         * ``"alone"``: otherwise, the calling thread alone.
         """
         if standby > 0 and (self.standing(kernel) or (
-                blocks >= 2 and time.perf_counter() - self._last < standby)):
+                blocks >= STANDING_MIN_BLOCKS and time.perf_counter() - self._last < standby)):
             return "standing"
         return "woken" if worth_sharing(frames, self.alone_s) else "alone"
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import pathlib
 
 import pytest
@@ -209,3 +210,31 @@ def test_kernel_ab(tmp_path, monkeypatch, capfd):
         assert kernel_ab.main(args + ["--launches", "2"]) == 2
         err = capfd.readouterr().err
         assert what in err and err.count("\n") == 1, err
+
+
+def test_standby_ab(tmp_path, monkeypatch, capfd):
+    """bench/standby_ab.py at 500 points on the box rows (project-generated data): the JSON
+    fields, positive finite timings, equal outputs under both policies, the PNG, the
+    environment variable restored; an unknown row or a bad count: exit 2, one line."""
+    import importlib
+
+    monkeypatch.syspath_prepend(str(pathlib.Path(__file__).resolve().parent.parent / "bench"))
+    monkeypatch.setenv("NRPOSE_STANDBY_US", "750")
+    standby_ab = importlib.import_module("standby_ab")
+    out, png = tmp_path / "ab.json", tmp_path / "ab.png"
+    assert standby_ab.main(["--rows", "box/segments,box/points", "--rounds", "2", "--poses", "5", "--quick",
+                            "--json", str(out), "--png", str(png)]) == 0
+    assert os.environ["NRPOSE_STANDBY_US"] == "750"
+    doc = json.loads(out.read_text())
+    assert doc["schema"] == "nrpose-bench-standby-ab/1" and [r["kind"] for r in doc["rows"]] == ["segments", "points"]
+    for r in doc["rows"]:
+        assert r["model"] == "box" and r["points"] == 500
+        assert _stats_ok(r["standing_ms"]) and _stats_ok(r["woken_ms"]) and r["standing_ms"]["n"] == 10
+        assert _finite_positive(r["woken_over_standing"]["median"]) and r["woken_over_standing"]["rounds"] == 2
+        assert r["max_diff_between_policies"] == 0.0 and _finite_positive(r["alone_ms"])
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    capfd.readouterr()
+    for argv in (["--rows", "box/nothing"], ["--rounds", "0"]):
+        assert standby_ab.main(argv) == 2
+        err = capfd.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("standby_ab: ")

@@ -597,8 +597,8 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     """A bind times one frame of the pose kernel on the calling thread alone (the job
     mailbox's alone_s). A launch whose frames take less than device.SHARE_MIN_S together
     runs there alone; larger ones wake the workers; a launch following the deformer's last
-    one within the standby time (frames in a loop) and of 2 blocks or more stands a worker,
-    and one that finds it standing uses it."""
+    one within the standby time (frames in a loop) and of device.STANDING_MIN_BLOCKS blocks
+    or more stands a worker, and one that finds it standing uses it."""
     import time
 
     from nrpose import device
@@ -606,9 +606,9 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
 
     rng = np.random.default_rng(4)
     rest = random_rest(rng, 0, 2)
-    dev = Deformer(rng.uniform(-1, 1, (2 * BLOCK * LANES, 3)), rest)
+    dev = Deformer(rng.uniform(-1, 1, (device.STANDING_MIN_BLOCKS * BLOCK * LANES, 3)), rest)
     jobs = dev._jobs
-    assert 0 < jobs.alone_s < float("inf") and dev._blocks == 2
+    assert 0 < jobs.alone_s < float("inf") and dev._blocks == device.STANDING_MIN_BLOCKS
     decided = []
     real = device.Jobs.mode
     monkeypatch.setattr(device.Jobs, "mode", lambda self, *a: decided.append(real(self, *a)) or decided[-1])
@@ -624,8 +624,11 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     assert decided == ["alone", "woken", "alone", "standing", "standing"]
     assert jobs.mode(dev._kernel, 1, 1, 10.0) == "standing"           # it still stands
     jobs.stop()
-    assert jobs.mode(dev._kernel, 1, 1, 10.0) == "alone"              # one block: nothing to share
-    assert jobs.mode(dev._kernel, 1, 2, 0.0) == "alone"               # standing workers off
+    jobs._last = time.perf_counter()
+    few = device.STANDING_MIN_BLOCKS - 1
+    assert jobs.mode(dev._kernel, 1, few + 1, 10.0) == "standing"     # in a loop
+    assert jobs.mode(dev._kernel, 1, few, 10.0) == "alone"            # too few blocks to share
+    assert jobs.mode(dev._kernel, 1, few + 1, 0.0) == "alone"         # standing workers off
 
 
 def test_minimal_rotation_conventions():
