@@ -120,9 +120,10 @@ def write_png(doc: dict, path: pathlib.Path) -> None:
         hi = [r[f"{name}_ms"]["p90"] - r[f"{name}_ms"]["median"] for r in rows]
         ax.bar(x + (k - 0.5) * 0.38, med, 0.38, yerr=[lo, hi], capsize=3, color=colour,
                label=f"{name} workers" + (" (NRPOSE_STANDBY_US=0)" if name == "woken" else " (default)"))
+    tops = [max(r["woken_ms"]["p90"], r["standing_ms"]["p90"]) for r in rows]
     for i, r in enumerate(rows):
-        top = max(r["woken_ms"]["p90"], r["standing_ms"]["p90"])
-        ax.text(i, top * 1.03, f"{r['woken_over_standing']['median']:.2f}×", ha="center", fontsize=8)
+        ax.text(i, tops[i] * 1.03, f"{r['woken_over_standing']['median']:.2f}×", ha="center", fontsize=8)
+    ax.set_ylim(0, max(tops) * 1.12)
     ax.set_xticks(x, [f"{r['model']}\n{r['kind']}" for r in rows], fontsize=8)
     ax.set_ylabel("pose, ms (median, p10-p90)")
     ax.set_title(f"Pose in a loop: standing vs woken workers, one process "
