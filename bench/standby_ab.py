@@ -10,9 +10,9 @@ bound; then rounds alternate the two launch policies of nrpose.device.launch_sha
 each round posing ``--poses`` poses back to back (``Deformer.pose(p, out=)``, as Table 1
 times them) after 10 untimed ones:
 
-* ``standing``: ``NRPOSE_STANDBY_US`` unset (the default, 1 ms): from the second pose of
+* ``standing``: the default standby (device.STANDBY_S, 1 ms): from the second pose of
   a loop on, PoCL's worker stands between poses, polling for the next;
-* ``woken``: ``NRPOSE_STANDBY_US=0``: each pose wakes the worker when the launch is
+* ``woken``: standby 0 (``NRPOSE_STANDBY_US=0``): each pose wakes the worker when the launch is
   worth it (frames taking >= device.SHARE_MIN_S on the calling thread alone), else runs
   on the calling thread alone: the behaviour before standing workers.
 
@@ -36,18 +36,12 @@ import numpy as np
 
 import common
 import table1
+from nrpose import device
 from nrpose.engine import Deformer
 from nrpose.errors import NrposeError
 
-POLICIES = {"standing": None, "woken": "0"}     # NRPOSE_STANDBY_US (None: unset, the default)
+POLICIES = {"standing": device.STANDBY_S, "woken": 0.0}     # standby, seconds
 WARMUP = 10
-
-
-def _policy(value: str | None) -> None:
-    if value is None:
-        os.environ.pop("NRPOSE_STANDBY_US", None)
-    else:
-        os.environ["NRPOSE_STANDBY_US"] = value
 
 
 def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: int, quick: bool) -> dict:
@@ -61,7 +55,7 @@ def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: i
         order = list(POLICIES) if r % 2 == 0 else list(POLICIES)[::-1]
         medians = {}
         for name in order:
-            _policy(POLICIES[name])
+            device.set_standby_s(POLICIES[name])
             for i in range(WARMUP):
                 d.pose(row_poses[i % len(row_poses)], out=out)
             ts = []
@@ -83,7 +77,7 @@ def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: i
 
 def run(rows: list[tuple[str, str]], rounds: int = 12, poses: int = 100, quick: bool = False,
         data: pathlib.Path = table1.DEFAULT_DATA, log=print) -> dict:
-    before = os.environ.get("NRPOSE_STANDBY_US")
+    before = device.standby_s()
     cpu0, load0 = common.cpu_times(), common.load()
     records = []
     try:
@@ -95,11 +89,12 @@ def run(rows: list[tuple[str, str]], rounds: int = 12, poses: int = 100, quick: 
                     f"{r['woken_ms']['median']:.3f} ms, woken/standing per round {r['woken_over_standing']['median']:.2f} "
                     f"[{r['woken_over_standing']['min']:.2f}, {r['woken_over_standing']['max']:.2f}]")
     finally:
-        _policy(before)
+        device.set_standby_s(before)
     return {"schema": "nrpose-bench-standby-ab/1", "timestamp": common.now(),
             "git_commit": common.git("rev-parse", "HEAD"), "environment": common.environment(),
             "options": {"rounds": rounds, "poses_per_round": poses, "warmup": WARMUP, "quick": quick},
-            "policies": {"standing": "NRPOSE_STANDBY_US unset (1 ms)", "woken": "NRPOSE_STANDBY_US=0"},
+            "policies": {"standing": f"standby {device.STANDBY_S * 1e3:g} ms (the default)",
+                         "woken": "standby 0 (NRPOSE_STANDBY_US=0)"},
             "timing": "Deformer.pose(p, out=) back to back, ms per pose, the two policies alternated "
                       "in rounds",
             "load_start": load0, "load_end": common.load(),

@@ -10,7 +10,9 @@
  *   jobs[JOB_NEXT]    tag << JOB_TAG_SHIFT | next block to take; the tag (11 bits)
  *                     changes with every job, so that a work-item still holding
  *                     an earlier job's tag cannot take a block of the next one
- *   jobs[JOB_DONE]    blocks finished, counted after each block's writes
+ *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
+ *                     blocks' writes (a cache line of its own: the block counter's
+ *                     line already moves between the cores at every block taken)
  *   jobs[JOB_BLOCKS]  blocks in the job
  *   jobs[JOB_FRAMES]  frames in the job (read again after each block is taken: a
  *                     standing work-item serves jobs of different batch sizes)
@@ -43,11 +45,11 @@
  *     }
  */
 #define JOB_NEXT 0
-#define JOB_DONE 1
-#define JOB_BLOCKS 2
-#define JOB_FRAMES 3
-#define JOB_QUIT 4
-#define JOB_STANDING 5
+#define JOB_BLOCKS 1
+#define JOB_FRAMES 2
+#define JOB_QUIT 3
+#define JOB_STANDING 4
+#define JOB_DONE 16       /* 64 bytes on (the mailbox is 128-byte aligned, 32 ints) */
 #define JOB_TAG_SHIFT 20
 #define JOB_BLOCK_MASK ((1 << JOB_TAG_SHIFT) - 1)
 #define ROLE_CALLER 0
@@ -118,7 +120,18 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
 #define FOR_EACH_JOB(jobs, role) \
     for (int job_tag_ = -1, job_served_ = 0; next_job((jobs), (role), &job_tag_, &job_served_); )
 
-/* each block's writes are done before JOB_DONE counts it */
+/* Adds a work-item's `taken` blocks of a job to JOB_DONE, after their writes; 0. */
+static inline int count_done(volatile __global int *jobs, const int taken)
+{
+    if (taken) {
+        JOB_RELEASE();
+        atomic_add(jobs + JOB_DONE, taken);
+    }
+    return 0;
+}
+
+/* the blocks are counted done once, when none are left to take (the condition's
+ * second operand runs then) */
 #define FOR_EACH_BLOCK(b, jobs) \
-    for (int b = take_block((jobs), job_tag_); b >= 0; \
-         b = (JOB_RELEASE(), atomic_inc((jobs) + JOB_DONE), take_block((jobs), job_tag_)))
+    for (int b = take_block((jobs), job_tag_), taken_ = 0; b >= 0 || count_done((jobs), taken_); \
+         b = (++taken_, take_block((jobs), job_tag_)))

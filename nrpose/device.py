@@ -17,7 +17,8 @@ the 2-core VM: an empty kernel's enqueue + wait takes 0.04-0.07 ms on the
 pthread device and 2.6 us on the basic device; waking the worker costs the
 calling thread 13-19 us and the worker starts 20-40 us later. So the worker
 *stands*: after a job it polls the mailbox for the next one for
-:func:`standby_s` (1 ms unless ``NRPOSE_STANDBY_US`` says otherwise), and
+:func:`standby_s` (1 ms unless ``NRPOSE_STANDBY_US`` or :func:`set_standby_s`
+says otherwise), and
 frames posed in a loop cost no wake-up at all (as OpenMP runtimes spin
 before they sleep); a launch too small to pay for a wake-up, not following
 another within that time, runs on the calling thread alone
@@ -37,7 +38,7 @@ from importlib import resources
 
 import numpy as np
 
-from .errors import DeviceError
+from .errors import DeviceError, InputError
 
 _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
 
@@ -182,15 +183,19 @@ def _new_context(cl):
     raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
 
 
-def work_items(queues=None) -> list[tuple]:
-    """``[(queue, work-items), ...]`` of a shared launch on ``queues`` (worker queue or
+def work_items(queues=None) -> tuple[tuple, ...]:
+    """``((queue, work-items), ...)`` of a shared launch on ``queues`` (worker queue or
     None, calling-thread queue; default the shared ones): the worker device's queue
     with one work-item per worker thread, then the calling thread's queue with one; on
     a single device, its queue with 4 work-items per compute unit."""
-    wq, q = queues if queues is not None else (worker_queue(), context()[1])
+    return _work_items(*(queues if queues is not None else (worker_queue(), context()[1])))
+
+
+@functools.lru_cache(maxsize=16)
+def _work_items(wq, q) -> tuple[tuple, ...]:
     if wq is None:
-        return [(q, 4 * q.device.max_compute_units)]
-    return [(wq, wq.device.max_compute_units), (q, 1)]
+        return ((q, 4 * q.device.max_compute_units),)
+    return ((wq, wq.device.max_compute_units), (q, 1))
 
 
 #: below this time of a kernel on the calling thread alone, waking the workers costs more
@@ -237,7 +242,9 @@ STANDBY_MAX_S = 10.0
 STANDING_MIN_BLOCKS = 4
 
 # the job mailbox's fields and roles (kernels/share.h)
-JOB_NEXT, JOB_DONE, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(6)
+JOB_NEXT, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(5)
+JOB_DONE = 16                       # on a cache line of its own
+JOB_INTS = 32
 JOB_TAG_SHIFT = 20
 JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index of a job being published
 ROLE_CALLER = 0
@@ -259,30 +266,37 @@ def standing_workers_possible() -> bool:
 
 
 def standby_s() -> float:
-    """The standing workers' wait for the next job, seconds: ``NRPOSE_STANDBY_US``
-    (microseconds, 0 to :data:`STANDBY_MAX_S`) where set, else :data:`STANDBY_S`; 0 where
-    :func:`standing_workers_possible` is False. DeviceError naming the variable when it is
-    not such a number."""
-    text = os.environ.get("NRPOSE_STANDBY_US", "")
-    return _standby_s(text.strip(), _X86)
+    """The standing workers' wait for the next job, seconds: as :func:`set_standby_s` last
+    set it, else ``NRPOSE_STANDBY_US`` (microseconds, 0 to :data:`STANDBY_MAX_S`) as read
+    at the first call, else :data:`STANDBY_S`; 0 where :func:`standing_workers_possible`
+    is False. DeviceError naming the variable when it is not such a number."""
+    if _STANDBY[0] is None:
+        set_standby_s(None)
+    return _STANDBY[0]
 
 
-_X86 = standing_workers_possible()
-
-
-@functools.lru_cache(maxsize=8)
-def _standby_s(text: str, possible: bool) -> float:
-    if not text:
-        seconds = STANDBY_S
-    else:
+def set_standby_s(seconds: float | None) -> float:
+    """Set the standing workers' wait (seconds, 0 to :data:`STANDBY_MAX_S`; 0: none stand)
+    or, with None, read it again from ``NRPOSE_STANDBY_US``; returns it. Launches read
+    the setting each time (it is kept here, not looked up in the environment per pose)."""
+    if seconds is None:
+        text = os.environ.get("NRPOSE_STANDBY_US", "").strip()
         try:
-            seconds = float(text) * 1e-6
+            value = float(text) * 1e-6 if text else STANDBY_S
         except ValueError:
-            seconds = float("nan")
-        if not 0 <= seconds <= STANDBY_MAX_S:
+            value = float("nan")
+        if not 0 <= value <= STANDBY_MAX_S:
             raise DeviceError(f"NRPOSE_STANDBY_US must be a number of microseconds from 0 (no "
                               f"standing workers) to {STANDBY_MAX_S * 1e6:.0f}, got {text!r}")
-    return seconds if possible else 0.0
+    else:
+        value = float(seconds)
+        if not 0 <= value <= STANDBY_MAX_S:
+            raise InputError(f"standby must be from 0 to {STANDBY_MAX_S} seconds, got {seconds!r}")
+    _STANDBY[0] = value if standing_workers_possible() else 0.0
+    return _STANDBY[0]
+
+
+_STANDBY: list = [None]             # the setting: seconds, or None until first read
 
 
 @functools.lru_cache(maxsize=None)
@@ -292,7 +306,7 @@ def _polls_per_s(ctx, wq) -> float:
     for 2 ms or more, each timed to its end (best of 3; the difference cancels the launch)."""
     cl = _cl()
     kernel = cl.Kernel(cl.Program(ctx, with_headers(_STANDBY_PROBE)).build(), "standby_probe")
-    box = HostArray(8, dtype=np.int32, atomics=True)
+    box = HostArray(JOB_INTS, dtype=np.int32, atomics=True)
     box.host[:] = 0                     # no job published: the worker only polls
     kernel.set_arg(0, box.arg)
 
@@ -332,7 +346,7 @@ class Jobs:
     """
 
     def __init__(self, svm: bool | None = None):
-        self.box = HostArray(8, svm=svm, dtype=np.int32, atomics=True)
+        self.box = HostArray(JOB_INTS, svm=svm, dtype=np.int32, atomics=True)
         self.box.host[:] = 0
         self.box.upload()
         self.alone_s = float("inf")

@@ -8,7 +8,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import pathlib
 
 import pytest
@@ -215,16 +214,18 @@ def test_kernel_ab(tmp_path, monkeypatch, capfd):
 def test_standby_ab(tmp_path, monkeypatch, capfd):
     """bench/standby_ab.py at 500 points on the box rows (project-generated data): the JSON
     fields, positive finite timings, equal outputs under both policies, the PNG, the
-    environment variable restored; an unknown row or a bad count: exit 2, one line."""
+    standby setting restored; an unknown row or a bad count: exit 2, one line."""
     import importlib
 
     monkeypatch.syspath_prepend(str(pathlib.Path(__file__).resolve().parent.parent / "bench"))
-    monkeypatch.setenv("NRPOSE_STANDBY_US", "750")
+    from nrpose import device
+
+    monkeypatch.setattr(device, "_STANDBY", [750e-6])
     standby_ab = importlib.import_module("standby_ab")
     out, png = tmp_path / "ab.json", tmp_path / "ab.png"
     assert standby_ab.main(["--rows", "box/segments,box/points", "--rounds", "2", "--poses", "5", "--quick",
                             "--json", str(out), "--png", str(png)]) == 0
-    assert os.environ["NRPOSE_STANDBY_US"] == "750"
+    assert device.standby_s() == 750e-6
     doc = json.loads(out.read_text())
     assert doc["schema"] == "nrpose-bench-standby-ab/1" and [r["kind"] for r in doc["rows"]] == ["segments", "points"]
     for r in doc["rows"]:

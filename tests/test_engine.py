@@ -613,7 +613,7 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     real = device.Jobs.mode
     monkeypatch.setattr(device.Jobs, "mode", lambda self, *a: decided.append(real(self, *a)) or decided[-1])
     jobs.alone_s = device.SHARE_MIN_S / 4
-    monkeypatch.setenv("NRPOSE_STANDBY_US", "10000000")
+    monkeypatch.setattr(device, "_STANDBY", [10.0])
     for frames in (3, 4, 1):
         jobs.stop()
         jobs._last = time.perf_counter() - 20.0             # long since the last launch

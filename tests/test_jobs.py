@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from nrpose import device
-from nrpose.errors import DeviceError
+from nrpose.errors import DeviceError, InputError
 
 pytest.importorskip("pyopencl")
 
@@ -61,8 +61,8 @@ class Marker:
 
 @pytest.fixture
 def standby(monkeypatch):
-    """Set NRPOSE_STANDBY_US for the test; any standing worker is stopped after it."""
-    yield lambda us: monkeypatch.setenv("NRPOSE_STANDBY_US", str(us))
+    """Set the standby (microseconds) for the test; any standing worker is stopped after it."""
+    yield lambda us: monkeypatch.setattr(device, "_STANDBY", [us * 1e-6])
     device.stop_standing()
 
 
@@ -153,21 +153,30 @@ def test_standing_workers_give_way(standby):
     assert (who[:16] == CALLER + 1).all() and device._standing is None
 
 
-def test_standby_setting(standby):
-    """NRPOSE_STANDBY_US: 0 wakes workers for each shared launch and leaves none standing;
-    a value that is not a number of microseconds from 0 to 10 s is a DeviceError naming
-    the variable."""
+def test_standby_setting(standby, monkeypatch):
+    """A standby of 0 wakes workers for each shared launch and leaves none standing.
+    NRPOSE_STANDBY_US is read at the first launch (or set_standby_s(None)): a value that is
+    not a number of microseconds from 0 to 10 s is a DeviceError naming the variable;
+    set_standby_s takes seconds (InputError outside 0-10 s)."""
     _workers_or_skip()
     standby(0)
     m = Marker()
     who = m.launch(64, 3, workers=True)
     assert np.all(np.isin(who[:64], (CALLER + 3,))) and device._standing is None
     for bad in ("fast", "-5", "nan", "inf", "2e7"):
-        standby(bad)
+        monkeypatch.setenv("NRPOSE_STANDBY_US", bad)
+        monkeypatch.setattr(device, "_STANDBY", [None])          # not read yet
         with pytest.raises(DeviceError, match="NRPOSE_STANDBY_US must be a number of microseconds"):
             m.launch(4, workers=True)
-    standby(10_000_000)                     # the longest: its poll budget fits the kernel's int
+    monkeypatch.setenv("NRPOSE_STANDBY_US", " 10000000 ")        # the longest: its polls fit an int
+    assert device.set_standby_s(None) == 10.0
     assert (m.launch(4, workers=True)[:4] >= CALLER).all() and m.jobs.standing(m.kernel)
+    monkeypatch.delenv("NRPOSE_STANDBY_US")
+    assert device.set_standby_s(None) == device.STANDBY_S
+    assert device.set_standby_s(0.25) == 0.25 and device.standby_s() == 0.25
+    for bad in (-1e-6, 11.0, float("nan")):
+        with pytest.raises(InputError, match="standby must be from 0 to 10"):
+            device.set_standby_s(bad)
 
 
 def test_forked_child_forgets_the_standing_worker(standby):
@@ -247,7 +256,7 @@ def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, 
 
     ctx, queue = device.context()
     kernel = cl.Kernel(cl.Program(ctx, device.with_headers(CLAIM)).build(), "claim")
-    jobs, out = device.HostArray(8, dtype=np.int32, atomics=True), device.HostArray(1, dtype=np.int32)
+    jobs, out = device.HostArray(device.JOB_INTS, dtype=np.int32, atomics=True), device.HostArray(1, dtype=np.int32)
     jobs.host[:] = 0
     jobs.host[device.JOB_NEXT] = next_tag << device.JOB_TAG_SHIFT | next_block
     jobs.host[device.JOB_BLOCKS] = blocks
@@ -279,7 +288,8 @@ def test_publish_closes_the_job_before_it_opens_it():
         tag = writes[0][1] >> device.JOB_TAG_SHIFT
         tags.append(tag)
         assert writes[0] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT | device.JOB_CLOSED)
-        assert sorted(writes[1:-1]) == [(device.JOB_DONE, 0), (device.JOB_BLOCKS, blocks), (device.JOB_FRAMES, 4)]
+        assert sorted(writes[1:-1]) == sorted([(device.JOB_DONE, 0), (device.JOB_BLOCKS, blocks),
+                                               (device.JOB_FRAMES, 4)])
         assert writes[-1] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)
     assert tags[0] != tags[1] and all(1 <= t <= 2047 for t in tags)
     jobs._tag = 2047

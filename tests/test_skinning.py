@@ -181,7 +181,7 @@ def test_joint_count_change_under_a_standing_worker(method, monkeypatch):
 
     if device.worker_queue() is None or not device.fine_grain_svm():
         pytest.skip("no PoCL worker device with shared memory: no standing workers")
-    monkeypatch.setenv("NRPOSE_STANDBY_US", "10000000")
+    monkeypatch.setattr(device, "_STANDBY", [10.0])
     rng = np.random.default_rng(33)
     n = 8 * BLOCK * LANES
     rest, joints, weights = make_rig(rng, n, 10, 4)
