@@ -36,6 +36,7 @@ COPY_DRAM_MB = 256
 COPY_L3_MB = 4
 
 COPY_BLOCK = 4096  # float8 elements (128 KB) per block of the copy kernel
+STANDING_EMPTY_BLOCKS = 2   # empty blocks of the job timed with a standing worker polling
 
 ROOF_SOURCE = r"""
 #include "share.h"
@@ -65,7 +66,7 @@ __kernel void copy8(__global const float8 *src, __global float8 *dst,
 
 __kernel void empty(volatile __global int *jobs, const int role)
 {
-    FOR_EACH_JOB(jobs, role) {}
+    FOR_EACH_JOB(jobs, role) FOR_EACH_BLOCK(b, jobs) {}
 }
 """
 
@@ -220,15 +221,22 @@ class Roofs:
         return {"event_ms": float(np.median(ev) * 1e3), "wall_ms": float(np.median(wall) * 1e3)}
 
     def empty_standing(self, n: int) -> dict:
-        """Launch floor with a standing worker (as poses in a loop run, device.standby_s()):
-        an empty job's enqueue-to-return wall time (ms), on the shared queues; None where
-        standing workers are off or there is no worker device."""
+        """Launch floor with a standing worker polling (as poses in a loop run,
+        device.standby_s()): the enqueue-to-return wall time (ms) of a job of
+        ``STANDING_EMPTY_BLOCKS`` empty blocks on the shared queues (whoever takes them), and
+        the share of launches after which the worker still stood; None where standing
+        workers are off or there is no worker device."""
         if device.standby_s() <= 0 or device.worker_queue() is None or not self.jobs.box.svm:
             return None
-        self._launch_s(self.k_empty, 0, standing=True)          # stands the worker
-        wall = [self._launch_s(self.k_empty, 0, standing=True)[1] for _ in range(n)]
-        device.stop_standing()
-        return {"wall_ms": float(np.median(wall) * 1e3)}
+        blocks = STANDING_EMPTY_BLOCKS
+        self._launch_s(self.k_empty, blocks, standing=True)     # stands the worker
+        wall, taken = [], 0
+        for _ in range(n):
+            wall.append(self._launch_s(self.k_empty, blocks, standing=True)[1])
+            taken += self.jobs.standing(self.k_empty)
+        device.stop_standing(wait=True)
+        return {"wall_ms": float(np.median(wall) * 1e3), "blocks": blocks,
+                "stood_fraction": taken / n}
 
     def measure(self, rounds: int) -> dict:
         """Interleaved rounds of the three ceilings; medians and bests."""

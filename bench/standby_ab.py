@@ -5,10 +5,11 @@
 
 Why in one process: on the shared 2-core VM a single thread's speed differs by up to
 ~1.4x between processes, so alternated processes resolve only large changes. For each
-Table-1 row (bench/table1.py's model, handles and 20 of its poses) one deformer is
-bound; then rounds alternate the two launch policies of nrpose.device.launch_shared,
-each round posing ``--poses`` poses back to back (``Deformer.pose(p, out=)``, as Table 1
-times them) after 10 untimed ones:
+Table-1 row (bench/table1.py's model and handles, 20 poses of its kind drawn with seed 1)
+one deformer is bound; then rounds alternate the two launch policies of
+nrpose.device.launch_shared, each round posing ``--poses`` poses back to back
+(``Deformer.pose(p, out=)`` into one array, warm after the first round; Table 1 writes
+20 different ones) after 10 untimed ones:
 
 * ``standing``: the default standby (device.STANDBY_S, 1 ms): from the second pose of
   a loop on, PoCL's worker stands between poses, polling for the next;
@@ -19,9 +20,10 @@ times them) after 10 untimed ones:
 The order of the two alternates between rounds. Reported per row (and written with
 ``--json``; ``--png``: a bar chart): each policy's median, p10 and p90 over all its
 poses (ms), the per-round ratio woken / standing (median, min, max; > 1: standing is
-faster), the kernel's time alone on the calling thread as timed at bind, and the
-largest difference between the two policies' outputs (they must be equal: same blocks,
-same arithmetic). Errors: one line on stderr, exit status 2.
+faster), the share of the standing policy's poses after which a worker stood, the
+kernel's time alone on the calling thread as timed at bind, and the largest difference
+between the two policies' outputs (they must be equal: same blocks, same arithmetic).
+Errors: one line on stderr, exit status 2.
 """
 from __future__ import annotations
 
@@ -50,7 +52,7 @@ def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: i
     d = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
     out = np.empty((len(v), 3), np.float32)
     times = {name: [] for name in POLICIES}
-    ratios, last = [], {}
+    ratios, last, stood = [], {}, 0
     for r in range(rounds):
         order = list(POLICIES) if r % 2 == 0 else list(POLICIES)[::-1]
         medians = {}
@@ -63,6 +65,7 @@ def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: i
                 t = time.perf_counter()
                 d.pose(row_poses[i % len(row_poses)], out=out)
                 ts.append(time.perf_counter() - t)
+                stood += name == "standing" and d._jobs.standing(d._kernel)
             medians[name] = float(np.median(ts))
             times[name] += ts
             last[name] = d.pose(row_poses[0]).copy()
@@ -72,6 +75,7 @@ def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: i
             "alone_ms": d._jobs.alone_s * 1e3, **{f"{name}_ms": ms[name] for name in POLICIES},
             "woken_over_standing": {"median": float(np.median(ratios)), "min": float(min(ratios)),
                                     "max": float(max(ratios)), "rounds": len(ratios)},
+            "stood_fraction": stood / (rounds * poses),
             "max_diff_between_policies": float(np.abs(last["standing"] - last["woken"]).max())}
 
 
@@ -93,6 +97,7 @@ def run(rows: list[tuple[str, str]], rounds: int = 12, poses: int = 100, quick: 
     return {"schema": "nrpose-bench-standby-ab/1", "timestamp": common.now(),
             "git_commit": common.git("rev-parse", "HEAD"), "environment": common.environment(),
             "options": {"rounds": rounds, "poses_per_round": poses, "warmup": WARMUP, "quick": quick},
+            "standing_workers_possible": device.standing_workers_possible(),
             "policies": {"standing": f"standby {device.STANDBY_S * 1e3:g} ms (the default)",
                          "woken": "standby 0 (NRPOSE_STANDBY_US=0)"},
             "timing": "Deformer.pose(p, out=) back to back, ms per pose, the two policies alternated "

@@ -8,8 +8,11 @@
  * array with atomics shared by the devices (an ordinary buffer when only the
  * calling thread runs the kernel):
  *   jobs[JOB_NEXT]    tag << JOB_TAG_SHIFT | next block to take; the tag (11 bits)
- *                     changes with every job, so that a work-item still holding
- *                     an earlier job's tag cannot take a block of the next one
+ *                     changes with every job (1..2047, cycling), so that a
+ *                     work-item still holding an earlier job's tag cannot take a
+ *                     block of the next one (not guarded: a work-item held up between
+ *                     reading the counter and its compare-and-swap for exactly a
+ *                     multiple of 2047 jobs, which then see the same counter value)
  *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
  *                     blocks' writes (a cache line of its own: the block counter's
  *                     line already moves between the cores at every block taken)
@@ -96,7 +99,7 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
 {
     if (role == ROLE_CALLER) {
         if (*served) {
-            while (atomic_add(jobs + JOB_DONE, 0) < jobs[JOB_BLOCKS])
+            while (jobs[JOB_DONE] < jobs[JOB_BLOCKS])
                 SPIN_PAUSE();
             JOB_ACQUIRE();      /* the others' blocks are written */
             return 0;
@@ -131,7 +134,8 @@ static inline int count_done(volatile __global int *jobs, const int taken)
 }
 
 /* the blocks are counted done once, when none are left to take (the condition's
- * second operand runs then) */
+ * second operand runs then): a `break` or `return` inside the loop would skip the count
+ * and leave the calling thread waiting for ever */
 #define FOR_EACH_BLOCK(b, jobs) \
     for (int b = take_block((jobs), job_tag_), taken_ = 0; b >= 0 || count_done((jobs), taken_); \
          b = (++taken_, take_block((jobs), job_tag_)))

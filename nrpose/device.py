@@ -236,9 +236,10 @@ def time_alone(run_alone, runs: int = 5) -> float:
 STANDBY_S = 1e-3
 #: the longest standby NRPOSE_STANDBY_US may ask for (seconds)
 STANDBY_MAX_S = 10.0
-#: fewer blocks than this are posed on the calling thread alone even in a loop: the box's
-#: segment row cut to 500 points (2 blocks) was 0.90-1.08x as fast with a standing worker
-#: as alone, 1,000 points (4 blocks) 1.12-1.16x, 3,000 1.22x (poses in a loop, one process)
+#: a launch of fewer blocks than this never stands a worker (it may still wake one, when
+#: its frames take SHARE_MIN_S alone): the box's segment row cut to 500 points (2 blocks)
+#: was 0.90-1.08x as fast with a standing worker as alone, 1,000 points (4 blocks)
+#: 1.12-1.16x, 3,000 1.22x (poses in a loop, one process)
 STANDING_MIN_BLOCKS = 4
 
 # the job mailbox's fields and roles (kernels/share.h)
@@ -248,14 +249,6 @@ JOB_INTS = 32
 JOB_TAG_SHIFT = 20
 JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index of a job being published
 ROLE_CALLER = 0
-
-_STANDBY_PROBE = """#include "share.h"
-__kernel void standby_probe(volatile __global int *jobs, const int role)
-{
-    FOR_EACH_JOB(jobs, role) { FOR_EACH_BLOCK(b, jobs) {} }
-}
-"""
-
 
 def standing_workers_possible() -> bool:
     """Standing workers need the host's stores to the mailbox to reach a running kernel in
@@ -277,8 +270,10 @@ def standby_s() -> float:
 
 def set_standby_s(seconds: float | None) -> float:
     """Set the standing workers' wait (seconds, 0 to :data:`STANDBY_MAX_S`; 0: none stand)
-    or, with None, read it again from ``NRPOSE_STANDBY_US``; returns it. Launches read
-    the setting each time (it is kept here, not looked up in the environment per pose)."""
+    or, with None, read it again from ``NRPOSE_STANDBY_US``; returns it. A worker standing
+    with a longer wait is ended. Launches read the setting each time (it is kept here, not
+    looked up in the environment per pose). InputError for a value that is not a number of
+    seconds in range."""
     if seconds is None:
         text = os.environ.get("NRPOSE_STANDBY_US", "").strip()
         try:
@@ -289,44 +284,55 @@ def set_standby_s(seconds: float | None) -> float:
             raise DeviceError(f"NRPOSE_STANDBY_US must be a number of microseconds from 0 (no "
                               f"standing workers) to {STANDBY_MAX_S * 1e6:.0f}, got {text!r}")
     else:
-        value = float(seconds)
+        ok = isinstance(seconds, (int, float, np.integer, np.floating)) and not isinstance(seconds, bool)
+        value = float(seconds) if ok else float("nan")
         if not 0 <= value <= STANDBY_MAX_S:
-            raise InputError(f"standby must be from 0 to {STANDBY_MAX_S} seconds, got {seconds!r}")
+            raise InputError(f"standby must be a number of seconds from 0 to {STANDBY_MAX_S}, "
+                             f"got {seconds!r}")
+    before = _STANDBY[0]
     _STANDBY[0] = value if standing_workers_possible() else 0.0
+    if before is not None and _STANDBY[0] < before:
+        stop_standing()             # polling with a longer budget than now allowed
     return _STANDBY[0]
 
 
 _STANDBY: list = [None]             # the setting: seconds, or None until first read
 
 
-@functools.lru_cache(maxsize=None)
-def _polls_per_s(ctx, wq) -> float:
-    """Idle polls per second of a standing worker (share.h next_job), measured once per
-    context: a worker with no job to serve, launched with a few polls and with enough
-    for 2 ms or more, each timed to its end (best of 3; the difference cancels the launch)."""
+_POLLS_PER_S: list = [None]         # a standing worker's idle polls per second, once measured
+
+
+def calibrate_standby(kernel) -> None:
+    """Measure, once per process, how many idle polls a standing worker makes per second
+    (share.h next_job), with a clone of ``kernel`` (a deformer's, after its first launches,
+    which built it for PoCL's worker device) standing on a mailbox of its own with no job
+    to serve: launched with 1 poll and with enough for 1 ms or more (doubling), each timed
+    to its end; the difference cancels the launch. Owners call it at bind, so that no pose
+    pays it (3-6 ms). No-op without a worker device, shared memory or standing workers."""
+    wq = worker_queue()
+    if _POLLS_PER_S[0] is not None or wq is None or not fine_grain_svm() or standby_s() <= 0:
+        return
     cl = _cl()
-    kernel = cl.Kernel(cl.Program(ctx, with_headers(_STANDBY_PROBE)).build(), "standby_probe")
+    stop_standing()
+    probe = kernel.clone()
     box = HostArray(JOB_INTS, dtype=np.int32, atomics=True)
-    box.host[:] = 0                     # no job published: the worker only polls
-    kernel.set_arg(0, box.arg)
+    box.host[:] = 0
+    box.host[JOB_NEXT] = JOB_CLOSED                # no block to take: the worker only polls
+    probe.set_arg(probe.num_args - 2, box.arg)
 
     def run(polls: int) -> float:
-        best = float("inf")
-        for _ in range(3):
-            kernel.set_arg(1, np.int32(polls))
-            t = time.perf_counter()
-            cl.enqueue_nd_range_kernel(wq, kernel, (1,), (1,))
-            wq.finish()
-            best = min(best, time.perf_counter() - t)
-        return best
+        probe.set_arg(probe.num_args - 1, np.int32(polls))
+        t = time.perf_counter()
+        cl.enqueue_nd_range_kernel(wq, probe, (1,), (1,)).wait()
+        return time.perf_counter() - t
 
-    run(1)                              # the first launch builds the work-group function
-    few, many = 1000, 16000
+    base, polls = min(run(1) for _ in range(2)), 8192
     while True:
-        span = run(many) - run(few)
-        if span >= 2e-3 or many >= 1 << 28:
-            return (many - few) / max(span, 1e-6)
-        many *= 4
+        span = run(polls) - base
+        if span >= 1e-3 or polls >= 1 << 28:
+            _POLLS_PER_S[0] = polls / max(span, 1e-6)
+            return
+        polls *= 2
 
 
 class Jobs:
@@ -408,7 +414,10 @@ class Jobs:
         set_arg of an int takes ~15 us)."""
         global _standing
         stop_standing()
-        polls = min(max(1, int(seconds * _polls_per_s(context()[0], wq))), 2**31 - 1)
+        self._drain()
+        if _POLLS_PER_S[0] is None:
+            calibrate_standby(kernel)
+        polls = min(max(1, int(seconds * _POLLS_PER_S[0])), 2**31 - 1)
         clone = self._clones.get(kernel)
         if clone is None or clone[1] != polls:
             worker = kernel.clone()
@@ -422,16 +431,29 @@ class Jobs:
         wq.flush()
         _standing = self
 
-    def stop(self) -> None:
-        """End this mailbox's standing worker (if any) and wait until it has returned (in
-        a process forked since it stood, only forget it: its thread is not there)."""
+    def stop(self, wait: bool = True) -> None:
+        """End this mailbox's standing worker (if any): tell it to return and, with ``wait``,
+        wait until it has (needed before another kernel, or this one with other arguments,
+        takes jobs from this mailbox). Without waiting, what it reads stays referenced until
+        it has returned (:func:`stop_standing`). In a process forked since it stood, only
+        forget it: its thread is not there."""
         global _standing
         standing, self._standing = self._standing, None
         if _standing is self:
             _standing = None
         if standing is not None and standing[3] == os.getpid():
             self.box.host[JOB_QUIT] = 1
-            standing[1].wait()
+            if wait:
+                standing[1].wait()
+            else:
+                _returning.append((standing[1], standing[2], self.box, standing[3]))
+
+    def _drain(self) -> None:
+        """Wait until workers of this mailbox told to return without waiting have (before
+        one stands again on it: its JOB_QUIT is reset then)."""
+        for entry in [e for e in _returning if e[2] is self.box and e[3] == os.getpid()]:
+            entry[0].wait()
+            _returning.remove(entry)
 
     def arguments_changed(self) -> None:
         """Before an owner sets an argument of its kernel again (or frees an array it
@@ -441,16 +463,29 @@ class Jobs:
 
 
 _standing: Jobs | None = None      # the mailbox whose standing worker holds the worker device
+_returning: list = []              # (event, arrays it reads, mailbox, pid) of workers told to return
 
 
-def stop_standing() -> None:
-    """End the standing worker, if one holds PoCL's worker device (before anything else
-    is enqueued there, and at exit)."""
+def stop_standing(wait: bool = False) -> None:
+    """End the standing worker, if one holds PoCL's worker device: before anything else is
+    enqueued there (PoCL runs that once the worker has returned, within one poll: the
+    calling thread need not wait for it, and holds what it reads until then), and at exit
+    (``wait``). Forgets returned workers."""
     if _standing is not None:
-        _standing.stop()
+        _standing.stop(wait=wait)
+    pid = os.getpid()                # a forked child forgets its parent's workers
+    _returning[:] = [e for e in _returning if e[3] == pid and e[0].command_execution_status != 0]
+    if wait:                         # (status 0: CL_COMPLETE)
+        for entry in _returning:
+            entry[0].wait()
+        _returning.clear()
 
 
-atexit.register(stop_standing)
+def _stop_at_exit() -> None:
+    stop_standing(wait=True)
+
+
+atexit.register(_stop_at_exit)
 
 
 def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), queues=None,

@@ -143,6 +143,7 @@ class Deformer:
         # one frame's pose kernel on the calling thread alone: small launches are not shared
         self._jobs.alone_s = device.time_alone(
             lambda: device.launch_shared(self._kernel, self._jobs, self._blocks, workers=False))
+        device.calibrate_standby(self._kernel)     # once per process, not in a pose
 
     def __del__(self):
         jobs = getattr(self, "_jobs", None)
@@ -170,7 +171,7 @@ class Deformer:
             kernel = cl.Kernel(prg, "nrmls_pose")
             args = self._pose_args()
             # typed scalars: relaunch rebinds the variant each time, and pyopencl's untyped
-            # set_args of these 13 arguments took ~25 us, typed ~1.3 us
+            # set_arg of an int takes 10-15 us (typed, three arguments took 1.3 us)
             kernel.set_scalar_arg_dtypes([type(a) if isinstance(a, np.generic) else None for a in args])
             kernel.set_args(*args)
         except (cl.RuntimeError, cl.LogicError, TypeError) as exc:

@@ -316,6 +316,7 @@ class Deformer:
         # one frame of the kernel on the calling thread alone: small launches are not shared
         self._jobs.alone_s = device.time_alone(
             lambda: device.launch_shared(self._kernel, self._jobs, self._blocks, workers=False))
+        device.calibrate_standby(self._kernel)     # once per process, not in a pose
 
     def __del__(self):
         jobs = getattr(self, "_jobs", None)

@@ -21,6 +21,7 @@ def relaunch(deformer, split: dict, monkeypatch) -> None:
     """``deformer.relaunch`` as ``split`` (a value of :func:`splits`) says, twice: a
     standing worker started by the first launch serves the second."""
     kw = dict(split)
-    monkeypatch.setattr(device, "_STANDBY", [float(kw.pop("standby_us", "1000")) * 1e-6])
+    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    device.set_standby_s(float(kw.pop("standby_us", "1000")) * 1e-6)
     deformer.relaunch(**kw)
     deformer.relaunch(**kw)

@@ -35,6 +35,8 @@ STANDING, CALLER = 2_000_000, 1_000_000
 def _workers_or_skip():
     if device.worker_queue() is None or not device.fine_grain_svm():
         pytest.skip("no PoCL worker device with shared memory here: launches run on one queue")
+    if not device.standing_workers_possible():
+        pytest.skip("standing workers only on x86 hosts")
 
 
 class Marker:
@@ -62,8 +64,9 @@ class Marker:
 @pytest.fixture
 def standby(monkeypatch):
     """Set the standby (microseconds) for the test; any standing worker is stopped after it."""
-    yield lambda us: monkeypatch.setattr(device, "_STANDBY", [us * 1e-6])
-    device.stop_standing()
+    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    yield lambda us: device.set_standby_s(us * 1e-6)
+    device.stop_standing(wait=True)
 
 
 def test_every_block_once_with_its_frames_across_many_jobs(standby):
@@ -153,6 +156,27 @@ def test_standing_workers_give_way(standby):
     assert (who[:16] == CALLER + 1).all() and device._standing is None
 
 
+def test_alternating_mailboxes_hand_the_worker_over(standby):
+    """Two mailboxes launched alternately (two characters posed in turn): each launch tells
+    the other's standing worker to return without waiting for it (PoCL runs the next worker
+    once it has), every block of every job is still taken once; at the end, waiting leaves
+    no worker behind; lowering the standby ends the one standing."""
+    _workers_or_skip()
+    standby(10_000_000)
+    a, b = Marker(), Marker(by=1000)
+    for j in range(200):
+        m, by = (a, 0) if j % 2 == 0 else (b, 1000)
+        who = m.launch(48, 1 + j % 3, workers=True)
+        assert np.all(np.isin(who[:48] - by - (1 + j % 3), (STANDING, CALLER))) and not who[48:].any(), j
+        assert m.jobs.standing(m.kernel)
+    device.stop_standing(wait=True)
+    assert device._standing is None and not device._returning
+    a.launch(48, workers=True)
+    assert a.jobs.standing(a.kernel)
+    device.set_standby_s(1e-3)                     # lower than the 10 s it stands with
+    assert device._standing is None and not a.jobs.standing(a.kernel)
+
+
 def test_standby_setting(standby, monkeypatch):
     """A standby of 0 wakes workers for each shared launch and leaves none standing.
     NRPOSE_STANDBY_US is read at the first launch (or set_standby_s(None)): a value that is
@@ -174,8 +198,8 @@ def test_standby_setting(standby, monkeypatch):
     monkeypatch.delenv("NRPOSE_STANDBY_US")
     assert device.set_standby_s(None) == device.STANDBY_S
     assert device.set_standby_s(0.25) == 0.25 and device.standby_s() == 0.25
-    for bad in (-1e-6, 11.0, float("nan")):
-        with pytest.raises(InputError, match="standby must be from 0 to 10"):
+    for bad in (-1e-6, 11.0, float("nan"), "0.5", True):
+        with pytest.raises(InputError, match="standby must be a number of seconds from 0 to 10"):
             device.set_standby_s(bad)
 
 

@@ -181,6 +181,8 @@ def test_joint_count_change_under_a_standing_worker(method, monkeypatch):
 
     if device.worker_queue() is None or not device.fine_grain_svm():
         pytest.skip("no PoCL worker device with shared memory: no standing workers")
+    if not device.standing_workers_possible():
+        pytest.skip("standing workers only on x86 hosts")
     monkeypatch.setattr(device, "_STANDBY", [10.0])
     rng = np.random.default_rng(33)
     n = 8 * BLOCK * LANES
