@@ -234,7 +234,7 @@ class Roofs:
         for _ in range(n):
             wall.append(self._launch_s(self.k_empty, blocks, standing=True)[1])
             taken += self.jobs.standing(self.k_empty)
-        device.stop_standing(wait=True)
+        device.stop_standing()
         return {"wall_ms": float(np.median(wall) * 1e3), "blocks": blocks,
                 "stood_fraction": taken / n}
 

@@ -241,6 +241,11 @@ STANDBY_MAX_S = 10.0
 #: was 0.90-1.08x as fast with a standing worker as alone, 1,000 points (4 blocks)
 #: 1.12-1.16x, 3,000 1.22x (poses in a loop, one process)
 STANDING_MIN_BLOCKS = 4
+#: after another mailbox's launch ended its standing worker, a mailbox does not stand one
+#: for this long (seconds): two deformers posed in turn, each ending the other's worker,
+#: took 2.2-2.5x the time of woken workers (dragon and bunny segments, one process), and
+#: 1.1-1.6x when each waited for the other's worker to return
+STANDING_YIELD_S = 0.1
 
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(5)
@@ -361,6 +366,7 @@ class Jobs:
         self._last = float("-inf")      # perf_counter() at the end of the last launch
         self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker
         self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
+        self._displaced = float("-inf")  # when another mailbox's launch last ended its worker
 
     def publish(self, blocks: int, frames: int) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
@@ -388,15 +394,19 @@ class Jobs:
           nothing), or, with standing workers on (``standby`` > 0 seconds), this
           mailbox's last launch ended less than ``standby`` ago and the job has
           :data:`STANDING_MIN_BLOCKS` blocks or more: frames posed in a loop, where the
-          worker woken now stands for the next ones;
+          worker woken now stands for the next ones; but not within
+          :data:`STANDING_YIELD_S` of another mailbox's launch ending this one's worker
+          (deformers posed in turn would hand the worker back and forth);
         * ``"woken"``: the frames take at least :data:`SHARE_MIN_S` on the calling thread
           alone (:func:`worth_sharing`): workers woken for this launch only (launches
           spaced further apart than ``standby``, e.g. one frame per display refresh,
           spend no CPU polling between frames);
         * ``"alone"``: otherwise, the calling thread alone.
         """
+        now = time.perf_counter()
         if standby > 0 and (self.standing(kernel) or (
-                blocks >= STANDING_MIN_BLOCKS and time.perf_counter() - self._last < standby)):
+                blocks >= STANDING_MIN_BLOCKS and now - self._last < standby
+                and now - self._displaced >= STANDING_YIELD_S)):
             return "standing"
         return "woken" if worth_sharing(frames, self.alone_s) else "alone"
 
@@ -414,7 +424,6 @@ class Jobs:
         set_arg of an int takes ~15 us)."""
         global _standing
         stop_standing()
-        self._drain()
         if _POLLS_PER_S[0] is None:
             calibrate_standby(kernel)
         polls = min(max(1, int(seconds * _POLLS_PER_S[0])), 2**31 - 1)
@@ -431,29 +440,20 @@ class Jobs:
         wq.flush()
         _standing = self
 
-    def stop(self, wait: bool = True) -> None:
-        """End this mailbox's standing worker (if any): tell it to return and, with ``wait``,
-        wait until it has (needed before another kernel, or this one with other arguments,
-        takes jobs from this mailbox). Without waiting, what it reads stays referenced until
-        it has returned (:func:`stop_standing`). In a process forked since it stood, only
-        forget it: its thread is not there."""
+    def stop(self, displaced: bool = False) -> None:
+        """End this mailbox's standing worker (if any) and wait until it has returned (in a
+        process forked since it stood, only forget it: its thread is not there).
+        displaced: another mailbox's launch needs the worker device; this mailbox then does
+        not stand a worker again for :data:`STANDING_YIELD_S`."""
         global _standing
         standing, self._standing = self._standing, None
         if _standing is self:
             _standing = None
         if standing is not None and standing[3] == os.getpid():
             self.box.host[JOB_QUIT] = 1
-            if wait:
-                standing[1].wait()
-            else:
-                _returning.append((standing[1], standing[2], self.box, standing[3]))
-
-    def _drain(self) -> None:
-        """Wait until workers of this mailbox told to return without waiting have (before
-        one stands again on it: its JOB_QUIT is reset then)."""
-        for entry in [e for e in _returning if e[2] is self.box and e[3] == os.getpid()]:
-            entry[0].wait()
-            _returning.remove(entry)
+            standing[1].wait()
+            if displaced:
+                self._displaced = time.perf_counter()
 
     def arguments_changed(self) -> None:
         """Before an owner sets an argument of its kernel again (or frees an array it
@@ -463,29 +463,17 @@ class Jobs:
 
 
 _standing: Jobs | None = None      # the mailbox whose standing worker holds the worker device
-_returning: list = []              # (event, arrays it reads, mailbox, pid) of workers told to return
 
 
-def stop_standing(wait: bool = False) -> None:
-    """End the standing worker, if one holds PoCL's worker device: before anything else is
-    enqueued there (PoCL runs that once the worker has returned, within one poll: the
-    calling thread need not wait for it, and holds what it reads until then), and at exit
-    (``wait``). Forgets returned workers."""
+def stop_standing(displaced: bool = False) -> None:
+    """End the standing worker, if one holds PoCL's worker device, and wait until it has
+    returned: before anything else is enqueued there, and at exit. displaced: as
+    :meth:`Jobs.stop`'s."""
     if _standing is not None:
-        _standing.stop(wait=wait)
-    pid = os.getpid()                # a forked child forgets its parent's workers
-    _returning[:] = [e for e in _returning if e[3] == pid and e[0].command_execution_status != 0]
-    if wait:                         # (status 0: CL_COMPLETE)
-        for entry in _returning:
-            entry[0].wait()
-        _returning.clear()
+        _standing.stop(displaced)
 
 
-def _stop_at_exit() -> None:
-    stop_standing(wait=True)
-
-
-atexit.register(_stop_at_exit)
+atexit.register(stop_standing)
 
 
 def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), queues=None,
@@ -526,7 +514,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
         jobs.stop()                     # of another kernel, returned, or not wanted here
     if _standing is not None and _standing is not jobs and any(q.device == _standing_device()
                                                                 for q, _ in plan):
-        stop_standing()                 # another mailbox's: it holds these queues' device
+        stop_standing(displaced=True)   # another mailbox's: it holds these queues' device
     pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
     if pre and mode != "alone":
         host_q.finish()                 # the workers read what `before` wrote

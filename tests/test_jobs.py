@@ -66,7 +66,7 @@ def standby(monkeypatch):
     """Set the standby (microseconds) for the test; any standing worker is stopped after it."""
     monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
     yield lambda us: device.set_standby_s(us * 1e-6)
-    device.stop_standing(wait=True)
+    device.stop_standing()
 
 
 def test_every_block_once_with_its_frames_across_many_jobs(standby):
@@ -156,24 +156,29 @@ def test_standing_workers_give_way(standby):
     assert (who[:16] == CALLER + 1).all() and device._standing is None
 
 
-def test_alternating_mailboxes_hand_the_worker_over(standby):
-    """Two mailboxes launched alternately (two characters posed in turn): each launch tells
-    the other's standing worker to return without waiting for it (PoCL runs the next worker
-    once it has), every block of every job is still taken once; at the end, waiting leaves
-    no worker behind; lowering the standby ends the one standing."""
+def test_alternating_mailboxes_do_not_hand_the_worker_back_and_forth(standby):
+    """Two mailboxes launched in turn (two characters posed in turn): once each has had its
+    standing worker ended by the other's launch, for device.STANDING_YIELD_S neither stands
+    one (each would end the other's), and every block of every job is still taken once.
+    Lowering the standby ends a worker standing longer."""
     _workers_or_skip()
     standby(10_000_000)
     a, b = Marker(), Marker(by=1000)
-    for j in range(200):
+    stood = []
+    for j in range(60):
         m, by = (a, 0) if j % 2 == 0 else (b, 1000)
-        who = m.launch(48, 1 + j % 3, workers=True)
+        who = m.launch(48, 1 + j % 3)
         assert np.all(np.isin(who[:48] - by - (1 + j % 3), (STANDING, CALLER))) and not who[48:].any(), j
-        assert m.jobs.standing(m.kernel)
-    device.stop_standing(wait=True)
-    assert device._standing is None and not device._returning
-    a.launch(48, workers=True)
+        stood.append(m.jobs.standing(m.kernel))
+    # a's second launch stands a worker, b's second ends it and stands one; then, each
+    # displaced by the other, neither stands
+    assert stood[2] and stood[3] and not any(stood[4:]), stood
+    device.stop_standing()
+    a.jobs._displaced = float("-inf")
+    a.launch(48)
+    a.launch(48)                                      # in a loop again: stands
     assert a.jobs.standing(a.kernel)
-    device.set_standby_s(1e-3)                     # lower than the 10 s it stands with
+    device.set_standby_s(1e-3)                        # lower than the 10 s it stands with
     assert device._standing is None and not a.jobs.standing(a.kernel)
 
 
