@@ -313,7 +313,7 @@ def calibrate_standby(kernel) -> None:
     which built it for PoCL's worker device) standing on a mailbox of its own with no job
     to serve: launched with 1 poll and with enough for 1 ms or more (doubling), each timed
     to its end; the difference cancels the launch. Owners call it at bind, so that no pose
-    pays it (3-6 ms). No-op without a worker device, shared memory or standing workers."""
+    pays it (3-5 ms). No-op without a worker device, shared memory or standing workers."""
     wq = worker_queue()
     if _POLLS_PER_S[0] is not None or wq is None or not fine_grain_svm() or standby_s() <= 0:
         return
