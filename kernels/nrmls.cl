@@ -264,11 +264,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
      * host publishes ceil(chunks / block) blocks and the job's frames F */
     const int chunks = np / 8;
-    FOR_EACH_JOB(jobs, role) {
-    FOR_EACH_BLOCK(b, jobs) {
-    const int F = jobs[JOB_FRAMES];
-    const int g_end = (b + 1) * block;
-    for (int g = b * block; g < (g_end < chunks ? g_end : chunks); ++g) {
+    FOR_EACH_ITEM(g, F, jobs, role, block, chunks) {
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
     /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */
@@ -499,6 +495,4 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #endif
     }   /* f */
     }   /* g */
-    }   /* b */
-    }   /* job */
 }

@@ -39,13 +39,12 @@
  * (The host sets role 0 once, with the other arguments, and gives a standing worker a
  * clone of the kernel: pyopencl's set_arg of an int takes ~15 us, too much per pose.)
  *
- * Usage, with `jobs` and `role` the kernel's last two arguments:
- *     FOR_EACH_JOB(jobs, role) {
- *         FOR_EACH_BLOCK(b, jobs) {
- *             const int F = jobs[JOB_FRAMES];
- *             ... block b ...
- *         }
+ * Usage, with `jobs` and `role` the kernel's last two arguments, blocks of `block` items
+ * (chunks, groups) out of `count`:
+ *     FOR_EACH_ITEM(g, F, jobs, role, block, count) {
+ *         ... item g, for the F frames of its job ...
  *     }
+ * (FOR_EACH_JOB and FOR_EACH_BLOCK, below, are its parts.)
  */
 #define JOB_NEXT 0
 #define JOB_BLOCKS 1
@@ -139,3 +138,10 @@ static inline int count_done(volatile __global int *jobs, const int taken)
 #define FOR_EACH_BLOCK(b, jobs) \
     for (int b = take_block((jobs), job_tag_), taken_ = 0; b >= 0 || count_done((jobs), taken_); \
          b = (++taken_, take_block((jobs), job_tag_)))
+
+/* Item g of every block of every job the work-item serves, with F the frames of the
+ * block's job (read once per block, after it is taken). */
+#define FOR_EACH_ITEM(g, F, jobs, role, block, count)                                     \
+    FOR_EACH_JOB(jobs, role) FOR_EACH_BLOCK(b_, jobs)                                     \
+    for (int g = b_ * (block), g_end_ = (b_ + 1) * (block) < (count) ? (b_ + 1) * (block) : (count), \
+         F = (jobs)[JOB_FRAMES]; g < g_end_; ++g)

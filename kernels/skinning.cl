@@ -49,11 +49,7 @@ __kernel void lbs(__global const float *restrict rest,
                   const int K, const int J, const int G,
                   const int block, volatile __global int *jobs, const int role)
 {
-    FOR_EACH_JOB(jobs, role) {
-    FOR_EACH_BLOCK(b, jobs) {
-    const int F = jobs[JOB_FRAMES];
-    const int g_end = (b + 1) * block;
-    for (int g = b * block; g < (g_end < G ? g_end : G); ++g) {
+    FOR_EACH_ITEM(g, F, jobs, role, block, G) {
     for (int f = 0; f < F; ++f) {
     __global const float *M = mats + (size_t)f * (size_t)J * 12;
 
@@ -89,8 +85,6 @@ __kernel void lbs(__global const float *restrict rest,
     STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
     }   /* f */
     }   /* g */
-    }   /* b */
-    }   /* job */
 }
 
 __kernel void dqs(__global const float *restrict rest,
@@ -101,11 +95,7 @@ __kernel void dqs(__global const float *restrict rest,
                   const int K, const int J, const int G,
                   const int block, volatile __global int *jobs, const int role)
 {
-    FOR_EACH_JOB(jobs, role) {
-    FOR_EACH_BLOCK(b, jobs) {
-    const int F = jobs[JOB_FRAMES];
-    const int g_end = (b + 1) * block;
-    for (int g = b * block; g < (g_end < G ? g_end : G); ++g) {
+    FOR_EACH_ITEM(g, F, jobs, role, block, G) {
     /* dominant joint (influence 0) of each lane, for the hemisphere test */
     const int8 j0 = LOADI8(0, joints + (size_t)g * K * 8) * 8;
     for (int f = 0; f < F; ++f) {
@@ -157,6 +147,4 @@ __kernel void dqs(__global const float *restrict rest,
     STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
     }   /* f */
     }   /* g */
-    }   /* b */
-    }   /* job */
 }
