@@ -347,7 +347,7 @@ class Jobs:
     kernel's other arguments. One per deformer.
 
     ``alone_s``: seconds one frame of the kernel takes on the calling thread alone
-    (:func:`time_alone`, set by the owner at bind; until then launches are shared).
+    (:meth:`time_kernel`, called by the owner at bind; until then launches are shared).
     ``keep``: the arrays the kernel's launches use (set by the owner, kept alive while
     a standing worker may still read them). A standing worker runs a clone of the
     kernel made when it first stood, with the arguments of then: owners call
@@ -385,6 +385,14 @@ class Jobs:
         b[JOB_FRAMES] = frames
         b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT          # open: block 0 is next
         self.box.upload()
+
+    def time_kernel(self, kernel, blocks: int) -> None:
+        """At bind, after the kernel's first launches: time one frame of ``kernel`` (``blocks``
+        blocks) on the calling thread alone (``alone_s``, :func:`time_alone`: small launches
+        are not shared) and calibrate the standby once per process
+        (:func:`calibrate_standby`), so that no pose pays either."""
+        self.alone_s = time_alone(lambda: launch_shared(kernel, self, blocks, workers=False))
+        calibrate_standby(kernel)
 
     def mode(self, kernel, frames: int, blocks: int, standby: float) -> str:
         """How a launch of ``kernel`` (``frames`` frames, ``blocks`` blocks) uses PoCL's

@@ -140,10 +140,9 @@ class Deformer:
         # device (~0.5 s): pay that at bind (the mailbox shares launches until
         # alone_s is timed), not in the first frame
         self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
-        # one frame's pose kernel on the calling thread alone: small launches are not shared
-        self._jobs.alone_s = device.time_alone(
-            lambda: device.launch_shared(self._kernel, self._jobs, self._blocks, workers=False))
-        device.calibrate_standby(self._kernel)     # once per process, not in a pose
+        # one frame's pose kernel on the calling thread alone (small launches are not
+        # shared) and the standby's calibration, once per process
+        self._jobs.time_kernel(self._kernel, self._blocks)
 
     def __del__(self):
         jobs = getattr(self, "_jobs", None)

@@ -313,10 +313,9 @@ class Deformer:
         # device: pay that at bind (an identity pose, shared: the mailbox shares
         # launches until alone_s is timed), not in the first frame
         self.pose(np.tile(np.eye(4), (self.max_joint + 1, 1, 1)))
-        # one frame of the kernel on the calling thread alone: small launches are not shared
-        self._jobs.alone_s = device.time_alone(
-            lambda: device.launch_shared(self._kernel, self._jobs, self._blocks, workers=False))
-        device.calibrate_standby(self._kernel)     # once per process, not in a pose
+        # one frame of the kernel on the calling thread alone (small launches are not
+        # shared) and the standby's calibration, once per process
+        self._jobs.time_kernel(self._kernel, self._blocks)
 
     def __del__(self):
         jobs = getattr(self, "_jobs", None)
