@@ -41,8 +41,9 @@
  *                         the k most influential segments of each point)
  *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
  *                         rest length ("length"), see nrpose/blend.py; times 2^-2e (phat)
- *   pose   qpos [(P+2S)*3] | rots [(S+1)*9]: posed handle positions, then the
- *          rotations of the segments and the global rotation R_g, row-major
+ *   pose   qpos [(P+2S)*3] | rots [(S+1)*9] | slot [1]: posed handle positions, the
+ *          rotations of the segments and the global rotation R_g, row-major, and
+ *          the output slot of the frame (int bits): it is written at out + slot Np*3
  *   derived (written by nrmls_prepare from `pose`, once per pose)
  *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4])
  *          | ploc [(S+1)*P*3]:
@@ -52,7 +53,9 @@
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
  *          frame (when P > 0; the pose kernel reads it where a chunk's 8
  *          lanes share their reference)
- *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order
+ *   out    [slots][Np*3]  posed points, xyz interleaved, in the caller's order; each
+ *                         frame in the slot its pose block names (nrpose/engine.py: the
+ *                         launch's own slots, or one handed to the caller, device.Handoff)
  *
  * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
  * apart) and `derived` F blocks (derived_stride apart); nrmls_prepare runs
@@ -279,7 +282,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     __global const float *qpos = pose + f * pose_stride;
     __global const float *refs = derived + f * derived_stride;
     __global const float *table = refs + 9 * (S + 1);
-    __global float *out = out_frames + (size_t)f * 3 * np;
+    __global float *out = out_frames + (size_t)as_int(qpos[pose_stride - 1]) * 3 * np;
 
     /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered;
      * its matrix is loaded where it is used (LOAD_REF), not held in 9 registers

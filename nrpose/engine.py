@@ -111,7 +111,8 @@ class Deformer:
                                    ("pairs", arrays["pairs"]))}
         del frec, irec, arrays
         self._npos = 3 * (P + 2 * S)
-        self._pose_stride = self._npos + 9 * (S + 1)       # floats per frame: positions, rotations
+        # floats per frame: positions, rotations, then the frame's output slot (int32 bits)
+        self._pose_stride = self._npos + 9 * (S + 1) + 1
         quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
         self._derived_stride = (9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
                                 + 3 * P * (S + 1))
@@ -180,15 +181,23 @@ class Deformer:
         return kernel
 
     def _reserve(self, frames: int) -> None:
-        """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames."""
+        """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames.
+
+        The output array holds ``frames`` slots of 3 Npad floats for launches, then
+        :data:`nrpose.device.HANDOFF_SLOTS` slots whose frames are handed to the caller
+        (:class:`nrpose.device.Handoff`); each frame's pose block names its slot."""
         if frames <= self._frames:
             return
         self._jobs.arguments_changed()      # a standing worker reads the arrays replaced here
         self._pose = device.HostArray(frames * self._pose_stride)
         blocks = self._pose.host.reshape(frames, self._pose_stride)
-        blocks[:, -9:] = np.eye(3).ravel()                      # R_g, unless GlobalFit writes it
+        S = len(self.rest.segments)
+        blocks[:, self._npos + 9 * S: self._npos + 9 * S + 9] = np.eye(3).ravel()   # R_g, unless GlobalFit writes it
+        self._slots = self._pose.host.view(np.int32).reshape(frames, self._pose_stride)[:, -1]
+        self._own_slots = np.arange(frames, dtype=np.int32)
         self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
-        self._out = device.HostArray(frames * 3 * self._npad)
+        self._out = device.HostArray((frames + device.HANDOFF_SLOTS) * 3 * self._npad)
+        self._handoff = device.Handoff(self._out, frames, device.HANDOFF_SLOTS, 3 * self._npad)
         if self._global is not None:
             self._global.kernel.set_arg(0, self._pose.arg)
         self._prepare.set_arg(4, self._pose.arg)
@@ -199,7 +208,7 @@ class Deformer:
         # each frame's posed point handles (P, 3), segments (S, 2, 3) and rotations (S, 3, 3)
         # as views into the pose array: filling shaped views costs ~0.6 us a pose, slicing
         # and ravelling ~2.6 us
-        P, S, k = len(self.rest.points), len(self.rest.segments), 3 * len(self.rest.points)
+        P, k = len(self.rest.points), 3 * len(self.rest.points)
         self._frame_rows = [(b[:k].reshape(P, 3), b[k:self._npos].reshape(S, 2, 3),
                              b[self._npos:self._npos + 9 * S].reshape(S, 3, 3)) for b in blocks]
         self._results = {}    # frames -> view of the output array, (F, N, 3)
@@ -231,9 +240,9 @@ class Deformer:
             result = np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses]) if F \
                 else np.zeros((0, self.n, 3))
         else:
-            result = self._run(poses)
+            result = self._run(poses, owned=out is None)
         if out is None:
-            return result.copy() if self.backend == "opencl" else result
+            return result
         out[...] = result
         return out
 
@@ -263,7 +272,13 @@ class Deformer:
         e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
         (True), run it on the calling thread alone (False) or let
         :func:`nrpose.device.launch_shared` decide (None, default); pose_kernel: a
-        :meth:`pose_kernel_variant` to run instead of the deformer's own."""
+        :meth:`pose_kernel_variant` to run instead of the deformer's own. The frames are
+        written into the launch's own output slots (never into a result handed to a caller)."""
+        self._slots[: self._batch] = self._own_slots[: self._batch]
+        return self._launch(queues, workers, pose_kernel)
+
+    def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> tuple[list, list]:
+        """:meth:`relaunch`, into the output slots that the pose blocks name."""
         before = self._befores.get(self._batch)
         if before is None:
             F, S = self._batch, len(self.rest.segments)
@@ -275,22 +290,31 @@ class Deformer:
                                     self._blocks, self._batch, before=before, queues=queues,
                                     workers=workers)
 
-    def _run(self, poses: list) -> np.ndarray:
-        """Launch the prepare and pose kernels for the poses; a view of the output array."""
+    def _run(self, poses: list, owned: bool) -> np.ndarray:
+        """Launch the prepare and pose kernels for the poses: the posed points (F, N, 3),
+        the caller's own (owned: a single frame is written into a free handed-off slot,
+        :class:`nrpose.device.Handoff`, else copied) or a view of the launch's slots."""
         F = len(poses)
         self._reserve(F)
         for (points, segments, rotations), pose in zip(self._frame_rows, poses):
             points[...] = pose.handles.points
             segments[...] = pose.handles.segments
             rotations[...] = pose.rotations
+        slot = self._handoff.free() if owned and F == 1 else None
+        if slot is None:
+            self._slots[:F] = self._own_slots[:F]
+        else:
+            self._slots[0] = slot
         self._pose.upload()
         self._batch = F
-        self.relaunch()
+        self._launch()
+        if slot is not None:
+            return self._handoff.take(slot, (1, self.n, 3))
         self._out.download()
         result = self._results.get(F)
         if result is None:
             result = self._results[F] = self._out.host[: F * 3 * self._npad].reshape(F, self._npad, 3)[:, : self.n]
-        return result
+        return result.copy() if owned else result
 
 
 class GlobalFit:

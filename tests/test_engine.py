@@ -510,7 +510,7 @@ def test_shared_launch_any_split_same_points(blocks, monkeypatch):
     shared = dev.pose(pose).copy()
     assert np.abs(shared - expected).max() <= TOL * diag(points)
     for name, kw in splits().items():
-        dev._out.host[:] = np.nan
+        dev._out.host[: 3 * dev._npad] = np.nan        # the launch's slot (relaunch writes there)
         relaunch(dev, kw, monkeypatch)
         dev._out.download()
         got = dev._out.host[: 3 * dev._npad].reshape(-1, 3)[: len(points)]
@@ -553,6 +553,48 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     assert np.array_equal(GlobalFit.fit(rest, poses), fits)
 
 
+def test_pose_hands_its_result_over_without_a_copy():
+    """pose() returns the frame in a slot of the deformer's output memory that is not
+    written again while the result, or any view of it, lives (device.Handoff): results
+    held across later poses, relaunches, a batch that regrows the arrays and the
+    deformer's end keep their values; a third result held at once is a copy; a dropped
+    result's slot is used again; a result may be written to."""
+    from nrpose import device
+
+    rng = np.random.default_rng(43)
+    rest = random_rest(rng, 3, 2)
+    points = rng.uniform(-1, 1, (500, 3))
+    dev, ref = both(points, rest)
+    poses = [random_pose(rng, rest) for _ in range(8)]
+    want = [ref.pose(p) for p in poses]
+
+    def in_slots(a):                      # handed off: on the deformer's output memory
+        return np.shares_memory(a, dev._out.host)
+
+    held = [dev.pose(p) for p in poses[:3]]
+    assert [in_slots(a) for a in held] == [True, True, False]   # two slots, then a copy
+    del held[1]                          # its slot is free again
+    column = dev.pose(poses[1])[:, 1]    # only a view kept: its slot stays taken
+    assert in_slots(column)
+    other = dev.pose_kernel_variant(device.kernel_source("nrmls.cl").replace(
+        "const float8 ux = LOAD8(0, u)", "const float8 ux = 2.0f * LOAD8(0, u)"))
+    dev.relaunch(pose_kernel=other)      # another result of the last pose: into the launch's slot
+    assert not any(in_slots(dev.pose(p)) for p in poses[3:])    # every slot held: copies
+    assert np.abs(held[0] - want[0]).max() <= TOL * diag(points)
+    assert np.abs(held[1] - want[2]).max() <= TOL * diag(points)
+    assert np.abs(column - want[1][:, 1]).max() <= TOL * diag(points)
+    del held[0]
+    again = dev.pose(poses[5])           # a slot was freed: handed off again
+    assert in_slots(again) and np.abs(again - want[5]).max() <= TOL * diag(points)
+    again[:] = 0.0                       # the caller's to write
+    assert np.abs(dev.pose(poses[6]) - want[6]).max() <= TOL * diag(points)
+    kept = (again.copy(), column.copy())
+    dev.pose_frames(poses)               # 8 frames: new arrays; the old memory stays with its results
+    del dev
+    assert np.array_equal(again, kept[0]) and np.array_equal(column, kept[1])
+    assert device.HANDOFF_SLOTS == 2
+
+
 def test_pose_kernel_variant_follows_the_deformers_arrays():
     """A kernel variant (Deformer.pose_kernel_variant, for bench/kernel_ab.py) run by
     relaunch(pose_kernel=) uses the deformer's arrays and batch size as they are at the
@@ -569,7 +611,7 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
     poses = [random_pose(rng, rest) for _ in range(3)]
     for batch in (poses, poses[:1]):                     # 3 frames (the arrays regrow), then 1
         want = dev.pose_frames(batch)
-        dev._out.host[:] = np.nan
+        dev._out.host[: len(batch) * 3 * dev._npad] = np.nan    # the launch's slots
         dev.relaunch(pose_kernel=variant)
         dev._out.download()
         got = dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, :300]
