@@ -66,7 +66,7 @@ def kernel_ms(deformer: Deformer, frame_mats, repeat: int) -> float:
     queues = device.profiling_queues()
     times = []
     for _ in range(repeat):
-        _, events = deformer.relaunch(queues=queues)
+        events = deformer.relaunch(queues=queues)
         times.append(device.events_span_s(events) * 1e3)
     return float(np.median(times))
 

@@ -11,7 +11,7 @@ processes resolves only large changes. Here one deformer is bound for a Table-1 
 its build options and bound to its arrays (``Deformer.pose_kernel_variant``), each
 one's output is checked against the deformer's own, and they are launched alternately,
 ``--launches`` times each, on the calling thread alone (``relaunch(workers=False,
-pose_kernel=...)``: the same prepare kernels, then the variant; no worker wake-up), so
+pose_kernel=...)``: the variant, its prologue included; no worker wake-up), so
 that both see the same machine. A 2-5 % difference between kernels shows up reliably.
 
 Reported (and written with ``--json``): for base and variant, the median, p10, p90 of
@@ -94,7 +94,7 @@ def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box",
                   for which, p in files.items()},
         "launches": launches,
         "timing": "relaunch(workers=False, pose_kernel=...) on the calling thread, base and variant "
-                  "alternated; ms per launch (prepare kernels + pose kernel + enqueue/wait)",
+                  "alternated; ms per launch (pose kernel with its prologue + enqueue/wait)",
         "base_ms": ms["base"], "variant_ms": ms["variant"],
         "base_over_variant": ms["base"]["median"] / ms["variant"]["median"],
         "max_diff_rel_bbox": max_diff,

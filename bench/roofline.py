@@ -194,8 +194,8 @@ class Roofs:
         """(event seconds, wall seconds) of one shared launch of ``kernel``: from the first
         device's start to the last one's end, and the caller's enqueue-to-return time."""
         t = time.perf_counter()
-        _, events = device.launch_shared(kernel, self.jobs, blocks, queues=None if standing else self.queues,
-                                         workers=workers)
+        events = device.launch_shared(kernel, self.jobs, blocks, queues=None if standing else self.queues,
+                                      workers=workers)
         wall = time.perf_counter() - t
         return (float("nan") if standing else device.events_span_s(events)), wall
 
@@ -264,13 +264,11 @@ class Roofs:
                           "devices of a launch; medians"}
 
     # ------------------------------------------------------------------ pose kernel
-    def pose_kernel_once(self, deformer) -> tuple[float, float]:
-        """(prepare, pose) kernel times in seconds, re-running the deformer's last posing
-        on the profiling queues: prepare spans the kernels before the pose kernel (the R_g
-        fit, when some point needs it, and nrmls_prepare); the pose kernel's time spans the
-        devices it ran on."""
-        pre, events = deformer.relaunch(queues=self.queues)
-        return device.events_span_s(pre), device.events_span_s(events)
+    def pose_kernel_once(self, deformer) -> float:
+        """The pose kernel's time in seconds (its prologue, the R_g fit and rotation
+        tables, included), re-running the deformer's last posing on the profiling queues:
+        from the first device's start to the last one's end."""
+        return device.events_span_s(deformer.relaunch(queues=self.queues))
 
 
 
@@ -294,8 +292,7 @@ def lane_divergence(deformer) -> dict:
     return out
 
 
-def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: dict,
-           prepare_ms: float) -> dict:
+def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: dict) -> dict:
     """Achieved rates of one pose kernel against the measured ceilings, and what bounds it."""
     t = kernel_ms * 1e-3
     gflops = work["flops_per_pose"] / t * 1e-9
@@ -313,8 +310,7 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
                   + (f", {roofs['launch_standing']['wall_ms']:.3f} ms with a standing worker"
                      if roofs.get("launch_standing") else ""))
         reasons.append(f"launch overhead and host work: {100 * outside:.0f} % of the pose wall time is outside "
-                       f"the pose kernel (prepare kernels {prepare_ms:.3f} ms, {floors}, pose upload and "
-                       f"result copy)")
+                       f"the pose kernel ({floors}, packing the pose)")
     if f_arith >= 0.3:
         kernel_bound = "arithmetic"
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof (compute bound)")
@@ -351,7 +347,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
 
     Rows are table1's (same models, handles and poses; --quick: 500 points). Each
     round poses every pose once through ``Deformer.pose`` (wall time) and, right
-    after, re-runs its prepare + pose kernels on the profiling queue (event times).
+    after, re-runs its pose kernel on the profiling queue (event times).
     The ceilings are measured before and after the rows; the medians over both are used.
     """
     import pathlib
@@ -379,7 +375,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
             d = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
             for p in poses:
                 d.pose(p)
-            wall, kern, prep = [], [], []
+            wall, kern = [], []
             out = np.empty((len(v), 3), np.float32)     # as Table 1 times it: into the caller's array
             for _ in range(max(repeat, 1)):
                 # the poses back to back (a standing worker serves them, as in Table 1), then
@@ -390,28 +386,26 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
                     wall.append(time.perf_counter() - t)
                 for p in poses:
                     d.pose(p, out=out)
-                    ev = roofs.pose_kernel_once(d)
-                    prep.append(ev[0])
-                    kern.append(ev[1])
+                    kern.append(roofs.pose_kernel_once(d))
             # the same poses as one launch of F frames (how clips are posed): kernel time per frame
             d.pose_frames(poses)
-            batched = [roofs.pose_kernel_once(d)[1] / len(poses) for _ in range(max(repeat, 1))]
+            batched = [roofs.pose_kernel_once(d) / len(poses) for _ in range(max(repeat, 1))]
             work = pose_work(d)
             work["lanes"] = lane_divergence(d)
             rows.append({"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                          "source": src.get("kind"), "work": work,
                          "pose_ms": common.stats(wall), "kernel_ms": common.stats(kern),
-                         "prepare_ms": common.stats(prep), "batched_kernel_ms_per_frame": common.stats(batched),
+                         "batched_kernel_ms_per_frame": common.stats(batched),
                          "batch_frames": len(poses), "load": common.load()})
             if log:
                 log(f"roofline {model:9s} {kind:8s} pose {rows[-1]['pose_ms']['median']:.3f} ms, "
-                    f"kernel {rows[-1]['kernel_ms']['median']:.3f} ms, prepare {rows[-1]['prepare_ms']['median']:.3f} ms")
+                    f"kernel {rows[-1]['kernel_ms']['median']:.3f} ms")
             del d
     after = roofs.measure(rounds)
     ceilings = merge_roofs(before, after)
     for r in rows:
         r.update(assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"], ceilings,
-                        ceilings["launch"], r["prepare_ms"]["median"]))
+                        ceilings["launch"]))
         r["bound_by"] += (f"; measured: {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) "
                           f"visits on the gathered path")
         r["batched"] = batched_rates(r["work"], r["batched_kernel_ms_per_frame"]["median"], ceilings)

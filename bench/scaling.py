@@ -17,7 +17,7 @@ validation: built by FK, consistent).
 
 Per size: bind wall time and the process's peak RSS after it, then rounds of
 ``Deformer.pose(pose, out=...)`` back to back (wall), then each pose again followed by
-one profiling-event run of the pose kernel (and prepare kernel); medians. Fits per mode, on the
+one profiling-event run of the pose kernel (its prologue included); medians. Fits per mode, on the
 pose medians: t = c0 + c1 N + c2 N H (least squares, ms) and t = a (N H)^b.
 """
 from __future__ import annotations
@@ -112,7 +112,7 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
         d.pose(p, out=out)
     # small sizes are cheap: more rounds (up to 20) for steadier medians
     rounds = max(repeat, 1) if quick or N >= 300_000 else min(20, max(repeat, -(-3_000_000 // (N * min(H, 16)))))
-    wall, kern, prep = [], [], []
+    wall, kern = [], []
     gc_was = gc.isenabled()
     gc.disable()
     try:
@@ -125,9 +125,7 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
                 wall.append(time.perf_counter() - t)
             for p in poses if roofs is not None else ():
                 d.pose(p, out=out)
-                a, b = roofs.pose_kernel_once(d)
-                prep.append(a)
-                kern.append(b)
+                kern.append(roofs.pose_kernel_once(d))
     finally:
         if gc_was:
             gc.enable()
@@ -139,7 +137,6 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
            "pose_ms": common.stats(wall), "load": common.load(), "work": dict(pose_work(d), lanes=lane_divergence(d))}
     if kern:
         row["kernel_ms"] = common.stats(kern)
-        row["prepare_ms"] = common.stats(prep)
     del d
     gc.collect()
     return row

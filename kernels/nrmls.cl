@@ -44,7 +44,7 @@
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9] | slot [1]: posed handle positions, the
  *          rotations of the segments and the global rotation R_g, row-major, and
  *          the output slot of the frame (int bits): it is written at out + slot Np*3
- *   derived (written by nrmls_prepare from `pose`, once per pose)
+ *   derived (written by the job's prologue from `pose`, once per pose: pose_prologue)
  *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4])
  *          | ploc [(S+1)*P*3]:
  *          relative/paper blends, TW = 3: table[j][s] = log(R_ref_j^-1 R_s);
@@ -58,12 +58,19 @@
  *                         launch's own slots, or one handed to the caller, device.Handoff)
  *
  * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
- * apart) and `derived` F blocks (derived_stride apart); nrmls_prepare runs
- * over (item, frame).
+ * apart) and `derived` F blocks (derived_stride apart). The launch is one job
+ * (share.h) whose prologue, run by the first work-item to arrive, fits R_g
+ * (-DGLOBAL_FIT) and fills `derived` for every frame; then the blocks of points.
+ * (As kernels of their own, enqueued before this one, the R_g fit and the
+ * tables cost a box's point pose 14 us of its 84 (1.21x), its segment pose 5 of
+ * 47 us; a standing worker now runs them while the calling thread enters.)
  */
 
 #include "lanes.h"
 #include "share.h"
+#ifdef GLOBAL_FIT
+#include "global_fit.h"
+#endif
 
 /* Handle counts known at build time (nrpose/engine.py builds one program per
  * configuration): P point handles (-DNPOINTS) and K segment slots per point
@@ -203,40 +210,34 @@ static float3 quat_log(float4 q)
     return k * q.xyz;
 }
 
-/* Per-pose rotation data. QUAT_BLEND: work-item g < npairs writes table[j][i] =
- * Q_i in the hemisphere of Q_j, and work-items npairs + j write quats[j] = Q_j
- * beside refs[j]. Otherwise: work-item g < npairs writes table[j][i] for the
+/* Per-pose rotation data of one frame (`pose`: its pose block, `refs`: its derived
+ * block), item g of npairs + S + 1. QUAT_BLEND: item g < npairs writes table[j][i] =
+ * Q_i in the hemisphere of Q_j, and items npairs + j write quats[j] = Q_j
+ * beside refs[j]. Otherwise: item g < npairs writes table[j][i] for the
  * g-th (j, i) pair that some point uses (listed at bind):
- * log(R_j^-1 R_i), or log(R_i) for the paper blend. Work-items npairs + j,
+ * log(R_j^-1 R_i), or log(R_i) for the paper blend. Items npairs + j,
  * j in [0, S], write refs[j]: the reference's matrix (identity for the paper
  * blend). The relative table is exactly antisymmetric, T[j][i] = -T[i][j],
  * so that blends seen from either handle agree even at an angle of exactly pi. */
-__kernel void nrmls_prepare(const int nsegs, const int paper, const int npairs,
-                            __global const int *pairs, __global const float *pose,
-                            __global float *derived, const int pose_stride, const int derived_stride)
+static void prepare_item(const int g, const int nsegs, const int paper, const int npairs,
+                         __global const int *pairs, __global const float *pose, __global float *refs)
 {
-    const int g = get_global_id(0);
-    const int f = get_global_id(1);                      /* frame */
-    __global const float *rots = pose + f * pose_stride + 3 * (P + 2 * S);
-    __global float *refs = derived + f * derived_stride;
+    __global const float *rots = pose + 3 * (P + 2 * S);
     __global float *table = refs + 9 * (S + 1);
     if (g >= npairs) {
         const int j = g - npairs;
-        if (j <= S) {
-            for (int k = 0; k < 9; ++k)
-                refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : rots[9 * j + k];
-            /* ploc[j][p] = R_j^T q_p: the posed point handles in reference j's frame */
-            __global const float *qp = pose + f * pose_stride;
-            __global float *ploc = refs + PLOC_OFFSET(S) + 3 * P * j;
-            for (int p = 0; p < P; ++p)
-                for (int k = 0; k < 3; ++k)
-                    ploc[3 * p + k] = paper ? qp[3 * p + k]
-                        : rots[9 * j + k] * qp[3 * p] + rots[9 * j + 3 + k] * qp[3 * p + 1]
-                          + rots[9 * j + 6 + k] * qp[3 * p + 2];
+        for (int k = 0; k < 9; ++k)
+            refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : rots[9 * j + k];
+        /* ploc[j][p] = R_j^T q_p: the posed point handles in reference j's frame */
+        __global float *ploc = refs + PLOC_OFFSET(S) + 3 * P * j;
+        for (int p = 0; p < P; ++p)
+            for (int k = 0; k < 3; ++k)
+                ploc[3 * p + k] = paper ? pose[3 * p + k]
+                    : rots[9 * j + k] * pose[3 * p] + rots[9 * j + 3 + k] * pose[3 * p + 1]
+                      + rots[9 * j + 6 + k] * pose[3 * p + 2];
 #ifdef QUAT_BLEND
-            vstore4(quat_of(rots + 9 * j), j, table + TW * (S + 1) * S);
+        vstore4(quat_of(rots + 9 * j), j, table + TW * (S + 1) * S);
 #endif
-        }
         return;
     }
     const int j = pairs[2 * g], i = pairs[2 * g + 1];
@@ -257,17 +258,44 @@ __kernel void nrmls_prepare(const int nsegs, const int paper, const int npairs,
     vstore3(r, j * S + i, table);
 }
 
+/* The pose kernel's prologue (share.h), once per job, for its F frames: R_g, where
+ * some point takes it as its reference (built with -DGLOBAL_FIT: global_fit.h, from
+ * the posed handle positions and `fit`, written into the frame's pose block), then
+ * the frame's rotation data (prepare_item). */
+static void pose_prologue(const int F, const int nsegs, const int paper, const int npairs,
+                          __global const int *pairs, __global float *pose, __global float *derived,
+                          const int pose_stride, const int derived_stride, __global const uchar *fit)
+{
+    for (int f = 0; f < F; ++f) {
+        __global float *frame = pose + f * pose_stride;
+#ifdef GLOBAL_FIT
+        global_rotation_of(frame, (__global const double *)fit, P + 2 * S, 3 * (P + 2 * S) + 9 * S);
+#endif
+        for (int g = 0; g < npairs + S + 1; ++g)
+            prepare_item(g, nsegs, paper, npairs, pairs, frame, derived + f * derived_stride);
+    }
+}
+
 __kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
                          __global const float *len2,
-                         __global const float *pose, __global const float *derived,
+                         __global float *pose, __global float *derived,
                          __global float *out_frames, const int block,
                          const int pose_stride, const int derived_stride,
+                         const int paper, const int npairs, __global const int *pairs,
+                         __global const uchar *fit,
                          volatile __global int *jobs, const int role)
 {
     /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
-     * host publishes ceil(chunks / block) blocks and the job's frames F */
+     * host publishes ceil(chunks / block) blocks and the job's frames F, with a
+     * prologue that writes the frames' rotation data (pose_prologue) */
     const int chunks = np / 8;
-    FOR_EACH_ITEM(g, F, jobs, role, block, chunks) {
+    FOR_EACH_JOB(jobs, role) {
+    if (claim_prologue(jobs, job_tag_)) {
+        pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, pose, derived, pose_stride,
+                      derived_stride, fit);
+        open_job(jobs, job_tag_);
+    }
+    FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, chunks) {
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
     /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */
@@ -498,4 +526,5 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #endif
     }   /* f */
     }   /* g */
+    }   /* job */
 }

@@ -25,7 +25,12 @@
  * The host publishes a job in three steps: JOB_NEXT = the new tag with block index
  * JOB_BLOCK_MASK (closed: no job has that many blocks, and a work-item holding the
  * last job's tag no longer matches), then JOB_DONE, JOB_BLOCKS and JOB_FRAMES, then
- * JOB_NEXT = the new tag with block 0 (open).
+ * JOB_NEXT = the new tag with block 0 (open), or with JOB_PROLOGUE: the job has a
+ * prologue (per-job work that every block needs, e.g. the pose kernel's rotation
+ * tables), which the first work-item to arrive claims (JOB_IN_PROLOGUE), runs and
+ * then opens the job at block 0; the others wait to take blocks until it is open.
+ * Whoever runs it, a standing worker usually does, while the calling thread is still
+ * entering its kernel.
  *
  * `role`, the kernel's last argument, says what a work-item does:
  *   ROLE_CALLER (0)  takes blocks of the published job, then waits until every block
@@ -44,7 +49,14 @@
  *     FOR_EACH_ITEM(g, F, jobs, role, block, count) {
  *         ... item g, for the F frames of its job ...
  *     }
- * (FOR_EACH_JOB and FOR_EACH_BLOCK, below, are its parts.)
+ * (FOR_EACH_JOB and FOR_EACH_ITEM_OF_JOB, below, are its parts.) With a prologue:
+ *     FOR_EACH_JOB(jobs, role) {
+ *         if (claim_prologue(jobs, job_tag_)) {
+ *             ... the job's prologue, for its jobs[JOB_FRAMES] frames ...
+ *             open_job(jobs, job_tag_);
+ *         }
+ *         FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, count) { ... }
+ *     }
  */
 #define JOB_NEXT 0
 #define JOB_BLOCKS 1
@@ -54,6 +66,8 @@
 #define JOB_DONE 16       /* 64 bytes on (the mailbox is 128-byte aligned, 32 ints) */
 #define JOB_TAG_SHIFT 20
 #define JOB_BLOCK_MASK ((1 << JOB_TAG_SHIFT) - 1)
+#define JOB_PROLOGUE (JOB_BLOCK_MASK - 1)        /* published; its prologue not yet claimed */
+#define JOB_IN_PROLOGUE (JOB_BLOCK_MASK - 2)     /* a work-item runs the prologue */
 #define ROLE_CALLER 0
 
 /* a spin-wait hint to the core (x86: pause; it spares the sibling hyperthread) */
@@ -76,12 +90,19 @@
 #endif
 
 /* The next block of the job tagged `tag`, taken; -1 when the job has none left (or
- * is no longer the published one). The block's reads come after the taking. */
+ * is no longer the published one). Waits while the job's prologue runs. The block's
+ * reads come after the taking (and so after the prologue's writes). */
 static inline int take_block(volatile __global int *jobs, const int tag)
 {
     for (;;) {
         const int v = jobs[JOB_NEXT];
-        if ((v >> JOB_TAG_SHIFT) != tag || (v & JOB_BLOCK_MASK) >= jobs[JOB_BLOCKS])
+        if ((v >> JOB_TAG_SHIFT) != tag)
+            return -1;
+        if ((v & JOB_BLOCK_MASK) == JOB_IN_PROLOGUE || (v & JOB_BLOCK_MASK) == JOB_PROLOGUE) {
+            SPIN_PAUSE();
+            continue;
+        }
+        if ((v & JOB_BLOCK_MASK) >= jobs[JOB_BLOCKS])
             return -1;
         if (atomic_cmpxchg(jobs + JOB_NEXT, v, v + 1) == v) {
             JOB_ACQUIRE();
@@ -108,8 +129,8 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
         return 1;
     }
     for (int idle = 0; idle < role && !jobs[JOB_QUIT]; ++idle) {
-        const int v = jobs[JOB_NEXT];
-        if ((v >> JOB_TAG_SHIFT) != *tag && (v & JOB_BLOCK_MASK) < jobs[JOB_BLOCKS]) {
+        const int v = jobs[JOB_NEXT], b = v & JOB_BLOCK_MASK;
+        if ((v >> JOB_TAG_SHIFT) != *tag && (b < jobs[JOB_BLOCKS] || b == JOB_PROLOGUE || b == JOB_IN_PROLOGUE)) {
             *tag = v >> JOB_TAG_SHIFT;
             return 1;
         }
@@ -117,6 +138,24 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
     }
     atomic_xchg(jobs + JOB_STANDING, 0);
     return 0;
+}
+
+/* Whether this work-item claims the prologue of the job tagged `tag` (it then runs it
+ * and calls open_job); 0 when the job has none or another work-item claimed it. */
+static inline int claim_prologue(volatile __global int *jobs, const int tag)
+{
+    const int v = tag << JOB_TAG_SHIFT | JOB_PROLOGUE;
+    if (jobs[JOB_NEXT] != v || atomic_cmpxchg(jobs + JOB_NEXT, v, tag << JOB_TAG_SHIFT | JOB_IN_PROLOGUE) != v)
+        return 0;
+    JOB_ACQUIRE();      /* the prologue's reads (e.g. JOB_FRAMES) after the claim */
+    return 1;
+}
+
+/* Opens the job tagged `tag` at block 0, after its prologue's writes. */
+static inline void open_job(volatile __global int *jobs, const int tag)
+{
+    JOB_RELEASE();
+    atomic_xchg(jobs + JOB_NEXT, tag << JOB_TAG_SHIFT);
 }
 
 #define FOR_EACH_JOB(jobs, role) \
@@ -139,9 +178,13 @@ static inline int count_done(volatile __global int *jobs, const int taken)
     for (int b = take_block((jobs), job_tag_), taken_ = 0; b >= 0 || count_done((jobs), taken_); \
          b = (++taken_, take_block((jobs), job_tag_)))
 
-/* Item g of every block of every job the work-item serves, with F the frames of the
- * block's job (read once per block, after it is taken). */
-#define FOR_EACH_ITEM(g, F, jobs, role, block, count)                                     \
-    FOR_EACH_JOB(jobs, role) FOR_EACH_BLOCK(b_, jobs)                                     \
+/* Item g of every block of the job being served (inside FOR_EACH_JOB), with F the
+ * frames of the block's job (read once per block, after it is taken). */
+#define FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, count)                                    \
+    FOR_EACH_BLOCK(b_, jobs)                                                              \
     for (int g = b_ * (block), g_end_ = (b_ + 1) * (block) < (count) ? (b_ + 1) * (block) : (count), \
          F = (jobs)[JOB_FRAMES]; g < g_end_; ++g)
+
+/* Item g of every block of every job the work-item serves (jobs without a prologue). */
+#define FOR_EACH_ITEM(g, F, jobs, role, block, count)                                     \
+    FOR_EACH_JOB(jobs, role) FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, count)

@@ -279,7 +279,7 @@ class GlobalRotation:
     and far from the origin that rounding times |q| would reach the fit).
     Per pose that leaves one (3, M) product and
     :func:`nrpose.rotation.covariance_rotation`. The OpenCL deformer runs the
-    same fit on the device (kernels/global_fit.cl, :class:`nrpose.engine.GlobalFit`)
+    same fit on the device (kernels/global_fit.h, :class:`nrpose.engine.GlobalFit`)
     from ``centred`` and ``scale2``; this is its float64 reference.
 
     centred: (M, 3) float64 rest positions (point handles, then segment ends) minus

@@ -254,6 +254,8 @@ JOB_DONE = 16                       # on a cache line of its own
 JOB_INTS = 32
 JOB_TAG_SHIFT = 20
 JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index of a job being published
+JOB_PROLOGUE = JOB_CLOSED - 1              # of a published job whose prologue comes first
+JOB_IN_PROLOGUE = JOB_CLOSED - 2           # of a job whose prologue a work-item runs
 ROLE_CALLER = 0
 
 def standing_workers_possible() -> bool:
@@ -369,13 +371,15 @@ class Jobs:
         self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
         self._displaced = float("-inf")  # when another mailbox's launch last ended its worker
 
-    def publish(self, blocks: int, frames: int) -> None:
+    def publish(self, blocks: int, frames: int, prologue: bool = False) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
-        blocks of (share.h: closed, then its counts, then opened at block 0). The mailbox
-        is uploaded (no-op with shared memory) on the context's queue."""
-        if not 0 <= blocks < JOB_CLOSED:
+        blocks of (share.h: closed, then its counts, then opened at block 0, or, with a
+        ``prologue``, at the prologue, which the first work-item to arrive runs before
+        opening the blocks). The mailbox is uploaded (no-op with shared memory) on the
+        context's queue."""
+        if not 0 <= blocks < JOB_IN_PROLOGUE:
             raise DeviceError(f"a launch of {blocks} blocks exceeds the job mailbox's "
-                              f"{JOB_CLOSED - 1}; pose fewer points per deformer")
+                              f"{JOB_IN_PROLOGUE - 1}; pose fewer points per deformer")
         self._tag = self._tag % 2047 + 1
         b = self.box.host
         # closed first: from here no block can be taken, neither by a work-item still
@@ -384,15 +388,17 @@ class Jobs:
         b[JOB_DONE] = 0
         b[JOB_BLOCKS] = blocks
         b[JOB_FRAMES] = frames
-        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT          # open: block 0 is next
+        # open: block 0 is next, or first the prologue, which its runner opens
+        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | (JOB_PROLOGUE if prologue else 0)
         self.box.upload()
 
-    def time_kernel(self, kernel, blocks: int) -> None:
+    def time_kernel(self, kernel, blocks: int, prologue: bool = False) -> None:
         """At bind, after the kernel's first launches: time one frame of ``kernel`` (``blocks``
-        blocks) on the calling thread alone (``alone_s``, :func:`time_alone`: small launches
-        are not shared) and calibrate the standby once per process
-        (:func:`calibrate_standby`), so that no pose pays either."""
-        self.alone_s = time_alone(lambda: launch_shared(kernel, self, blocks, workers=False))
+        blocks, a ``prologue`` or not) on the calling thread alone (``alone_s``,
+        :func:`time_alone`: small launches are not shared) and calibrate the standby once
+        per process (:func:`calibrate_standby`), so that no pose pays either."""
+        self.alone_s = time_alone(lambda: launch_shared(kernel, self, blocks, prologue=prologue,
+                                                        workers=False))
         calibrate_standby(kernel)
 
     def mode(self, kernel, frames: int, blocks: int, standby: float) -> str:
@@ -485,16 +491,15 @@ def stop_standing(displaced: bool = False) -> None:
 atexit.register(stop_standing)
 
 
-def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), queues=None,
-                  workers: bool | None = None) -> tuple[list, list]:
+def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bool = False,
+                  queues=None, workers: bool | None = None) -> list:
     """Run ``kernel`` on every device of the context at once, and wait for it.
 
     kernel: a ``cl.Kernel`` whose work-items take blocks of the job published in
     ``jobs`` (``FOR_EACH_JOB`` / ``FOR_EACH_BLOCK``, kernels/share.h) until none are
     left; its arguments set, the mailbox and :data:`ROLE_CALLER` the last two.
-    blocks, frames: the job's size. before: launches ``[(kernel, global_size,
-    local_size), ...]`` that must complete first (they run on the calling thread's
-    queue). queues: ``(worker queue or None, calling-thread queue)`` to use instead of
+    blocks, frames: the job's size; prologue: the job starts with the kernel's
+    prologue (share.h), which the first work-item to arrive runs. queues: ``(worker queue or None, calling-thread queue)`` to use instead of
     the shared ones (profiling queues; workers are woken, never standing, then).
 
     workers: True shares the blocks with PoCL's worker threads (a standing worker where
@@ -503,8 +508,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
     (share.h) serves this job, then polls for the next for up to standby_s. The calling
     thread waits in the kernel until every block is done, whoever took it. Without
     shared memory (``jobs.box.svm`` False) only the calling thread's queue runs the
-    kernel. Returns the events ``(before, kernel)`` (a standing worker's is not among
-    them).
+    kernel. Returns the kernel's events (a standing worker's is not among them).
     """
     cl = _cl()
     plan = work_items(queues)
@@ -524,10 +528,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
     if _standing is not None and _standing is not jobs and any(q.device == _standing_device()
                                                                 for q, _ in plan):
         stop_standing(displaced=True)   # another mailbox's: it holds these queues' device
-    pre = [cl.enqueue_nd_range_kernel(host_q, k, g, l) for k, g, l in before]
-    if pre and mode != "alone":
-        host_q.finish()                 # the workers read what `before` wrote
-    jobs.publish(blocks, frames)
+    jobs.publish(blocks, frames, prologue)
     if not jobs.box.svm and host_q != jobs.box._queue:
         jobs.box._queue.finish()        # its upload and the owner's, on the context's queue
     events = []
@@ -541,7 +542,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, before=(), q
     for e in events[:-1]:               # woken workers: done by now (the kernel waited for them)
         e.wait()
     jobs._last = time.perf_counter()
-    return pre, events
+    return events
 
 
 def _standing_device():

@@ -8,16 +8,17 @@ by block, keeps what the kernel uses (:func:`slot_terms`) and uploads it once
 (float32) to the device; the kernel objects and buffers
 live as long as the deformer. A pose writes (P + 2S)·3 + 9S floats of
 per-handle data (posed positions and the segments' rotations) into memory
-shared with the device and runs its kernels: ``global_rotation`` fits the
-global rotation R_g when some point takes it as its reference
-(:class:`GlobalFit`), ``nrmls_prepare`` turns the rotations into the table the
-points use (relative rotation vectors, or sign-aligned quaternions for the
-quaternion blend), ``nrmls_pose`` poses the points. The calling thread runs the kernels
-before ``nrmls_pose`` and takes blocks of points of ``nrmls_pose`` alongside PoCL's worker threads
-(:func:`nrpose.device.launch_shared`; in a loop of poses a standing worker,
-which polls for the next pose), or alone when the launch is too small to be
-worth waking them (timed at bind). ``pose_frames`` does the same for F
-poses in one launch of each.
+shared with the device and launches ``nrmls_pose`` once. Its job's prologue,
+run by whichever work-item arrives first (kernels/share.h), fits the global
+rotation R_g when some point takes it as its reference (:class:`GlobalFit`,
+kernels/global_fit.h) and turns the rotations into the table the points use
+(relative rotation vectors, or sign-aligned quaternions for the quaternion
+blend); then the calling thread takes blocks of points alongside PoCL's worker
+threads (:func:`nrpose.device.launch_shared`; in a loop of poses a standing
+worker, which polls for the next pose and runs the prologue while the calling
+thread enters the kernel), or alone when the launch is too small to be worth
+waking them (timed at bind). ``pose_frames`` does the same for F poses in one
+launch. ``pose`` hands its result over without a copy (:class:`nrpose.device.Handoff`).
 
 ``backend="numpy"`` runs :func:`nrpose.blend.pose_reference` instead (float64);
 nothing ever falls back to it silently.
@@ -116,25 +117,20 @@ class Deformer:
         quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
         self._derived_stride = (9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
                                 + 3 * P * (S + 1))
-        # R_g per pose on the device, when some point takes the global rotation as its reference
-        self._global = (GlobalFit(self.rest, self._pose_stride, self._npos + 9 * S)
-                        if blend != "paper" and refs_global else None)
+        # R_g per pose on the device (the pose kernel's prologue), when some point takes the
+        # global rotation as its reference
+        self._global = GlobalFit(self.rest) if blend != "paper" and refs_global else None
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
         options = ((f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
-                   + (("-DDERIVED_LEVER",) if self.lever != "paper" else ()) + (("-DQUAT_BLEND",) if quat else ()))
+                   + (("-DDERIVED_LEVER",) if self.lever != "paper" else ()) + (("-DQUAT_BLEND",) if quat else ())
+                   + (("-DGLOBAL_FIT",) if self._global is not None else ()))
         self._options = options
-        prg = device.program("nrmls.cl", options)
-        self._prepare = cl.Kernel(prg, "nrmls_prepare")
-        self._prepare.set_args(np.int32(S), np.int32(blend == "paper"), np.int32(self._npairs),
-                               self._bufs["pairs"], None, None, np.int32(self._pose_stride),
-                               np.int32(self._derived_stride))
-        self._kernel = cl.Kernel(prg, "nrmls_pose")
+        self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         self._jobs = device.Jobs()        # the pose kernel's job mailbox (kernels/share.h)
         self._blocks = -(-npad // (LANES * BLOCK))
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
-        self._befores = {}    # frames -> the launches before the pose kernel's (relaunch)
         self._batch = 1       # frames of the last launch
         self._reserve(1)
         # PoCL compiles a kernel's work-group function at its first launch on each
@@ -143,7 +139,7 @@ class Deformer:
         self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
         # one frame's pose kernel on the calling thread alone (small launches are not
         # shared) and the standby's calibration, once per process
-        self._jobs.time_kernel(self._kernel, self._blocks)
+        self._jobs.time_kernel(self._kernel, self._blocks, prologue=True)
 
     def __del__(self):
         jobs = getattr(self, "_jobs", None)
@@ -155,8 +151,9 @@ class Deformer:
         b = self._bufs
         return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
                 self._pose.arg, self._derived.arg, self._out.arg, np.int32(BLOCK),
-                np.int32(self._pose_stride), np.int32(self._derived_stride), self._jobs.box.arg,
-                np.int32(device.ROLE_CALLER)]
+                np.int32(self._pose_stride), np.int32(self._derived_stride), np.int32(self.blend == "paper"),
+                np.int32(self._npairs), b["pairs"], b["pairs"] if self._global is None else self._global.data,
+                self._jobs.box.arg, np.int32(device.ROLE_CALLER)]
 
     def pose_kernel_variant(self, source: str):
         """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl,
@@ -198,10 +195,6 @@ class Deformer:
         self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
         self._out = device.HostArray((frames + device.HANDOFF_SLOTS) * 3 * self._npad)
         self._handoff = device.Handoff(self._out, frames, device.HANDOFF_SLOTS, 3 * self._npad)
-        if self._global is not None:
-            self._global.kernel.set_arg(0, self._pose.arg)
-        self._prepare.set_arg(4, self._pose.arg)
-        self._prepare.set_arg(5, self._derived.arg)
         self._kernel.set_args(*self._pose_args())
         self._jobs.keep = (self._pose, self._derived, self._out)
         self._frames = frames
@@ -265,10 +258,10 @@ class Deformer:
         slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
         return rec[:, 0].ravel(), slots
 
-    def relaunch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> tuple[list, list]:
-        """Run the last posing's kernels again (same inputs, same result) and return their
-        events ``(before, pose)``, before: the R_g fit (when some point needs it) and
-        ``nrmls_prepare`` (:func:`nrpose.device.launch_shared`); queues: as there,
+    def relaunch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> list:
+        """Run the last posing's launch again (same inputs, same result) and return its
+        events (:func:`nrpose.device.launch_shared`; the pose kernel, its prologue
+        included, on each device that ran it); queues: as there,
         e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
         (True), run it on the calling thread alone (False) or let
         :func:`nrpose.device.launch_shared` decide (None, default); pose_kernel: a
@@ -277,21 +270,16 @@ class Deformer:
         self._slots[: self._batch] = self._own_slots[: self._batch]
         return self._launch(queues, workers, pose_kernel)
 
-    def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> tuple[list, list]:
+    def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> list:
         """:meth:`relaunch`, into the output slots that the pose blocks name."""
-        before = self._befores.get(self._batch)
-        if before is None:
-            F, S = self._batch, len(self.rest.segments)
-            before = self._befores[F] = ([self._global.launch(F)] if self._global is not None else []) + [
-                (self._prepare, (self._npairs + S + 1, F), None)]
         if pose_kernel is not None:
             pose_kernel.set_args(*self._pose_args())   # the current arrays
         return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._jobs,
-                                    self._blocks, self._batch, before=before, queues=queues,
+                                    self._blocks, self._batch, prologue=True, queues=queues,
                                     workers=workers)
 
     def _run(self, poses: list, owned: bool) -> np.ndarray:
-        """Launch the prepare and pose kernels for the poses: the posed points (F, N, 3),
+        """Launch the pose kernel for the poses: the posed points (F, N, 3),
         the caller's own (owned: a single frame is written into a free handed-off slot,
         :class:`nrpose.device.Handoff`, else copied) or a view of the launch's slots."""
         F = len(poses)
@@ -319,17 +307,16 @@ class Deformer:
 
 class GlobalFit:
     """R_g, the global rotation (:class:`nrpose.blend.GlobalRotation`, its float64
-    reference), fitted on the device by kernels/global_fit.cl for each frame of a
-    block of poses, where the pose kernels read it: no host work per pose (on the
-    host the fit took 60-130 µs of a point-handle pose).
+    reference), fitted on the device (kernels/global_fit.h) for each frame of a block
+    of poses by the pose kernel's prologue, where the points read it: no host work per
+    pose (on the host the fit took 60-130 µs of a point-handle pose).
 
-    rest: the rest handles; pose_stride: floats per frame of the pose array,
-    whose frames start with the M = P + 2S posed handle positions (xyz: point
-    handles, then segment ends); rg_offset: where in a frame R_g goes (9 floats,
-    row-major). ``kernel``: its argument 0 is the pose array, set by the caller.
+    rest: the rest handles. ``data``: the device buffer the fit reads (float64: the
+    tie tolerance's scale, then the M = P + 2S centred rest positions (M, 3), point
+    handles, then segment ends), bound once.
     """
 
-    def __init__(self, rest: HandleSet, pose_stride: int, rg_offset: int):
+    def __init__(self, rest: HandleSet):
         import pyopencl as cl
 
         fit = GlobalRotation(rest)
@@ -338,20 +325,16 @@ class GlobalFit:
             raise DeviceError("point-handle rigs fit their global rotation in double precision: the "
                               "OpenCL device needs cl_khr_fp64 (PoCL's CPU devices have it); choose "
                               "another device with PYOPENCL_CTX or use backend='numpy'")
-        self._rest = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                               hostbuf=np.ascontiguousarray(fit.centred, np.float64))
-        self.kernel = cl.Kernel(device.program("global_fit.cl"), "global_rotation")
-        self.kernel.set_args(None, self._rest, np.int32(len(fit.centred)), np.float64(fit.scale2),
-                             np.int32(pose_stride), np.int32(rg_offset))
-
-    def launch(self, frames: int) -> tuple:
-        """The launch ``(kernel, global size, local size)`` fitting ``frames`` frames."""
-        return self.kernel, (frames,), None
+        self.m = len(fit.centred)
+        self.data = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                              hostbuf=np.concatenate([[fit.scale2], np.ravel(fit.centred)]).astype(np.float64))
 
     @classmethod
     def fit(cls, rest: HandleSet, poses) -> np.ndarray:
-        """R_g (F, 3, 3) float32 of poses of ``rest`` fitted on the device on their own
-        (what a deformer's launches compute in place; for tests and diagnostics)."""
+        """R_g (F, 3, 3) float32 of poses of ``rest`` fitted on the device on their own by
+        the same code (kernels/global_fit.cl, global_fit.h; for tests and diagnostics)."""
+        import pyopencl as cl
+
         poses = list(poses)
         M = len(rest.points) + 2 * len(rest.segments)
         block = device.HostArray(max(len(poses), 1) * (3 * M + 9))
@@ -359,14 +342,13 @@ class GlobalFit:
         for f, p in enumerate(poses):
             rest.same_layout(p.handles, "posed handles")
             rows[f, : 3 * M] = np.concatenate([p.handles.points.ravel(), p.handles.segments.ravel()])
-        fit = cls(rest, 3 * M + 9, 3 * M)
-        fit.kernel.set_arg(0, block.arg)
+        fit = cls(rest)
+        kernel = cl.Kernel(device.program("global_fit.cl"), "global_rotation")
+        kernel.set_args(block.arg, fit.data, np.int32(M), np.int32(3 * M + 9), np.int32(3 * M))
         block.upload()
         _, queue = device.context()
         if poses:
-            import pyopencl as cl
-
-            cl.enqueue_nd_range_kernel(queue, *fit.launch(len(poses)))
+            cl.enqueue_nd_range_kernel(queue, kernel, (len(poses),), None)
         block.download()
         return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
 

@@ -109,7 +109,7 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     the one whose axis is nearest x, else y, else z). That is exact, where the old
     regularised SVD (C + εI) resolved it only to ~1e-5. One 4×4 ``eigh``
     instead of an SVD and two determinants (~70 µs against ~120 µs per call).
-    kernels/global_fit.cl is its device twin for the OpenCL deformer's R_g.
+    kernels/global_fit.h is its device twin for the OpenCL deformer's R_g.
     """
     scale = max(np.abs(C).max(), p_scale2, 1e-300)
     (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = C.tolist()
@@ -126,7 +126,7 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
         # one whose axis is nearest x (the half turn about x, (0, 1, 0, 0), projected), or
         # where that projection is shorter than 1/2 (every optimal axis more than 60° from
         # x) y, else z; the longest of the three is at least 1/sqrt(3). A rule rather than
-        # eigh's arbitrary pick, so that the device's fit (kernels/global_fit.cl) agrees.
+        # eigh's arbitrary pick, so that the device's fit (kernels/global_fit.h) agrees.
         for axis in (1, 2, 3):
             q = best @ best[axis]
             norm = float(np.linalg.norm(q))

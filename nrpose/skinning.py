@@ -381,10 +381,9 @@ class Deformer:
         out = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
         return out.astype(np.float64)
 
-    def relaunch(self, queues=None, workers: bool | None = None) -> tuple[list, list]:
+    def relaunch(self, queues=None, workers: bool | None = None) -> list:
         """Run the last posing's kernel again (same inputs, same result) and return its
-        events ``(before, kernel)`` (:func:`nrpose.device.launch_shared`; ``before`` is
-        empty); queues: as there, e.g. profiling queues; workers: share the kernel with
+        events (:func:`nrpose.device.launch_shared`); queues: as there, e.g. profiling queues; workers: share the kernel with
         PoCL's worker threads (True), run it on the calling thread alone (False) or let
         launch_shared decide (None, default)."""
         return device.launch_shared(self._kernel, self._jobs, self._blocks, self._batch,

@@ -747,7 +747,7 @@ def test_global_rotation_fit(shape):
 
 @pytest.mark.parametrize("shape", ["general", "noisy", "coplanar", "mirrored"])
 def test_global_fit_on_device(shape):
-    """The device's R_g fit (kernels/global_fit.cl) against the SVD oracle and its
+    """The device's R_g fit (kernels/global_fit.h) against the SVD oracle and its
     float64 reference, several frames per launch. It reads float32 positions, so
     the tolerance is float32 rounding amplified by the fit's conditioning, with rest
     and pose up to 30 handle spans from the origin."""
@@ -876,4 +876,4 @@ def test_global_fit_needs_double_precision(monkeypatch):
 
     monkeypatch.setattr(device, "context", lambda: (type("Ctx", (), {"devices": [NoDoubles()]})(), None))
     with pytest.raises(DeviceError, match="cl_khr_fp64.*PYOPENCL_CTX"):
-        GlobalFit(HandleSet.make(points=np.eye(3)), 18, 9)
+        GlobalFit(HandleSet.make(points=np.eye(3)))

@@ -321,6 +321,114 @@ def test_publish_closes_the_job_before_it_opens_it():
                                                (device.JOB_FRAMES, 4)])
         assert writes[-1] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)
     assert tags[0] != tags[1] and all(1 <= t <= 2047 for t in tags)
+    writes.clear()
+    jobs.publish(5, 2, prologue=True)           # opened at the prologue, not at block 0
+    assert writes[0][1] & device.JOB_CLOSED == device.JOB_CLOSED
+    assert writes[-1] == (device.JOB_NEXT, (writes[0][1] & ~device.JOB_CLOSED) | device.JOB_PROLOGUE)
     jobs._tag = 2047
     jobs.publish(1, 1)
     assert jobs.box.host[device.JOB_NEXT] >> device.JOB_TAG_SHIFT == 1
+
+
+PROLOGUE = """#include "share.h"
+/* A job with a prologue: the first work-item to arrive counts the run in state[1] (and in
+ * state[2] if it is a standing worker), spins
+ * `work` iterations, then writes the job's frames to state[0]; every block records
+ * state[0] as it finds it (+ 2,000,000 standing worker, 1,000,000 otherwise). */
+__kernel void staged(__global int *who, __global int *state, const int work, volatile __global int *jobs,
+                     const int role)
+{
+    FOR_EACH_JOB(jobs, role) {
+        if (claim_prologue(jobs, job_tag_)) {
+            float acc = 0.0f;
+            for (int i = 0; i < work; ++i)
+                acc = acc * 0.5f + (float)i;
+            state[1] += 1;
+            state[2] += role > 0;
+            state[0] = jobs[JOB_FRAMES] + (acc < 0.0f);
+            open_job(jobs, job_tag_);
+        }
+        FOR_EACH_BLOCK(b, jobs) {
+            who[b] = (role > 0 ? 2000000 : 1000000) + state[0];
+        }
+    }
+}
+"""
+
+
+@pytest.mark.parametrize("split", ["alone", "standing", "woken", "workers only"])
+def test_a_jobs_prologue_runs_once_before_any_of_its_blocks(standby, split):
+    """A job published with a prologue (launch_shared(prologue=True)): one work-item runs
+    it, once per job, and no block of the job starts before it has finished (each block
+    sees what it wrote), whoever runs it and the blocks: the calling thread alone, with
+    a standing worker over 300 jobs in a loop (which then runs most prologues, while
+    the calling thread enters its kernel, and blocks too), with woken workers, on the
+    workers alone."""
+    import pyopencl as cl
+
+    if split != "alone":
+        _workers_or_skip()
+    standby(20_000 if split == "standing" else 0)
+    ctx, _ = device.context()
+    kernel = cl.Kernel(cl.Program(ctx, device.with_headers(PROLOGUE)).build(), "staged")
+    jobs = device.Jobs()
+    who = device.HostArray(64, dtype=np.int32)
+    state = device.HostArray(3, dtype=np.int32)
+    jobs.keep = (who, state)
+    kernel.set_args(who.arg, state.arg, np.int32(20_000), jobs.box.arg, np.int32(0))
+    kw = {"alone": {"workers": False}, "standing": {"workers": True}, "woken": {"workers": True},
+          "workers only": {"queues": (None, device.worker_queue())}}[split]
+    takers = {STANDING: 0, CALLER: 0}
+    state.host[1:] = 0
+    launches = 300 if split == "standing" else 20
+    for j in range(launches):
+        blocks, frames = 1 + (j * 7) % 40, 1 + j % 5
+        who.host[:] = 0
+        state.host[0] = -1                   # stale, until the prologue writes the frames
+        device.launch_shared(kernel, jobs, blocks, frames, prologue=True, **kw)
+        assert state.host[1] == j + 1, j     # one prologue per job
+        got = who.host.copy()
+        assert np.all(got[:blocks] % 1_000_000 == frames), (j, got[:blocks])
+        assert not got[blocks:].any(), j
+        for k in takers:
+            takers[k] += int(np.count_nonzero(got[:blocks] - frames == k))
+    jobs.stop()
+    if split == "standing":                  # the worker polls: it sees the job first
+        assert takers[STANDING] > 0 and takers[CALLER] > 0, takers
+        assert state.host[2] > launches // 2, state.host[2]
+
+
+CLAIM_PROLOGUE = """#include "share.h"
+__kernel void claim2(__global int *out, const int tag, volatile __global int *jobs)
+{
+    out[0] = claim_prologue(jobs, tag);
+    out[1] = claim_prologue(jobs, tag);
+}
+"""
+
+
+@pytest.mark.parametrize("state,tag,claimed", [
+    (device.JOB_PROLOGUE, 5, 1),            # published with a prologue: the first claim wins
+    (device.JOB_PROLOGUE, 4, 0),            # the last job's tag: no
+    (device.JOB_IN_PROLOGUE, 5, 0),         # already claimed
+    (0, 5, 0),                              # open (no prologue, or it is done)
+])
+def test_a_prologue_is_claimed_once_under_its_jobs_tag(state, tag, claimed):
+    """share.h claim_prologue: only a job waiting for its prologue, under the claimer's tag,
+    is claimed, and then only once (the state becomes JOB_IN_PROLOGUE)."""
+    import pyopencl as cl
+
+    ctx, queue = device.context()
+    kernel = cl.Kernel(cl.Program(ctx, device.with_headers(CLAIM_PROLOGUE)).build(), "claim2")
+    jobs, out = device.HostArray(device.JOB_INTS, dtype=np.int32, atomics=True), device.HostArray(2, dtype=np.int32)
+    jobs.host[:] = 0
+    jobs.host[device.JOB_NEXT] = 5 << device.JOB_TAG_SHIFT | state
+    jobs.host[device.JOB_BLOCKS] = 10
+    jobs.upload()
+    kernel.set_args(out.arg, np.int32(tag), jobs.arg)
+    cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
+    out.download()
+    jobs.download()
+    assert list(out.host) == [claimed, 0]
+    assert jobs.host[device.JOB_NEXT] & ((1 << device.JOB_TAG_SHIFT) - 1) == (
+        device.JOB_IN_PROLOGUE if claimed else state)
