@@ -376,16 +376,18 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
             for p in poses:
                 d.pose(p)
             wall, kern = [], []
-            out = np.empty((len(v), 3), np.float32)     # as Table 1 times it: into the caller's array
             for _ in range(max(repeat, 1)):
-                # the poses back to back (a standing worker serves them, as in Table 1), then
-                # each again on the profiling queues (which end the standing worker)
+                # the poses back to back as Table 1 times them (a standing worker serves them,
+                # each result held until the next is made), then each again on the profiling
+                # queues (which end the standing worker)
+                posed = None
                 for p in poses:
                     t = time.perf_counter()
-                    d.pose(p, out=out)
+                    posed = d.pose(p)
                     wall.append(time.perf_counter() - t)
+                del posed
                 for p in poses:
-                    d.pose(p, out=out)
+                    d.pose(p)
                     kern.append(roofs.pose_kernel_once(d))
             # the same poses as one launch of F frames (how clips are posed): kernel time per frame
             d.pose_frames(poses)

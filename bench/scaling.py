@@ -107,9 +107,8 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
     rss1 = common.peak_rss_gb()
     del pts
     poses = fk_poses(segs, parent, 4 if quick else 8)
-    out = np.empty((N, 3), np.float32)
     for p in poses[:3]:
-        d.pose(p, out=out)
+        out = d.pose(p)
     # small sizes are cheap: more rounds (up to 20) for steadier medians
     rounds = max(repeat, 1) if quick or N >= 300_000 else min(20, max(repeat, -(-3_000_000 // (N * min(H, 16)))))
     wall, kern = [], []
@@ -119,12 +118,13 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
         for _ in range(rounds):
             # the poses back to back (as frames are posed: a standing worker serves them),
             # then each again on the profiling queues (which end the standing worker)
+            # (each result held until the next is made, as Table 1 times them)
             for p in poses:
                 t = time.perf_counter()
-                d.pose(p, out=out)
+                out = d.pose(p)
                 wall.append(time.perf_counter() - t)
             for p in poses if roofs is not None else ():
-                d.pose(p, out=out)
+                out = d.pose(p)
                 kern.append(roofs.pose_kernel_once(d))
     finally:
         if gc_was:

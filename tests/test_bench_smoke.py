@@ -19,7 +19,7 @@ BENCH = pathlib.Path(__file__).resolve().parent.parent / "bench" / "table1.py"
 
 ROW_FIELDS = {"model", "kind", "points", "handles", "paper_points", "paper_ms", "paper_ms_per_point_handle",
               "source", "bbox_diagonal", "bind_ms", "bind_first_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms",
-              "pocl_pose_new_array_ms", "numpy_pose_ms", "speedup_vs_numpy", "pocl_ms_per_point_handle", "numpy_ms_per_point_handle",
+              "pocl_pose_into_ms", "numpy_pose_ms", "speedup_vs_numpy", "pocl_ms_per_point_handle", "numpy_ms_per_point_handle",
               "paper_over_pocl", "max_error_rel_bbox", "handles_rest"}
 STATS = {"median", "p10", "p90", "min", "max", "n"}
 
@@ -69,7 +69,7 @@ def test_rows(quick_run):
     for r in rows:
         assert ROW_FIELDS <= set(r), ROW_FIELDS - set(r)
         assert r["points"] == 500
-        for key in ("bind_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms", "pocl_pose_new_array_ms",
+        for key in ("bind_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms", "pocl_pose_into_ms",
                     "numpy_pose_ms"):
             assert set(r[key]) == STATS
             assert r[key]["n"] >= 1
