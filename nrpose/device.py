@@ -33,8 +33,8 @@ import contextlib
 import functools
 import os
 import re
+import sys
 import time
-import weakref
 from importlib import resources
 
 import numpy as np
@@ -511,6 +511,15 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
     kernel. Returns the kernel's events (a standing worker's is not among them).
     """
     cl = _cl()
+    if queues is None and workers is None and jobs.standing(kernel):
+        # frames in a loop: this kernel's standing worker polls (Jobs.mode "standing", and
+        # nothing to stop or stand): publish, run the calling thread's share, wait
+        host_q = context()[1]
+        jobs.publish(blocks, frames, prologue)
+        events = [cl.enqueue_nd_range_kernel(host_q, kernel, (1,), (1,))]
+        host_q.finish()
+        jobs._last = time.perf_counter()
+        return events
     plan = work_items(queues)
     host_q = plan[-1][0]
     worker_q = plan[0][0] if len(plan) > 1 and jobs.box.svm else None
@@ -677,10 +686,10 @@ HANDOFF_SLOTS = 2
 
 
 class _Owner:
-    """Holds a handed-off output slot for the numpy arrays made from it (their base, or
-    their base's base): while any of them lives, the slot is not written again. ``memory``
-    keeps the device memory itself alive (a deformer may reallocate or go)."""
-    __slots__ = ("__array_interface__", "memory", "__weakref__")
+    """The base of a handed-off slot's array: numpy views of that array keep the array
+    itself (views collapse their bases only through arrays), and ``memory`` keeps the
+    device memory alive (a deformer may reallocate it or go)."""
+    __slots__ = ("__array_interface__", "memory")
 
 
 class Handoff:
@@ -688,36 +697,38 @@ class Handoff:
 
     A deformer's kernels write each frame into a slot of its output
     :class:`HostArray` ``array`` (slot i at float i * ``stride``), the slot chosen
-    per frame by the host. Slots [``first``, ``first + count``) are handed off: after a
-    launch wrote slot i, :meth:`take` returns a float32 array on slot i's memory,
-    owned by a fresh :class:`_Owner`, and the slot is free (:meth:`free`) again once
-    nothing references that owner, i.e. once the array and every view of it are gone.
-    Posing a frame then costs no copy of the (N, 3) result: 5-35 us on the Table-1
-    rows, half the rows written by the other core. Without shared memory
-    (``array.svm`` False) launches download into ``array`` whole, so nothing is handed
-    off (:meth:`free` is None).
+    per frame by the host. Slots [``first``, ``first + count``) are handed off: each
+    has one float32 array of ``shape`` (C order, at most ``stride`` floats) on its
+    memory, made once; after a launch wrote slot i, :meth:`take` returns slot i's
+    array, and the slot is free (:meth:`free`) again once nothing but this object
+    references that array, i.e. once it and every view of it are gone (CPython's
+    reference counts; a view holds the array it was made from). Posing a frame then
+    costs no copy of the (N, 3) result: 5-35 us on the Table-1 rows, half the rows
+    written by the other core. Without shared memory (``array.svm`` False) launches
+    download into ``array`` whole, so nothing is handed off (:meth:`free` is None).
     """
 
-    def __init__(self, array: HostArray, first: int, count: int, stride: int):
-        self.array, self.first, self.stride = array, first, stride
-        self._owners: list = [None] * (count if array.svm else 0)    # weak references
-        self._base = array.host.ctypes.data if array.svm else 0
+    def __init__(self, array: HostArray, first: int, count: int, stride: int, shape: tuple):
+        self.first = first
+        self._arrays = [self._array_at(array, 4 * (first + i) * stride, shape)
+                        for i in range(count if array.svm else 0)]
+
+    @staticmethod
+    def _array_at(array: HostArray, offset: int, shape: tuple) -> np.ndarray:
+        owner = _Owner()
+        owner.memory = array.host
+        owner.__array_interface__ = {"data": (array.host.ctypes.data + offset, False), "shape": shape,
+                                     "typestr": "<f4", "version": 3}
+        return np.asarray(owner)
 
     def free(self) -> int | None:
-        """A handed-off slot that no array references (None when every one is held)."""
-        for i, ref in enumerate(self._owners):
-            if ref is None or ref() is None:
+        """A handed-off slot whose array nobody holds (None when every one is held)."""
+        for i in range(len(self._arrays)):
+            if sys.getrefcount(self._arrays[i]) <= 2:      # this list's reference and the call's
                 return self.first + i
         return None
 
-    def take(self, slot: int, shape: tuple) -> np.ndarray:
-        """The float32 array of ``shape`` (C order, at most ``stride`` floats) at the
-        start of ``slot`` (from :meth:`free`, written by a launch that has completed),
-        handed to the caller: the slot is not written again while the array or a view
-        of it lives."""
-        owner = _Owner()
-        owner.memory = self.array.host
-        owner.__array_interface__ = {"data": (self._base + 4 * slot * self.stride, False),
-                                     "shape": shape, "typestr": "<f4", "version": 3}
-        self._owners[slot - self.first] = weakref.ref(owner)
-        return np.asarray(owner)
+    def take(self, slot: int) -> np.ndarray:
+        """Slot ``slot``'s array (from :meth:`free`, written by a launch that has completed),
+        handed to the caller: the slot is not written again while it or a view of it lives."""
+        return self._arrays[slot - self.first]

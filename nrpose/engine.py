@@ -194,7 +194,7 @@ class Deformer:
         self._own_slots = np.arange(frames, dtype=np.int32)
         self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
         self._out = device.HostArray((frames + device.HANDOFF_SLOTS) * 3 * self._npad)
-        self._handoff = device.Handoff(self._out, frames, device.HANDOFF_SLOTS, 3 * self._npad)
+        self._handoff = device.Handoff(self._out, frames, device.HANDOFF_SLOTS, 3 * self._npad, (1, self.n, 3))
         self._kernel.set_args(*self._pose_args())
         self._jobs.keep = (self._pose, self._derived, self._out)
         self._frames = frames
@@ -297,7 +297,7 @@ class Deformer:
         self._batch = F
         self._launch()
         if slot is not None:
-            return self._handoff.take(slot, (1, self.n, 3))
+            return self._handoff.take(slot)
         self._out.download()
         result = self._results.get(F)
         if result is None:

@@ -640,7 +640,8 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     mailbox's alone_s). A launch whose frames take less than device.SHARE_MIN_S together
     runs there alone; larger ones wake the workers; a launch following the deformer's last
     one within the standby time (frames in a loop) and of device.STANDING_MIN_BLOCKS blocks
-    or more stands a worker, and one that finds it standing uses it."""
+    or more stands a worker, and one that finds it standing uses it (without deciding
+    again: launch_shared's path for frames in a loop)."""
     import time
 
     from nrpose import device
@@ -664,8 +665,9 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
         dev.pose_frames([random_pose(rng, rest)] * frames)
     dev.pose_frames([random_pose(rng, rest)])              # right after: in a loop
     assert jobs.standing(dev._kernel)
+    before = jobs._last
     dev.pose_frames([random_pose(rng, rest)])              # finds it standing
-    assert decided == ["alone", "woken", "alone", "standing", "standing"]
+    assert decided == ["alone", "woken", "alone", "standing"] and jobs._last > before
     assert jobs.mode(dev._kernel, 1, 1, 10.0) == "standing"           # it still stands
     jobs.stop()
     jobs._last = time.perf_counter()
