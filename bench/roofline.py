@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from nrpose import device
-from nrpose.engine import LANES
+from nrpose.engine import LANES, levers_stored
 
 ACCS = 8          # independent float8 accumulators per work-item
 ITERS = 2048      # updates of each accumulator
@@ -106,36 +106,45 @@ FLOP_COUNT = {
 }
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
 DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0, 0), "1 / lsum": (0, 0, 1, 0)}
+#: what a build reading the levers from the bound record (not DERIVED_LEVER: the "paper"
+#: rule, and rigs without segments, nrpose.engine.levers_stored) does not count above
+STORED_LEVERS_SKIP = {"point handle: lever coef*|phat|^2, lsum += (3 mul + 2 add + 1 mul + 1 add; "
+                      "the *k remains)": (7, 0, 0, 0),
+                      "segment slot: lever (ca+cb)*len2, lsum +=": (0, 3, 0, 0),
+                      "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4, 0)}
 
 
 def _total(table: dict, P: int, K: int) -> int:
     return int(sum(p * P + k * K + f + (g if P else 0) for p, k, f, g in table.values()))
 
 
-def pose_flops(P: int, K: int) -> dict:
+def pose_flops(P: int, K: int, stored_levers: bool = False) -> dict:
     """Floating-point operations per point of ``nrmls_pose`` for P point handles and K
-    segment slots (K = S dense, or k sparse): total and how it splits."""
-    return {"per_point": _total(FLOP_COUNT, P, K),
+    segment slots (K = S dense, or k sparse): total and how it splits; stored_levers: a
+    build that reads the levers (:data:`STORED_LEVERS_SKIP`)."""
+    skip = _total(STORED_LEVERS_SKIP, P, K) if stored_levers else 0
+    return {"per_point": _total(FLOP_COUNT, P, K) - skip, "stored_levers_skipped": skip,
             "formula": "{} P + {} K + {} (+ {} when P > 0; P point handles, K segment slots)".format(
                 *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(4))),
-            "divisions_per_point": _total(DIVISIONS, P, K),
+            "divisions_per_point": _total(DIVISIONS, P, K) - (1 if stored_levers else 0),
             "rule": "mul/add/sub = 1 flop (an FMA is 2); divisions counted as 1 each (listed under "
                     "divisions_per_point); sqrt and atan2 are inline code (rsqrt8, atan2pos8), counted by "
                     "their operations as the x86 AVX build runs them (the rsqrtps estimate counted 1); "
                     "folded constants, "
                     "integer index work, comparisons and select() not counted; counted per real "
-                    "point (padding to a multiple of 8 not counted); DERIVED_LEVER build (default "
-                    "lever rule)"}
+                    "point (padding to a multiple of 8 not counted); the table is the DERIVED_LEVER "
+                    "build's (default lever rule on rigs with segments); a build reading stored "
+                    "levers skips stored_levers_skipped of it"}
 
 
-def pose_bytes(P: int, K: int, sparse: bool, length_lever: bool = True) -> dict:
+def pose_bytes(P: int, K: int, sparse: bool, derived_levers: bool = True) -> dict:
     """Bytes per point that ``nrmls_pose`` reads from the bound arrays and writes."""
     parts = {"u (3 floats)": 12, "ref (int)": 4, "row (int)": 4,
              "coef ((P + 2K) floats)": 4 * (P + 2 * K), "phat (3P floats)": 12 * P,
              "out (3 floats written)": 12}
     if sparse:
         parts["slot (K ints)"] = 4 * K
-    if not length_lever:
+    if not derived_levers:
         parts["lever ((P + K) floats)"] = 4 * (P + K)
     return {"per_point": int(sum(parts.values())), "parts": parts,
             "rule": "each bound per-point array element read once + the output written once; "
@@ -149,8 +158,9 @@ def pose_work(deformer) -> dict:
     K = deformer.slots
     sparse = K < S
     n = deformer.n
-    fl = pose_flops(P, K)
-    by = pose_bytes(P, K, sparse, deformer.lever != "paper")
+    stored = levers_stored(deformer.lever, S)
+    fl = pose_flops(P, K, stored)
+    by = pose_bytes(P, K, sparse, not stored)
     per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 9 * (S + 1) + 3 * (S + 1) * S + 3 * P * (S + 1))
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
@@ -417,6 +427,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
             "flop_count": {"table": {k: list(v) for k, v in FLOP_COUNT.items()},
                            "columns": ["per point handle", "per segment slot", "fixed", "once per point when P > 0"],
                            "divisions": {k: list(v) for k, v in DIVISIONS.items()},
+                           "stored_levers_skip": {k: list(v) for k, v in STORED_LEVERS_SKIP.items()},
                            **{k: v for k, v in pose_flops(1, 1).items() if k in ("formula", "rule")}},
             "rows": rows, "poses_per_round": n_poses, "rounds": max(repeat, 1),
             "best_row": f"{best['model']}/{best['kind']}", "best_fraction_arithmetic": best["fraction_arithmetic"],

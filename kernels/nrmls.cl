@@ -26,7 +26,8 @@
  *                         the derived levers w |phat|^2 and len2 scale alike and are
  *                         normalised per point), but |phat x y|^2 stays a normal float
  *   lever  [P+K]          normalised levers (points, then segment slots); built with
- *                         -DDERIVED_LEVER (lever rules "weight" and "length") they
+ *                         -DDERIVED_LEVER (lever rules "weight" and "length" on rigs
+ *                         with segments: nrpose/engine.py levers_stored) they
  *                         are not stored but derived: w_p |phat_p|^2 for a point
  *                         handle, w_s len2[s] for a segment (w_s = w(1-t) + w t),
  *                         then normalised per point: 1/(P+K) fewer loads per point
