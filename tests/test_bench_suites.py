@@ -245,3 +245,38 @@ def test_standby_ab(tmp_path, monkeypatch, capfd):
         assert standby_ab.main(argv) == 2
         err = capfd.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("standby_ab: ")
+
+
+def test_commit_ab(tmp_path, monkeypatch, capfd):
+    """bench/commit_ab.py against this checkout's own commit at 500 points on the box
+    rows: the base package imports beside nrpose (its kernels from its own copy), both
+    pose alike (same code: outputs equal), the JSON fields; an unknown commit or row, a
+    bad count: exit 2, one line. Skipped outside a git checkout with history."""
+    import importlib
+    import subprocess
+
+    root = pathlib.Path(__file__).resolve().parent.parent
+    head = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True)
+    if head.returncode != 0:
+        pytest.skip("not a git checkout: commit_ab compares commits")
+    monkeypatch.syspath_prepend(str(root / "bench"))
+    commit_ab = importlib.import_module("commit_ab")
+    monkeypatch.setattr("sys.path", list(__import__("sys").path))        # restored: the base's folder
+    out = tmp_path / "ab.json"
+    assert commit_ab.main(["HEAD", "--rows", "box/segments,box/points", "--rounds", "2", "--poses", "3",
+                           "--quick", "--json", str(out)]) == 0
+    doc = json.loads(out.read_text())
+    assert doc["schema"] == "nrpose-bench-commit-ab/1" and doc["base_commit"] == head.stdout.strip()
+    assert [r["kind"] for r in doc["rows"]] == ["segments", "points"]
+    for r in doc["rows"]:
+        assert r["model"] == "box" and r["points"] == 500 and r["max_diff_rel_bbox"] == 0.0
+        assert _stats_ok(r["base_ms"]) and _stats_ok(r["this_ms"]) and r["this_ms"]["n"] == 6
+        assert _finite_positive(r["base_over_this"]["median"]) and r["base_over_this"]["rounds"] == 2
+    import nrpose_base
+    assert nrpose_base.__name__ == "nrpose_base" and "nrpose_base" in str(nrpose_base.device.kernel_source.__module__)
+    capfd.readouterr()
+    for argv in (["no-such-commit", "--rows", "box/points"], ["HEAD", "--rows", "box/nothing"],
+                 ["HEAD", "--rounds", "0"]):
+        assert commit_ab.main(argv) == 2
+        err = capfd.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and err[0].startswith("commit_ab: ")
