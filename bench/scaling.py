@@ -16,7 +16,8 @@ validation: built by FK, consistent).
   1M x 65 target; bind still builds dense (N, H) arrays, ~6 GB peak there).
 
 Per size: bind wall time and the process's peak RSS after it, then rounds of
-``Deformer.pose(pose, out=...)`` back to back (wall), then each pose again followed by
+``posed = Deformer.pose(pose)`` back to back (wall; each result held until the next is made,
+as Table 1 times them), then each pose again followed by
 one profiling-event run of the pose kernel (its prologue included); medians. Fits per mode, on the
 pose medians: t = c0 + c1 N + c2 N H (least squares, ms) and t = a (N H)^b.
 """

@@ -44,7 +44,8 @@
  *                         rest length ("length"), see nrpose/blend.py; times 2^-2e (phat)
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9] | slot [1]: posed handle positions, the
  *          rotations of the segments and the global rotation R_g, row-major, and
- *          the output slot of the frame (int bits): it is written at out + slot Np*3
+ *          the output slot of the frame (int bits): slot s >= 0 is written at out + s Np*3,
+ *          slot code s < 0 at handed + (-1 - s) Np*3
  *   derived (written by the job's prologue from `pose`, once per pose: pose_prologue)
  *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4])
  *          | ploc [(S+1)*P*3]:
@@ -54,9 +55,10 @@
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
  *          frame (when P > 0; the pose kernel reads it where a chunk's 8
  *          lanes share their reference)
- *   out    [slots][Np*3]  posed points, xyz interleaved, in the caller's order; each
- *                         frame in the slot its pose block names (nrpose/engine.py: the
- *                         launch's own slots, or one handed to the caller, device.Handoff)
+ *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order; each
+ *                         frame in the slot its pose block names (nrpose/engine.py)
+ *   handed [2][Np*3]      the same, slots whose frames are handed to the caller without
+ *                         a copy (nrpose.device.Handoff)
  *
  * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
  * apart) and `derived` F blocks (derived_stride apart). The launch is one job
@@ -280,7 +282,7 @@ static void pose_prologue(const int F, const int nsegs, const int paper, const i
 __kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
                          __global const float *len2,
                          __global float *pose, __global float *derived,
-                         __global float *out_frames, const int block,
+                         __global float *out_frames, __global float *handed, const int block,
                          const int pose_stride, const int derived_stride,
                          const int paper, const int npairs, __global const int *pairs,
                          __global const uchar *fit,
@@ -311,7 +313,8 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     __global const float *qpos = pose + f * pose_stride;
     __global const float *refs = derived + f * derived_stride;
     __global const float *table = refs + 9 * (S + 1);
-    __global float *out = out_frames + (size_t)as_int(qpos[pose_stride - 1]) * 3 * np;
+    const int slot = as_int(qpos[pose_stride - 1]);
+    __global float *out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
 
     /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered;
      * its matrix is loaded where it is used (LOAD_REF), not held in 9 registers

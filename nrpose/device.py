@@ -499,7 +499,8 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
     ``jobs`` (``FOR_EACH_JOB`` / ``FOR_EACH_BLOCK``, kernels/share.h) until none are
     left; its arguments set, the mailbox and :data:`ROLE_CALLER` the last two.
     blocks, frames: the job's size; prologue: the job starts with the kernel's
-    prologue (share.h), which the first work-item to arrive runs. queues: ``(worker queue or None, calling-thread queue)`` to use instead of
+    prologue (share.h), which the first work-item to arrive runs (a kernel that does not
+    claim it would wait for ever: only kernels written for it). queues: ``(worker queue or None, calling-thread queue)`` to use instead of
     the shared ones (profiling queues; workers are woken, never standing, then).
 
     workers: True shares the blocks with PoCL's worker threads (a standing worker where
@@ -688,47 +689,49 @@ HANDOFF_SLOTS = 2
 class _Owner:
     """The base of a handed-off slot's array: numpy views of that array keep the array
     itself (views collapse their bases only through arrays), and ``memory`` keeps the
-    device memory alive (a deformer may reallocate it or go)."""
+    slots' device memory alive (the deformer may go)."""
     __slots__ = ("__array_interface__", "memory")
 
 
 class Handoff:
-    """Output slots that launches write and callers receive without a copy.
+    """Frames that launches write and callers receive without a copy.
 
-    A deformer's kernels write each frame into a slot of its output
-    :class:`HostArray` ``array`` (slot i at float i * ``stride``), the slot chosen
-    per frame by the host. Slots [``first``, ``first + count``) are handed off: each
-    has one float32 array of ``shape`` (C order, at most ``stride`` floats) on its
-    memory, made once; after a launch wrote slot i, :meth:`take` returns slot i's
-    array, and the slot is free (:meth:`free`) again once nothing but this object
-    references that array, i.e. once it and every view of it are gone (CPython's
-    reference counts; a view holds the array it was made from). Posing a frame then
-    costs no copy of the (N, 3) result: 5-35 us on the Table-1 rows, half the rows
-    written by the other core. Without shared memory (``array.svm`` False) launches
-    download into ``array`` whole, so nothing is handed off (:meth:`free` is None).
+    ``array``: a :class:`HostArray` of ``count`` slots of ``stride`` floats (shared memory
+    only; None elsewhere), apart from a deformer's launch outputs: its kernel takes it as
+    an argument beside them and writes a frame into slot i where the frame's pose block
+    names slot code ``-1 - i`` (:meth:`free`; codes >= 0 are the launch's own slots).
+    Each slot has one float32 array of ``shape`` (C order, at most ``stride`` floats) on
+    its memory, made once and never given out itself: after a launch wrote slot i,
+    :meth:`take` returns a view of it, and the slot is free again once nothing but this
+    object references that array, i.e. once every view of it is gone (a view holds the
+    array it was made from; CPython's reference counts, as the GIL build keeps them).
+    Posing a frame then costs no copy of the (N, 3) result: 5-35 us on the Table-1
+    rows, half the rows written by the other core. A held result keeps ``array`` alive
+    (``count`` times its size), not the deformer's other arrays. Without shared memory
+    launches download their outputs, so nothing is handed off (:meth:`free` is None).
     """
 
-    def __init__(self, array: HostArray, first: int, count: int, stride: int, shape: tuple):
-        self.first = first
-        self._arrays = [self._array_at(array, 4 * (first + i) * stride, shape)
-                        for i in range(count if array.svm else 0)]
+    def __init__(self, count: int, stride: int, shape: tuple):
+        self.array = HostArray(count * stride) if fine_grain_svm() else None
+        self._arrays = [self._array_at(4 * i * stride, shape) for i in range(count)] if self.array else []
 
-    @staticmethod
-    def _array_at(array: HostArray, offset: int, shape: tuple) -> np.ndarray:
+    def _array_at(self, offset: int, shape: tuple) -> np.ndarray:
         owner = _Owner()
-        owner.memory = array.host
-        owner.__array_interface__ = {"data": (array.host.ctypes.data + offset, False), "shape": shape,
+        owner.memory = self.array.host
+        owner.__array_interface__ = {"data": (self.array.host.ctypes.data + offset, False), "shape": shape,
                                      "typestr": "<f4", "version": 3}
         return np.asarray(owner)
 
     def free(self) -> int | None:
-        """A handed-off slot whose array nobody holds (None when every one is held)."""
+        """The slot code (-1 - i) of a slot i whose array nobody holds; None when every
+        one is held (or there are none)."""
         for i in range(len(self._arrays)):
             if sys.getrefcount(self._arrays[i]) <= 2:      # this list's reference and the call's
-                return self.first + i
+                return -1 - i
         return None
 
-    def take(self, slot: int) -> np.ndarray:
-        """Slot ``slot``'s array (from :meth:`free`, written by a launch that has completed),
-        handed to the caller: the slot is not written again while it or a view of it lives."""
-        return self._arrays[slot - self.first]
+    def take(self, code: int) -> np.ndarray:
+        """A view of the array of the slot with code ``code`` (from :meth:`free`, written by
+        a launch that has completed), handed to the caller: the slot is not written again
+        while it or a view of it lives."""
+        return self._arrays[-1 - code].view()

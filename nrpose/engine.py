@@ -6,8 +6,8 @@
 Binding computes :class:`nrpose.blend.RestTerms` in float64 on the host, block
 by block, keeps what the kernel uses (:func:`slot_terms`) and uploads it once
 (float32) to the device; the kernel objects and buffers
-live as long as the deformer. A pose writes (P + 2S)·3 + 9S floats of
-per-handle data (posed positions and the segments' rotations) into memory
+live as long as the deformer. A pose writes (P + 2S)·3 + 9S + 1 floats of
+per-handle data (posed positions, the segments' rotations, the output slot) into memory
 shared with the device and launches ``nrmls_pose`` once. Its job's prologue,
 run by whichever work-item arrives first (kernels/share.h), fits the global
 rotation R_g when some point takes it as its reference (:class:`GlobalFit`,
@@ -132,11 +132,14 @@ class Deformer:
         self._blocks = -(-npad // (LANES * BLOCK))
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         self._batch = 1       # frames of the last launch
+        # frames handed to callers without a copy (pose()): slots of their own, so that a
+        # held result keeps only them alive (twice its size), not the per-frame arrays
+        self._handoff = device.Handoff(device.HANDOFF_SLOTS, 3 * npad, (1, self.n, 3))
         self._reserve(1)
         # PoCL compiles a kernel's work-group function at its first launch on each
         # device (~0.5 s): pay that at bind (the mailbox shares launches until
-        # alone_s is timed), not in the first frame
-        self.pose(Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0)))
+        # alone_s is timed), not in the first frame; into the launch's own slot
+        self._run([Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0))], owned=False)
         # one frame's pose kernel on the calling thread alone (small launches are not
         # shared) and the standby's calibration, once per process
         self._jobs.time_kernel(self._kernel, self._blocks, prologue=True)
@@ -150,7 +153,8 @@ class Deformer:
         """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl)."""
         b = self._bufs
         return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
-                self._pose.arg, self._derived.arg, self._out.arg, np.int32(BLOCK),
+                self._pose.arg, self._derived.arg, self._out.arg,
+                self._out.arg if self._handoff.array is None else self._handoff.array.arg, np.int32(BLOCK),
                 np.int32(self._pose_stride), np.int32(self._derived_stride), np.int32(self.blend == "paper"),
                 np.int32(self._npairs), b["pairs"], b["pairs"] if self._global is None else self._global.data,
                 self._jobs.box.arg, np.int32(device.ROLE_CALLER)]
@@ -160,9 +164,14 @@ class Deformer:
         with the shipped headers pasted) with this deformer's build options:
         ``relaunch(pose_kernel=...)`` binds it to the deformer's current arguments and runs
         it in place of the deformer's own (bench/kernel_ab.py). DeviceError, naming the
-        first compiler error, if it does not build or does not take nrmls_pose's arguments."""
+        first compiler error, if it does not build or does not take nrmls_pose's arguments,
+        or if it does not run the job's prologue (``claim_prologue``, kernels/share.h: the
+        launch would wait for it for ever)."""
         import pyopencl as cl
 
+        if "claim_prologue(" not in source:
+            raise DeviceError("the nrmls_pose variant does not run its job's prologue (claim_prologue, "
+                              "kernels/share.h): its launches would wait for it for ever")
         try:
             prg = cl.Program(device.context()[0], device.with_headers(source)).build(options=list(self._options))
             kernel = cl.Kernel(prg, "nrmls_pose")
@@ -180,9 +189,9 @@ class Deformer:
     def _reserve(self, frames: int) -> None:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames.
 
-        The output array holds ``frames`` slots of 3 Npad floats for launches, then
-        :data:`nrpose.device.HANDOFF_SLOTS` slots whose frames are handed to the caller
-        (:class:`nrpose.device.Handoff`); each frame's pose block names its slot."""
+        The output array holds ``frames`` slots of 3 Npad floats; each frame's pose block
+        names the slot it is written into: one of these (codes 0..frames-1) or one of the
+        bind's :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller."""
         if frames <= self._frames:
             return
         self._jobs.arguments_changed()      # a standing worker reads the arrays replaced here
@@ -193,10 +202,9 @@ class Deformer:
         self._slots = self._pose.host.view(np.int32).reshape(frames, self._pose_stride)[:, -1]
         self._own_slots = np.arange(frames, dtype=np.int32)
         self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
-        self._out = device.HostArray((frames + device.HANDOFF_SLOTS) * 3 * self._npad)
-        self._handoff = device.Handoff(self._out, frames, device.HANDOFF_SLOTS, 3 * self._npad, (1, self.n, 3))
+        self._out = device.HostArray(frames * 3 * self._npad)
         self._kernel.set_args(*self._pose_args())
-        self._jobs.keep = (self._pose, self._derived, self._out)
+        self._jobs.keep = (self._pose, self._derived, self._out, self._handoff.array)
         self._frames = frames
         # each frame's posed point handles (P, 3), segments (S, 2, 3) and rotations (S, 3, 3)
         # as views into the pose array: filling shaped views costs ~0.6 us a pose, slicing
@@ -209,7 +217,11 @@ class Deformer:
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
         """Posed points (N, 3): float32 on OpenCL, float64 on numpy.
 
-        out: optional (N, 3) array to write the result into (and return).
+        out: optional (N, 3) array to write the result into (and return). Without it, on
+        OpenCL, the result is a view of one of the deformer's two handoff slots
+        (:class:`nrpose.device.Handoff`), no copy: yours to keep and write, never written
+        by the deformer while it or a view of it lives (keeping it keeps both slots, twice
+        its size, alive); while both slots are held, a pose returns a copy.
         """
         if out is not None and np.shape(out) != (self.n, 3):
             raise InputError(f"out: expected an array of shape {(self.n, 3)} (points, 3), got {np.shape(out)}")
@@ -220,7 +232,8 @@ class Deformer:
         """Posed points (F, N, 3) of F poses in one launch (float32; float64 on numpy).
 
         Each chunk of 8 points reads its bound data once for all F frames.
-        out: optional (F, N, 3) array to write into (and return).
+        out: optional (F, N, 3) array to write into (and return); without it, a new
+        array (one frame: handed over as :meth:`pose` hands it).
         """
         poses = list(poses)
         for p in poses:

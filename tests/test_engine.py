@@ -1,6 +1,8 @@
 """The core engine: PoCL kernel against the float64 reference, and the blend's properties."""
 from __future__ import annotations
 
+import weakref
+
 import numpy as np
 import pytest
 from launches import relaunch, splits
@@ -568,8 +570,8 @@ def test_pose_hands_its_result_over_without_a_copy():
     poses = [random_pose(rng, rest) for _ in range(8)]
     want = [ref.pose(p) for p in poses]
 
-    def in_slots(a):                      # handed off: on the deformer's output memory
-        return np.shares_memory(a, dev._out.host)
+    def in_slots(a):                      # handed off: on the deformer's handoff slots
+        return np.shares_memory(a, dev._handoff.array.host)
 
     held = [dev.pose(p) for p in poses[:3]]
     assert [in_slots(a) for a in held] == [True, True, False]   # two slots, then a copy
@@ -589,9 +591,33 @@ def test_pose_hands_its_result_over_without_a_copy():
     again[:] = 0.0                       # the caller's to write
     assert np.abs(dev.pose(poses[6]) - want[6]).max() <= TOL * diag(points)
     kept = (again.copy(), column.copy())
-    dev.pose_frames(poses)               # 8 frames: new arrays; the old memory stays with its results
+    launch_out = weakref.ref(dev._out)
+    dev.pose_frames(poses)               # 8 frames: new per-frame arrays
+    assert launch_out() is None          # held results keep only the handoff slots alive
     del dev
     assert np.array_equal(again, kept[0]) and np.array_equal(column, kept[1])
+
+
+def test_a_handed_off_result_changed_by_its_caller_changes_no_later_one():
+    """pose_frames([p]) hands its frame over too: as a view, so that what the caller does
+    to that array object (its shape, its writeable flag) stays with it."""
+    from nrpose import device
+
+    rng = np.random.default_rng(44)
+    rest = random_rest(rng, 2, 1)
+    points = rng.uniform(-1, 1, (300, 3))
+    dev, ref = both(points, rest)
+    pose = random_pose(rng, rest)
+    for _ in range(2 * device.HANDOFF_SLOTS):      # every slot, twice
+        x = dev.pose_frames([pose])
+        assert np.shares_memory(x, dev._handoff.array.host)
+        x.shape = (-1,)
+        x.flags.writeable = False
+        del x
+    y = dev.pose(pose)
+    assert y.shape == (300, 3) and y.flags.writeable
+    y[:] = 0.0
+    assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
     assert device.HANDOFF_SLOTS == 2
 
 
@@ -600,7 +626,8 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
     relaunch(pose_kernel=) uses the deformer's arrays and batch size as they are at the
     launch: after a larger batch (new arrays) and a smaller one, the shipped source as a
     variant gives the deformer's own results bitwise; a source that does not build is a
-    DeviceError naming the compiler's error."""
+    DeviceError naming the compiler's error, one that does not run the job's prologue a
+    DeviceError saying so (its launch would wait for ever)."""
     from nrpose import DeviceError, device
 
     rng = np.random.default_rng(41)
@@ -618,6 +645,9 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
         assert np.array_equal(got, want)
     with pytest.raises(DeviceError, match="does not build.*error:"):
         dev.pose_kernel_variant(source.replace("const float8 ux = LOAD8(0, u)", "const float8 ux = +"))
+    with pytest.raises(DeviceError, match="does not run its job's prologue"):
+        dev.pose_kernel_variant(source.replace("claim_prologue(", "0 && (").replace(
+            "open_job(jobs, job_tag_);", ""))
 
 
 @pytest.mark.parametrize("backend", ["opencl", "numpy"])
