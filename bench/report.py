@@ -84,9 +84,11 @@ def suites_block(doc: dict) -> str:
         out.append(f"* {t['name']}: **{shown}** ({t.get('where', '')}) → "
                    f"{'met' if t['met'] else '**not met**'}")
     if "table1" in s:
-        out += ["", _table(["Table-1 row", "PoCL ms", "batched ms/frame", "numpy ms", "numpy/PoCL",
-                            "paper/PoCL"],
+        out += ["", _table(["Table-1 row", "PoCL ms", "into out= ms", "after a pause ms", "batched ms/frame",
+                            "numpy ms", "numpy/PoCL", "paper/PoCL"],
                            [[f"{r['model']}/{r['kind']}", _ms(r["pocl_pose_ms"]["median"]),
+                             _ms(r["pocl_pose_into_ms"]["median"]) if "pocl_pose_into_ms" in r else "—",
+                             _ms(r["pocl_pose_after_pause_ms"]["median"]) if "pocl_pose_after_pause_ms" in r else "—",
                              _ms(r["pocl_batched_per_frame_ms"]["median"]), _ms(r["numpy_pose_ms"]["median"]),
                              f"{r['speedup_vs_numpy']:.0f}×", f"{r['paper_over_pocl']:.0f}×"]
                             for r in s["table1"]["rows"]])]
