@@ -708,11 +708,14 @@ class Handoff:
     Posing a frame then costs no copy of the (N, 3) result: 5-35 us on the Table-1
     rows, half the rows written by the other core. A held result keeps ``array`` alive
     (``count`` times its size), not the deformer's other arrays. Without shared memory
-    launches download their outputs, so nothing is handed off (:meth:`free` is None).
+    launches download their outputs, so nothing is handed off (:meth:`free` is None);
+    nor on a Python built without the GIL, whose reference counts are not exact.
     """
 
     def __init__(self, count: int, stride: int, shape: tuple):
-        self.array = HostArray(count * stride) if fine_grain_svm() else None
+        # reference counts tell who holds a slot only where the GIL keeps them exact
+        gil = getattr(sys, "_is_gil_enabled", lambda: True)()
+        self.array = HostArray(count * stride) if fine_grain_svm() and gil else None
         self._arrays = [self._array_at(4 * i * stride, shape) for i in range(count)] if self.array else []
 
     def _array_at(self, offset: int, shape: tuple) -> np.ndarray:

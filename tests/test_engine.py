@@ -598,6 +598,26 @@ def test_pose_hands_its_result_over_without_a_copy():
     assert np.array_equal(again, kept[0]) and np.array_equal(column, kept[1])
 
 
+def test_no_handoff_where_reference_counts_are_not_exact(monkeypatch):
+    """On a Python without the GIL (reference counts not exact) or without shared memory,
+    pose() returns copies: equal results, none on deformer memory, all held at once."""
+    import sys
+
+    from nrpose import device
+
+    rng = np.random.default_rng(45)
+    rest = random_rest(rng, 2, 1)
+    points = rng.uniform(-1, 1, (200, 3))
+    poses = [random_pose(rng, rest) for _ in range(3)]
+    want = [Deformer(points, rest).pose(p).copy() for p in poses]
+    monkeypatch.setattr(sys, "_is_gil_enabled", lambda: False, raising=False)
+    dev = Deformer(points, rest)
+    assert dev._handoff.array is None and dev._handoff.free() is None
+    held = [dev.pose(p) for p in poses]
+    for got, w in zip(held, want):
+        assert np.array_equal(got, w) and not np.shares_memory(got, dev._out.host)
+
+
 def test_a_handed_off_result_changed_by_its_caller_changes_no_later_one():
     """pose_frames([p]) hands its frame over too: as a view, so that what the caller does
     to that array object (its shape, its writeable flag) stays with it."""
