@@ -177,7 +177,7 @@ class CharacterPoser:
                     self._deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
                                                out=dst)
                 elif self._deformer is not None:
-                    dst[...] = self._deformer.pose_frames(mats[a:b])
+                    self._deformer.pose_frames(mats[a:b], out=dst)
                 else:
                     from . import skinning
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference

@@ -323,15 +323,28 @@ class Deformer:
             jobs.stop()     # a standing worker reads this deformer's arrays
 
     # -- per pose -------------------------------------------------------------
-    def pose(self, mats) -> np.ndarray:
-        """Posed vertices (N, 3) float64 for skinning matrices (J, 4, 4)."""
+    def pose(self, mats, out: np.ndarray | None = None) -> np.ndarray:
+        """Posed vertices (N, 3) float64 for skinning matrices (J, 4, 4); out: optional
+        (N, 3) float array to write them into instead (and return)."""
         mats = _check_mats(mats, self.max_joint)
-        return self._run(self._params(mats[None]))[0]
+        self._check_out(out, (self.n_vertices, 3))
+        result = self._run(self._params(mats[None]), None if out is None else out[None])
+        return result[0] if out is None else out
 
-    def pose_frames(self, mats) -> np.ndarray:
-        """Posed vertices (F, N, 3) float64 for F frames of matrices (F, J, 4, 4), one launch."""
+    def pose_frames(self, mats, out: np.ndarray | None = None) -> np.ndarray:
+        """Posed vertices (F, N, 3) float64 for F frames of matrices (F, J, 4, 4), one launch;
+        out: optional (F, N, 3) float array to write them into instead (and return): a
+        float32 one takes the device's values without the float64 array between (a
+        clip's frames, `nrpose.posing`)."""
         mats = _check_mats(mats, self.max_joint, frames=True)
-        return self._run(self._params(mats))
+        self._check_out(out, (len(mats), self.n_vertices, 3))
+        return self._run(self._params(mats), out)
+
+    @staticmethod
+    def _check_out(out, shape: tuple) -> None:
+        if out is not None and (np.shape(out) != shape or not np.issubdtype(np.asarray(out).dtype, np.floating)):
+            raise InputError(f"out: expected a float array of shape {shape}, got "
+                             f"{np.shape(out)} {getattr(out, 'dtype', type(out).__name__)}")
 
     def _params(self, mats: np.ndarray) -> np.ndarray:
         if self.method == "lbs":
@@ -355,8 +368,9 @@ class Deformer:
             setattr(self, which, cur)
         return cur
 
-    def _run(self, params: np.ndarray) -> np.ndarray:
-        """params (F, J, W) -> posed (F, N, 3) float64: one launch (SVM) or write+launch+read."""
+    def _run(self, params: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """params (F, J, W) -> posed (F, N, 3): a new float64 array, or written into ``out``;
+        one launch (SVM) or write+launch+read."""
         f, j, width = params.shape
         npad = self.n_groups * LANES
         arr_in = self._array("_in", f * j * width, 3)
@@ -378,8 +392,11 @@ class Deformer:
         arr_in.upload()
         self.relaunch()
         arr_out.download()
-        out = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
-        return out.astype(np.float64)
+        posed = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
+        if out is None:
+            return posed.astype(np.float64)
+        out[...] = posed
+        return out
 
     def relaunch(self, queues=None, workers: bool | None = None) -> list:
         """Run the last posing's kernel again (same inputs, same result) and return its

@@ -101,6 +101,29 @@ def test_pose_frames_matches_pose(method):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_out_takes_the_posed_vertices(method):
+    """out= receives what the default path returns (float32: the device's values as they
+    are; float64: the same converted) and is returned itself; a wrong shape or a non-float
+    array is an InputError naming the expected shape."""
+    rng = np.random.default_rng(6)
+    rest, joints, weights = make_rig(rng, 150, 7, 4)
+    d = Deformer(rest, joints, weights, method=method)
+    frames = np.stack([rigid(rng, 7) for _ in range(3)])
+    want = d.pose_frames(frames)
+    for dtype in (np.float32, np.float64):
+        out = np.full((3, 150, 3), np.nan, dtype)
+        assert d.pose_frames(frames, out=out) is out
+        assert np.array_equal(out, want.astype(dtype))
+        one = np.full((150, 3), np.nan, dtype)
+        assert d.pose(frames[1], out=one) is one and np.array_equal(one, want[1].astype(dtype))
+    for bad in (np.zeros((2, 150, 3)), np.zeros((3, 150, 3), np.int32)):
+        with pytest.raises(InputError, match=r"out: expected a float array of shape \(3, 150, 3\)"):
+            d.pose_frames(frames, out=bad)
+    with pytest.raises(InputError, match=r"out: expected a float array of shape \(150, 3\)"):
+        d.pose(frames[0], out=np.zeros((3, 150)))
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_padded_influences_and_buffer_fallback(method):
     """K = 8 with only 2 real influences (the kernel stops early), and the
     plain-buffer path used on devices without fine-grained SVM."""
