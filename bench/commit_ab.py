@@ -30,7 +30,6 @@ import argparse
 import gc
 import importlib
 import io
-import json
 import pathlib
 import re
 import subprocess
@@ -149,32 +148,18 @@ def run(commit: str, rows: list[tuple[str, str]], rounds: int = 30, poses: int =
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    every = [f"{m}/{k}" for m, *_ in table1.TABLE1 for k in table1.KINDS]
     ap.add_argument("base", help="the commit to compare against (anything git understands: a hash, HEAD~3, a tag)")
-    ap.add_argument("--rows", default=",".join(every), help="comma-separated model/kind (default: all 8)")
-    ap.add_argument("--rounds", type=int, default=30, help="rounds of the two packages (default 30)")
-    ap.add_argument("--poses", type=int, default=40, help="timed poses per package per round (default 40)")
-    ap.add_argument("--quick", action="store_true", help="500 points per row (seconds; smoke test)")
-    ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (meshes/...)")
-    ap.add_argument("--json", help="write the record here too")
+    every = common.add_rows_arguments(ap, rounds=30, poses=40, what="packages")
     a = ap.parse_args(argv)
-    rows = [r.strip() for r in a.rows.split(",") if r.strip()]
-    bad = [r for r in rows if r not in every]
-    if bad or not rows:
-        print(f"commit_ab: unknown row {bad[0] if bad else '(none)'!r}; choose from {', '.join(every)}",
-              file=sys.stderr)
-        return 2
-    if a.rounds < 1 or a.poses < 1:
-        print("commit_ab: --rounds and --poses must be at least 1", file=sys.stderr)
+    rows = common.chosen_rows(a, every, "commit_ab")
+    if rows is None:
         return 2
     try:
-        doc = run(a.base, [tuple(r.split("/")) for r in rows], a.rounds, a.poses, a.quick, pathlib.Path(a.data))
+        doc = run(a.base, rows, a.rounds, a.poses, a.quick, pathlib.Path(a.data))
     except (BaseError, NrposeError) as exc:
         print(f"commit_ab: {exc}", file=sys.stderr)
         return 2
-    if a.json:
-        common.atomic_write(pathlib.Path(a.json), (json.dumps(doc, indent=1) + "\n").encode())
-        print(f"wrote {a.json}")
+    common.write_record(doc, a.json)
     return 0
 
 

@@ -110,3 +110,41 @@ def now() -> str:
 
 def median(a) -> float:
     return float(np.median(a))
+
+
+def add_rows_arguments(ap, rounds: int, poses: int, what: str) -> list[str]:
+    """The options of the in-process A/B benchmarks over Table-1 rows (standby_ab.py,
+    commit_ab.py) on the argparse parser ``ap``: --rows, --rounds, --poses (defaults
+    ``rounds``, ``poses``; ``what`` names the two sides), --quick, --data, --json.
+    Returns every row's name, "model/kind"."""
+    every = [f"{m}/{k}" for m, *_ in table1.TABLE1 for k in table1.KINDS]
+    ap.add_argument("--rows", default=",".join(every), help="comma-separated model/kind (default: all 8)")
+    ap.add_argument("--rounds", type=int, default=rounds, help=f"rounds of the two {what} (default {rounds})")
+    ap.add_argument("--poses", type=int, default=poses,
+                    help=f"timed poses per {what[:-1]} per round (default {poses})")
+    ap.add_argument("--quick", action="store_true", help="500 points per row (seconds; smoke test)")
+    ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (meshes/...)")
+    ap.add_argument("--json", help="write the record here")
+    return every
+
+
+def chosen_rows(a, every: list[str], prog: str) -> list[tuple[str, str]] | None:
+    """The (model, kind) rows of parsed options ``a`` (:func:`add_rows_arguments`); None,
+    after one line on stderr naming the problem, for an unknown row or a count below 1."""
+    rows = [r.strip() for r in a.rows.split(",") if r.strip()]
+    bad = [r for r in rows if r not in every]
+    if bad or not rows:
+        print(f"{prog}: unknown row {bad[0] if bad else '(none)'!r}; choose from {', '.join(every)}",
+              file=sys.stderr)
+        return None
+    if a.rounds < 1 or a.poses < 1:
+        print(f"{prog}: --rounds and --poses must be at least 1", file=sys.stderr)
+        return None
+    return [tuple(r.split("/")) for r in rows]
+
+
+def write_record(doc: dict, path: str | None) -> None:
+    """A benchmark's JSON record to ``path`` (atomically, table1.write_json), if given."""
+    if path:
+        table1.write_json(doc, pathlib.Path(path))
+        print(f"wrote {path}")

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import hashlib
-import json
 import os
 import pathlib
 import sys
@@ -127,9 +126,7 @@ def main(argv=None) -> int:
     print(f"{a.model} {a.kind}: base {b['median']:.4f} ms (p10 {b['p10']:.4f}), variant {v['median']:.4f} ms "
           f"(p10 {v['p10']:.4f}); base/variant {doc['base_over_variant']:.3f}; max |diff| / bbox "
           f"base {doc['max_diff_rel_bbox']['base']:.1e}, variant {doc['max_diff_rel_bbox']['variant']:.1e}")
-    if a.json:
-        common.atomic_write(pathlib.Path(a.json), (json.dumps(doc, indent=1) + "\n").encode())
-        print(f"wrote {a.json}")
+    common.write_record(doc, a.json)
     return 0
 
 

@@ -28,7 +28,6 @@ Errors: one line on stderr, exit status 2.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import pathlib
 import sys
@@ -138,32 +137,18 @@ def write_png(doc: dict, path: pathlib.Path) -> None:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    every = [f"{m}/{k}" for m, *_ in table1.TABLE1 for k in table1.KINDS]
-    ap.add_argument("--rows", default=",".join(every), help="comma-separated model/kind (default: all 8)")
-    ap.add_argument("--rounds", type=int, default=12, help="rounds of the two policies (default 12)")
-    ap.add_argument("--poses", type=int, default=100, help="timed poses per policy per round (default 100)")
-    ap.add_argument("--quick", action="store_true", help="500 points per row (seconds; smoke test)")
-    ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (meshes/...)")
-    ap.add_argument("--json", help="write the record here")
+    every = common.add_rows_arguments(ap, rounds=12, poses=100, what="policies")
     ap.add_argument("--png", help="write a bar chart here")
     a = ap.parse_args(argv)
-    rows = [r.strip() for r in a.rows.split(",") if r.strip()]
-    bad = [r for r in rows if r not in every]
-    if bad or not rows:
-        print(f"standby_ab: unknown row {bad[0] if bad else '(none)'!r}; choose from {', '.join(every)}",
-              file=sys.stderr)
-        return 2
-    if a.rounds < 1 or a.poses < 1:
-        print("standby_ab: --rounds and --poses must be at least 1", file=sys.stderr)
+    rows = common.chosen_rows(a, every, "standby_ab")
+    if rows is None:
         return 2
     try:
-        doc = run([tuple(r.split("/")) for r in rows], a.rounds, a.poses, a.quick, pathlib.Path(a.data))
+        doc = run(rows, a.rounds, a.poses, a.quick, pathlib.Path(a.data))
     except NrposeError as exc:
         print(f"standby_ab: {exc}", file=sys.stderr)
         return 2
-    if a.json:
-        common.atomic_write(pathlib.Path(a.json), (json.dumps(doc, indent=1) + "\n").encode())
-        print(f"wrote {a.json}")
+    common.write_record(doc, a.json)
     if a.png:
         write_png(doc, pathlib.Path(a.png))
         print(f"wrote {a.png}")

@@ -338,7 +338,6 @@ class GlobalFit:
             raise DeviceError("point-handle rigs fit their global rotation in double precision: the "
                               "OpenCL device needs cl_khr_fp64 (PoCL's CPU devices have it); choose "
                               "another device with PYOPENCL_CTX or use backend='numpy'")
-        self.m = len(fit.centred)
         self.data = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                               hostbuf=np.concatenate([[fit.scale2], np.ravel(fit.centred)]).astype(np.float64))
 
