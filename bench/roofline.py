@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from nrpose import device
-from nrpose.engine import LANES, levers_stored
+from nrpose.engine import levers_stored
 
 ACCS = 8          # independent float8 accumulators per work-item
 ITERS = 2048      # updates of each accumulator
@@ -283,18 +283,18 @@ class Roofs:
 
 
 def lane_divergence(deformer) -> dict:
-    """How often the pose kernel's 8 lanes disagree, read back from the bound buffers.
+    """How often the pose kernel's lanes disagree, read back from the bound buffers.
 
-    A chunk of 8 points whose reference rotations differ, or (sparse) a segment slot whose
-    8 segment indices differ, takes the gathered path (9 scalar loads per float8 value
-    instead of broadcasts)."""
+    A chunk of points (``deformer.lanes``) whose reference rotations differ, or (sparse) a
+    segment slot whose segment indices differ, takes the gathered path (a scalar load per
+    lane of each vector value instead of broadcasts)."""
     ref, slots = deformer.bound_indices()
     K = deformer.slots
-    chunks = ref.reshape(-1, LANES)
+    chunks = ref.reshape(-1, deformer.lanes)
     uni = (chunks == chunks[:, :1]).all(axis=1)
     out = {"chunks": int(len(chunks)), "ref_uniform_fraction": float(uni.mean())}
     if slots is not None:
-        sl = slots.reshape(K, -1, LANES)
+        sl = slots.reshape(K, -1, deformer.lanes)
         both = uni[None] & (sl == sl[:, :, :1]).all(axis=2)
         out["gathered_slot_fraction"] = float(1 - both.mean())
     else:

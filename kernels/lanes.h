@@ -15,9 +15,6 @@
 #define LOAD8(g, p) (*(__global const float8 *)((p) + 8 * (g)))
 #define LOADI8(g, p) (*(__global const int8 *)((p) + 8 * (g)))
 
-/* |x| of the 8 lanes (clears the sign bits). */
-#define ABS8(x) as_float8(as_int8(x) & (int8)0x7fffffff)
-
 /* OR of the 8 lanes. */
 static inline int or8(const int8 v)
 {
@@ -25,9 +22,6 @@ static inline int or8(const int8 v)
     const int2 b = a.lo | a.hi;
     return b.x | b.y;
 }
-
-/* True when the 8 lanes hold one value. */
-#define SAME8(h) (or8((h) ^ (int8)(h).s0) == 0)
 
 /* True when some lane of x is not zero. */
 #define ANY_NONZERO8(x) (or8((x) != 0.0f) != 0)
@@ -90,3 +84,50 @@ static inline float8 rsqrt8(const float8 x)
     const float8 y = rsqrt8_normal(xs > 0.0f ? xs : (float8)1.17549435e-38f);
     return (tiny ? (float8)4294967296.0f : (float8)1.0f) * y;                    /* 2^32 */
 }
+
+/* VW lanes per work-item (-DVW=8 or 16; default 8): the pose kernel's vector types
+ * floatv / intv and its helpers, composed of the 8-lane forms above (16 lanes: the
+ * .lo and .hi halves). With 16 lanes each operation is two independent 8-lane
+ * instructions, which the core overlaps: the point-handle chains (cross product,
+ * inverse square root, atan2, ~90 cycles of latency per handle) otherwise leave the
+ * FMA pipes half idle (kernels/nrmls.cl, its header). Rows of VW lanes are VW-float
+ * aligned: LOADV/LOADIV read row g of a record of such rows. */
+#ifndef VW
+#define VW 8
+#endif
+#if VW == 8
+typedef float8 floatv;
+typedef int8 intv;
+#define as_floatv as_float8
+#define as_intv as_int8
+#define orv or8
+#define GATHERV GATHER8
+#define STORE_ROWSV STORE_ROWS
+#define STORE_XYZV STORE_XYZ8
+#define rsqrtv rsqrt8
+#define rsqrtv_normal rsqrt8_normal
+#elif VW == 16
+typedef float16 floatv;
+typedef int16 intv;
+#define as_floatv as_float16
+#define as_intv as_int16
+#define orv(v) or8((v).lo | (v).hi)
+#define GATHERV(p, i) ((float16)(GATHER8(p, (i).lo), GATHER8(p, (i).hi)))
+#define STORE_ROWSV(x, y, z, q, o) do {                                             \
+    STORE_ROWS((x).lo, (y).lo, (z).lo, q, (o).lo);                                  \
+    STORE_ROWS((x).hi, (y).hi, (z).hi, q, (o).hi);                                  \
+} while (0)
+#define STORE_XYZV(x, y, z, q) do {                                                 \
+    STORE_XYZ8((x).lo, (y).lo, (z).lo, q);                                          \
+    STORE_XYZ8((x).hi, (y).hi, (z).hi, (q) + 24);                                  \
+} while (0)
+#define rsqrtv(x) ((float16)(rsqrt8((x).lo), rsqrt8((x).hi)))
+#define rsqrtv_normal(x) ((float16)(rsqrt8_normal((x).lo), rsqrt8_normal((x).hi)))
+#else
+#error "VW (lanes per work-item) must be 8 or 16"
+#endif
+#define LOADV(g, p) (*(__global const floatv *)((p) + VW * (g)))
+#define LOADIV(g, p) (*(__global const intv *)((p) + VW * (g)))
+#define ABSV(x) as_floatv(as_intv(x) & (intv)0x7fffffff)      /* |x| (clears the sign bits) */
+#define SAMEV(h) (orv((h) ^ (intv)(h).s0) == 0)              /* the lanes hold one value */
+

@@ -5,16 +5,20 @@
  * depends only on the rest configuration is bound once (see nrpose/engine.py);
  * a pose uploads one small float buffer of per-handle data.
  *
- * Each work-item poses 8 consecutive points with float8 lanes: on PoCL CPU
- * explicit vectors were worth ~4x over scalar work-items (shared/notes/pocl.md).
+ * Each work-item poses a chunk of VW consecutive points (-DVW: 8, or 16 on rigs
+ * without segments, nrpose/engine.py lanes_for) with vector lanes (floatv,
+ * kernels/lanes.h): on PoCL CPU explicit vectors were worth ~4x over scalar
+ * work-items (shared/notes/pocl.md), and at 16 lanes each operation is two
+ * independent 8-lane instructions, which keeps the FMA pipes busier through the
+ * point-handle chains (the Table-1 point rows 1.1-1.17x faster in one process).
  * No fma()/mad() builtins: they are ~10x slower than a*b+c on PoCL.
  *
- * Bound data is stored chunk-major: chunk g (points 8g..8g+7 of the stored
- * order) has one float record and one int record, each a list of rows of 8
+ * Bound data is stored chunk-major: chunk g (points VW g .. VW g + VW-1 of the
+ * stored order) has one float record and one int record, each a list of rows of VW
  * lanes, so a work-item streams through two contiguous regions of memory
  * (with SoA rows of all N points, 20-40 rows 4 MB apart each cost a
  * prefetch stream and a TLB entry: 1M points x 8 slots posed ~2x slower).
- * Np = number of points padded to a multiple of 8.
+ * Np = number of points padded to a multiple of VW.
  *   float record, FREC(P, K) floats, rows:
  *   u      [3]            v - p*
  *   coef   [P+2K]         q* coefficients: point handles (w), then per segment slot
@@ -33,7 +37,7 @@
  *                         then normalised per point: 1/(P+K) fewer loads per point
  *   int record, IREC(K) ints, rows:
  *   ref    [1]            reference rotation index: segment s, or S for global;
- *                         points are stored sorted by ref (stable), so the 8 lanes
+ *                         points are stored sorted by ref (stable), so the VW lanes
  *                         of a work-item nearly always share it (scalar loads
  *                         instead of gathers)
  *   row    [1]            output row of each stored point (undoes the sort)
@@ -53,7 +57,7 @@
  *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j, and
  *          quats[j] = Q_j, unit quaternions (x, y, z, w) of the rotations;
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
- *          frame (when P > 0; the pose kernel reads it where a chunk's 8
+ *          frame (when P > 0; the pose kernel reads it where a chunk's
  *          lanes share their reference)
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order; each
  *                         frame in the slot its pose block names (nrpose/engine.py)
@@ -94,7 +98,10 @@
 #else
 #define S K
 #endif
-#define UNROLL_MAX 16
+/* 16 handles at 8 lanes, 8 at 16 lanes: the armadillo's 13 point handles unrolled at 16
+ * lanes (2,500 instructions, a third of them spill traffic) posed 1.18x slower than
+ * the loop (bench/kernel_ab.py, one thread) */
+#define UNROLL_MAX (128 / VW)
 #if P <= UNROLL_MAX
 #define UNROLL_P _Pragma("unroll")
 #else
@@ -122,10 +129,10 @@
             m00 = m[0]; m01 = m[1]; m02 = m[2]; m10 = m[3]; m11 = m[4]; m12 = m[5];         \
             m20 = m[6]; m21 = m[7]; m22 = m[8];                                             \
         } else {                                                                            \
-            const int8 r9 = rf * 9;                                                         \
-            m00 = GATHER8(refs, r9);     m01 = GATHER8(refs, r9 + 1); m02 = GATHER8(refs, r9 + 2); \
-            m10 = GATHER8(refs, r9 + 3); m11 = GATHER8(refs, r9 + 4); m12 = GATHER8(refs, r9 + 5); \
-            m20 = GATHER8(refs, r9 + 6); m21 = GATHER8(refs, r9 + 7); m22 = GATHER8(refs, r9 + 8); \
+            const intv r9 = rf * 9;                                                         \
+            m00 = GATHERV(refs, r9);     m01 = GATHERV(refs, r9 + 1); m02 = GATHERV(refs, r9 + 2); \
+            m10 = GATHERV(refs, r9 + 3); m11 = GATHERV(refs, r9 + 4); m12 = GATHERV(refs, r9 + 5); \
+            m20 = GATHERV(refs, r9 + 6); m21 = GATHERV(refs, r9 + 7); m22 = GATHERV(refs, r9 + 8); \
         }                                                                                   \
     } while (0)
 
@@ -135,15 +142,15 @@
         if (uniform) {                                                                      \
             gx = qt[4 * rf.s0]; gy = qt[4 * rf.s0 + 1]; gz = qt[4 * rf.s0 + 2]; gw = qt[4 * rf.s0 + 3]; \
         } else {                                                                            \
-            const int8 r4 = 4 * rf;                                                         \
-            gx = GATHER8(qt, r4); gy = GATHER8(qt, r4 + 1); gz = GATHER8(qt, r4 + 2); gw = GATHER8(qt, r4 + 3); \
+            const intv r4 = 4 * rf;                                                         \
+            gx = GATHERV(qt, r4); gy = GATHERV(qt, r4 + 1); gz = GATHERV(qt, r4 + 2); gw = GATHERV(qt, r4 + 3); \
         }                                                                                   \
     } while (0)
 
 #ifdef DERIVED_LEVER
-#define FREC(P, K) (8 * (3 + 4 * (P) + 2 * (K)))
+#define FREC(P, K) (VW * (3 + 4 * (P) + 2 * (K)))
 #else
-#define FREC(P, K) (8 * (3 + 5 * (P) + 3 * (K)))
+#define FREC(P, K) (VW * (3 + 5 * (P) + 3 * (K)))
 #endif
 /* offset of ploc in a frame's derived block (after refs, table and quats) */
 #ifdef QUAT_BLEND
@@ -152,9 +159,9 @@
 #define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
 #endif
 #ifdef SPARSE
-#define IREC(K) (8 * (2 + (K)))
+#define IREC(K) (VW * (2 + (K)))
 #else
-#define IREC(K) 16
+#define IREC(K) (2 * VW)
 #endif
 
 /* Unit quaternion (x, y, z, w) of a row-major rotation matrix (Shepperd). */
@@ -178,10 +185,10 @@ static float4 quat_of(__global const float *m)
     return normalize(q);
 }
 
-/* sqrt(x) for finite x >= 0 (rsqrt8: lanes.h); sqrt8(0) = 0. */
-static inline float8 sqrt8(const float8 x)
+/* sqrt(x) for finite x >= 0 (rsqrtv: lanes.h); sqrtv(0) = 0. */
+static inline floatv sqrtv(const floatv x)
 {
-    return x * rsqrt8(x);
+    return x * rsqrtv(x);
 }
 
 /* atan2(s, c) for s >= 0 (an angle in [0, pi]) without the out-of-line call:
@@ -191,16 +198,16 @@ static inline float8 sqrt8(const float8 x)
  * scheme (pairs, then t^2, then t^4: 6 dependent steps instead of Horner's 14):
  * point rows 3-5 % faster (kernel on one thread, in-process A/B), where the
  * unrolled point-handle loop waits on these chains.
- * atan2pos8(0, 0) = 0. */
-static inline float8 atan2pos8(const float8 s, const float8 c)
+ * atan2posv(0, 0) = 0. */
+static inline floatv atan2posv(const floatv s, const floatv c)
 {
-    const float8 ac = ABS8(c);
-    const float8 hi = s > ac ? s : ac, lo = s > ac ? ac : s;
-    const float8 a = hi > 0.0f ? lo / hi : (float8)0.0f;
-    const float8 t = a * a, t2 = t * t, t4 = t2 * t2;
-    const float8 p = a * (((0.99999934f - 0.33329859f * t) + (0.19946566f - 0.13908629f * t) * t2)
+    const floatv ac = ABSV(c);
+    const floatv hi = s > ac ? s : ac, lo = s > ac ? ac : s;
+    const floatv a = hi > 0.0f ? lo / hi : (floatv)0.0f;
+    const floatv t = a * a, t2 = t * t, t4 = t2 * t2;
+    const floatv p = a * (((0.99999934f - 0.33329859f * t) + (0.19946566f - 0.13908629f * t) * t2)
                    + ((0.09642197f - 0.05591232f * t) + (0.02186295f - 0.00405457f * t) * t2) * t4);
-    const float8 q = s > ac ? 1.57079633f - p : p;
+    const floatv q = s > ac ? 1.57079633f - p : p;
     return c < 0.0f ? 3.14159265f - q : q;
 }
 
@@ -291,7 +298,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
      * host publishes ceil(chunks / block) blocks and the job's frames F, with a
      * prologue that writes the frames' rotation data (pose_prologue) */
-    const int chunks = np / 8;
+    const int chunks = np / VW;
     FOR_EACH_JOB(jobs, role) {
     if (claim_prologue(jobs, job_tag_)) {
         pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, pose, derived, pose_stride,
@@ -301,12 +308,12 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, chunks) {
     /* frames innermost: a chunk's bound data is read from memory once and
      * reused from L1 for every frame of the batch */
-    /* the chunk's records: row j of a record is at + 8 j (LOAD8(j, ...)) */
+    /* the chunk's records: row j of a record is at + VW j (LOADV(j, ...)) */
     __global const float *u = frec + (size_t)g * FREC(P, K);
-    __global const float *coef = u + 8 * 3;
-    __global const float *phat = coef + 8 * (P + 2 * K);
+    __global const float *coef = u + VW * 3;
+    __global const float *phat = coef + VW * (P + 2 * K);
 #ifndef DERIVED_LEVER
-    __global const float *lever = phat + 8 * 3 * P;
+    __global const float *lever = phat + VW * 3 * P;
 #endif
     __global const int *ints = irec + (size_t)g * IREC(K);
     for (int f = 0; f < F; ++f) {
@@ -316,33 +323,33 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     const int slot = as_int(qpos[pose_stride - 1]);
     __global float *out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
 
-    /* reference rotation: shared by the 8 lanes (points are sorted by it) or gathered;
+    /* reference rotation: shared by the lanes (points are sorted by it) or gathered;
      * its matrix is loaded where it is used (LOAD_REF), not held in 9 registers
      * across the slot loop, where they were spilled */
-    const int8 rf = LOADI8(0, ints);
+    const intv rf = LOADIV(0, ints);
 #if K == 0 && !defined(SPARSE)
     /* no segments: every point's reference is R_g, and without the per-lane branch the
      * point-handle loop keeps fewer registers live (point rows 2-6 % faster) */
     const int uniform = 1;
 #else
-    const int uniform = SAME8(rf);
+    const int uniform = SAMEV(rf);
 #endif
-    float8 m00, m01, m02, m10, m11, m12, m20, m21, m22;
+    floatv m00, m01, m02, m10, m11, m12, m20, m21, m22;
 
     /* q* (weighted posed centroid, linear in the posed handle positions) and r: the
      * blended rotation vector relative to the reference, or (QUAT_BLEND) the
      * lever-weighted quaternion sum */
-    float8 qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
+    floatv qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
 #ifdef QUAT_BLEND
-    float8 rw = 0.0f;                    /* r: the lever-weighted quaternion sum */
-    float8 gx, gy, gz, gw;               /* Q_ref */
+    floatv rw = 0.0f;                    /* r: the lever-weighted quaternion sum */
+    floatv gx, gy, gz, gw;               /* Q_ref */
 #endif
 #ifdef NORMALISE_LEVERS
-    float8 lsum = 0.0f;                  /* normaliser of the derived levers */
+    floatv lsum = 0.0f;                  /* normaliser of the derived levers */
 #endif
     UNROLL_P
     for (int p = 0; p < P; ++p) {
-        const float8 c = LOAD8(p, coef);
+        const floatv c = LOADV(p, coef);
         qx += c * qpos[3 * p];
         qy += c * qpos[3 * p + 1];
         qz += c * qpos[3 * p + 2];
@@ -351,17 +358,17 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     for (int k = 0; k < K; ++k) {
         /* segment slot k: dense, slot k is segment k; sparse, slot[k] names it per point */
 #ifdef SPARSE
-        const int8 h = LOADI8(2 + k, ints);
+        const intv h = LOADIV(2 + k, ints);
 #else
-        const int8 h = (int8)k;
+        const intv h = (intv)k;
 #endif
-        const float8 ca = LOAD8(P + 2 * k, coef);
-        const float8 cb = LOAD8(P + 2 * k + 1, coef);
-        const int shared = uniform && SAME8(h);   /* the 8 lanes read one table entry */
+        const floatv ca = LOADV(P + 2 * k, coef);
+        const floatv cb = LOADV(P + 2 * k + 1, coef);
+        const int shared = uniform && SAMEV(h);   /* the lanes read one table entry */
 #ifdef DERIVED_LEVER
-        const float8 l = (ca + cb) * (shared ? (float8)len2[h.s0] : GATHER8(len2, h));
+        const floatv l = (ca + cb) * (shared ? (floatv)len2[h.s0] : GATHERV(len2, h));
 #else
-        const float8 l = LOAD8(P + k, lever);
+        const floatv l = LOADV(P + k, lever);
 #endif
 #ifdef NORMALISE_LEVERS
         lsum += l;
@@ -379,15 +386,15 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
             rw += l * t[3];
 #endif
         } else {
-            const int8 e = 3 * (P + 2 * h), t = TW * (S * rf + h);
-            qx += ca * GATHER8(qpos, e) + cb * GATHER8(qpos, e + 3);
-            qy += ca * GATHER8(qpos, e + 1) + cb * GATHER8(qpos, e + 4);
-            qz += ca * GATHER8(qpos, e + 2) + cb * GATHER8(qpos, e + 5);
-            rx += l * GATHER8(table, t);
-            ry += l * GATHER8(table, t + 1);
-            rz += l * GATHER8(table, t + 2);
+            const intv e = 3 * (P + 2 * h), t = TW * (S * rf + h);
+            qx += ca * GATHERV(qpos, e) + cb * GATHERV(qpos, e + 3);
+            qy += ca * GATHERV(qpos, e + 1) + cb * GATHERV(qpos, e + 4);
+            qz += ca * GATHERV(qpos, e + 2) + cb * GATHERV(qpos, e + 5);
+            rx += l * GATHERV(table, t);
+            ry += l * GATHERV(table, t + 1);
+            rz += l * GATHERV(table, t + 2);
 #ifdef QUAT_BLEND
-            rw += l * GATHER8(table, t + 3);
+            rw += l * GATHERV(table, t + 3);
 #endif
         }
     }
@@ -399,7 +406,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #endif
     LOAD_REF();
     __global const float *ploc = refs + PLOC_OFFSET(S) + 3 * P * rf.s0;
-    float8 Yx = 0.0f, Yy = 0.0f, Yz = 0.0f;
+    floatv Yx = 0.0f, Yy = 0.0f, Yz = 0.0f;
     if (uniform) {
         Yx = m00 * qx + m10 * qy + m20 * qz;
         Yy = m01 * qx + m11 * qy + m21 * qz;
@@ -409,28 +416,28 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     UNROLL_P
     for (int p = 0; p < P; ++p) {
         /* minimal rotation taking phat onto y */
-        float8 yx, yy, yz;
+        floatv yx, yy, yz;
 #if P > 0
         if (uniform) {
             yx = ploc[3 * p] - Yx; yy = ploc[3 * p + 1] - Yy; yz = ploc[3 * p + 2] - Yz;
         } else
 #endif
         {
-            const float8 hx = qpos[3 * p] - qx, hy = qpos[3 * p + 1] - qy, hz = qpos[3 * p + 2] - qz;
+            const floatv hx = qpos[3 * p] - qx, hy = qpos[3 * p + 1] - qy, hz = qpos[3 * p + 2] - qz;
             yx = m00 * hx + m10 * hy + m20 * hz;
             yy = m01 * hx + m11 * hy + m21 * hz;
             yz = m02 * hx + m12 * hy + m22 * hz;
         }
-        const float8 px = LOAD8(3 * p, phat);
-        const float8 py = LOAD8(3 * p + 1, phat);
-        const float8 pz = LOAD8(3 * p + 2, phat);
-        const float8 cx = py * yz - pz * yy, cy = pz * yx - px * yz, cz = px * yy - py * yx;
-        const float8 cs = px * yx + py * yy + pz * yz;
-        const float8 pp = px * px + py * py + pz * pz;
+        const floatv px = LOADV(3 * p, phat);
+        const floatv py = LOADV(3 * p + 1, phat);
+        const floatv pz = LOADV(3 * p + 2, phat);
+        const floatv cx = py * yz - pz * yy, cy = pz * yx - px * yz, cz = px * yy - py * yx;
+        const floatv cs = px * yx + py * yy + pz * yz;
+        const floatv pp = px * px + py * py + pz * pz;
 #ifdef DERIVED_LEVER
-        const float8 lp = LOAD8(p, coef) * pp;
+        const floatv lp = LOADV(p, coef) * pp;
 #else
-        const float8 lp = LOAD8(p, lever);
+        const floatv lp = LOADV(p, lever);
 #endif
 #ifdef NORMALISE_LEVERS
         lsum += lp;
@@ -438,11 +445,11 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #ifdef QUAT_BLEND
         /* m = (c, |phat||y| + phat.y) / |.|, the half-angle quaternion of the minimal
          * rotation (identity for opposite or zero vectors); r += lp Q_ref (x) m */
-        const float8 w0 = sqrt8(pp * (yx * yx + yy * yy + yz * yz)) + cs;
-        const float8 mn2 = w0 * w0 + cx * cx + cy * cy + cz * cz;
-        const float8 k = mn2 > 0.0f ? lp * rsqrt8(mn2) : (float8)0.0f;
-        const float8 mx = k * cx, my = k * cy, mz = k * cz;
-        const float8 mw = mn2 > 0.0f ? k * w0 : lp;
+        const floatv w0 = sqrtv(pp * (yx * yx + yy * yy + yz * yz)) + cs;
+        const floatv mn2 = w0 * w0 + cx * cx + cy * cy + cz * cz;
+        const floatv k = mn2 > 0.0f ? lp * rsqrtv(mn2) : (floatv)0.0f;
+        const floatv mx = k * cx, my = k * cy, mz = k * cz;
+        const floatv mw = mn2 > 0.0f ? k * w0 : lp;
         rx += gw * mx + mw * gx + (gy * mz - gz * my);
         ry += gw * my + mw * gy + (gz * mx - gx * mz);
         rz += gw * mz + mw * gz + (gx * my - gy * mx);
@@ -457,16 +464,16 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
          * faster (bench/kernel_ab.py: box 0.089 -> 0.081 ms, dragon 0.607 -> 0.545,
          * armadillo 0.760 -> 0.682), and the scaled phat made tiny models exact (1e-12
          * across: 10 % of the size off before, 5e-8 now) */
-        const float8 sn2 = cx * cx + cy * cy + cz * cz;
-        const float8 isn = rsqrt8_normal(sn2);
-        const float8 l = lp * (sn2 >= 1.17549435e-38f ? atan2pos8(sn2 * isn, cs) * isn : (float8)0.0f);
+        const floatv sn2 = cx * cx + cy * cy + cz * cz;
+        const floatv isn = rsqrtv_normal(sn2);
+        const floatv l = lp * (sn2 >= 1.17549435e-38f ? atan2posv(sn2 * isn, cs) * isn : (floatv)0.0f);
         rx += l * cx;
         ry += l * cy;
         rz += l * cz;
 #endif
     }
 #ifdef NORMALISE_LEVERS
-    const float8 inv = lsum > 0.0f ? 1.0f / lsum : (float8)0.0f;
+    const floatv inv = lsum > 0.0f ? 1.0f / lsum : (floatv)0.0f;
     rx *= inv;
     ry *= inv;
     rz *= inv;
@@ -475,23 +482,23 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #endif
 #endif
 
-    const float8 ux = LOAD8(0, u), uy = LOAD8(1, u), uz = LOAD8(2, u);
+    const floatv ux = LOADV(0, u), uy = LOADV(1, u), uz = LOADV(2, u);
 #ifdef QUAT_BLEND
     /* v' = R(r) u + q*, R(r) the rotation of the quaternion sum r = (rx, ry, rz, rw)
      * (normalised by n2 = |r|^2): u + (2 / n2) (rw (r x u) + r x (r x u)).
      * Where the levers all vanish (|r| <= 1e-6 with levers summing to 1), R = R_ref. */
-    const float8 n2 = rx * rx + ry * ry + rz * rz + rw * rw;
-    const int8 low = n2 <= 1e-12f;
-    if (or8(low)) {
+    const floatv n2 = rx * rx + ry * ry + rz * rz + rw * rw;
+    const intv low = n2 <= 1e-12f;
+    if (orv(low)) {
         LOAD_QREF();
         rx = low ? gx : rx; ry = low ? gy : ry; rz = low ? gz : rz; rw = low ? gw : rw;
     }
-    const float8 s2 = 2.0f / (low ? (float8)1.0f : n2);
-    const float8 kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
-    const float8 jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
-    const float8 ox = ux + s2 * (rw * kx + jx) + qx;
-    const float8 oy = uy + s2 * (rw * ky + jy) + qy;
-    const float8 oz = uz + s2 * (rw * kz + jz) + qz;
+    const floatv s2 = 2.0f / (low ? (floatv)1.0f : n2);
+    const floatv kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
+    const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
+    const floatv ox = ux + s2 * (rw * kx + jx) + qx;
+    const floatv oy = uy + s2 * (rw * ky + jy) + qy;
+    const floatv oz = uz + s2 * (rw * kz + jz) + qz;
 #else
     /* w = exp(r) u, Rodrigues with a = sin(th)/th, b = (1-cos th)/th^2 written
      * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
@@ -499,34 +506,34 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
      * 4 and 5, least-squares fitted in a Chebyshev basis: evaluated in float32 their
      * error is 8e-8 and 1.3e-7, as low as the degree-6/8 Taylor polynomials' (float
      * rounding); no sqrt, no division, no transcendental call. */
-    const float8 x = 0.25f * (rx * rx + ry * ry + rz * rz);
-    const float8 sinc = 0.9999999913f + x * (-0.16666656063f + x * (8.3330316883e-3f + x * (-1.9808525988e-4f
+    const floatv x = 0.25f * (rx * rx + ry * ry + rz * rz);
+    const floatv sinc = 0.9999999913f + x * (-0.16666656063f + x * (8.3330316883e-3f + x * (-1.9808525988e-4f
                       + x * 2.6051343228e-6f)));
-    const float8 ch = 0.9999999995f + x * (-0.49999999169f + x * (4.1666632908e-2f + x * (-1.3888340166e-3f
+    const floatv ch = 0.9999999995f + x * (-0.49999999169f + x * (4.1666632908e-2f + x * (-1.3888340166e-3f
                     + x * (2.4759708851e-5f + x * -2.6050851041e-7f))));
-    const float8 a = sinc * ch;
-    const float8 b = 0.5f * sinc * sinc;
-    const float8 kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
-    const float8 jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
-    const float8 wx = ux + a * kx + b * jx;
-    const float8 wy = uy + a * ky + b * jy;
-    const float8 wz = uz + a * kz + b * jz;
+    const floatv a = sinc * ch;
+    const floatv b = 0.5f * sinc * sinc;
+    const floatv kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
+    const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
+    const floatv wx = ux + a * kx + b * jx;
+    const floatv wy = uy + a * ky + b * jy;
+    const floatv wz = uz + a * kz + b * jz;
 
     /* v' = R_ref w + q* */
     LOAD_REF();
-    const float8 ox = m00 * wx + m01 * wy + m02 * wz + qx;
-    const float8 oy = m10 * wx + m11 * wy + m12 * wz + qy;
-    const float8 oz = m20 * wx + m21 * wy + m22 * wz + qz;
+    const floatv ox = m00 * wx + m01 * wy + m02 * wz + qx;
+    const floatv oy = m10 * wx + m11 * wy + m12 * wz + qy;
+    const floatv oz = m20 * wx + m21 * wy + m22 * wz + qz;
 #endif
 #if K == 0 && !defined(SPARSE)
-    /* no segments: points are stored in their own order, chunk g holds rows 8g..8g+7:
-     * three vector stores (point rows 3-5 % faster) */
-    STORE_XYZ8(ox, oy, oz, out + 24 * (size_t)g);
+    /* no segments: points are stored in their own order, chunk g holds rows VW g ..
+     * VW g + VW-1: three 8-float vector stores per 8 rows (point rows 3-5 % faster) */
+    STORE_XYZV(ox, oy, oz, out + 3 * VW * (size_t)g);
 #else
-    /* elsewhere the 8 rows are seldom consecutive (0.2-38 % of the chunks on the mesh
+    /* elsewhere the chunk's rows are seldom consecutive (0.2-38 % of the chunks on the mesh
      * rigs, mostly aligned; checking for them cost the segment rows 1-3 %) */
-    const int8 o = LOADI8(1, ints);
-    STORE_ROWS(ox, oy, oz, out, o);
+    const intv o = LOADIV(1, ints);
+    STORE_ROWSV(ox, oy, oz, out, o);
 #endif
     }   /* f */
     }   /* g */

@@ -33,8 +33,20 @@ from .errors import DeviceError, InputError
 from .handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
-LANES = 8      # points per float8 chunk
-BLOCK = 32     # chunks (of 8 points) per block of work taken from the job mailbox (share.h)
+BLOCK_POINTS = 256   # points per block of work taken from the job mailbox (share.h)
+
+
+def lanes_for(segments: int) -> int:
+    """Points per chunk, the pose kernel's lanes per work-item (-DVW, kernels/lanes.h) for a
+    rig with ``segments`` segment handles: 16 without segments, else 8.
+
+    A rig of point handles spends its kernel in chains of ~90 cycles per handle (cross
+    product, inverse square root, atan2) that leave the FMA pipes half idle; with 16 lanes
+    every operation is two independent 8-lane instructions. Measured in one process
+    (bench/commit_ab.py, 8 against 16 lanes): Table-1 point rows 1.07-1.12x faster with
+    4-5 handles; segment rows, whose slot loop reads the rotation table (no such chains)
+    and gathers where lanes disagree, 0.89-1.03x, so they keep 8."""
+    return 8 if segments else 16
 
 
 class Deformer:
@@ -55,7 +67,8 @@ class Deformer:
     uses (:func:`slot_terms`), then uploads that; ``terms`` recomputes them from
     the arrays given at bind, which it keeps by reference. Binding a 1M-point,
     65-bone cloud with k = 8 peaks at 0.9 GB of host memory (2.5 GB while the
-    dense terms were built first) and holds 0.5 GB once bound.
+    dense terms were built first) and holds 0.5 GB once bound. ``lanes`` (OpenCL):
+    points per chunk of the kernel's bound records (:func:`lanes_for`).
     """
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
@@ -100,13 +113,14 @@ class Deformer:
         blend = self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
         refs_global = bool((kept["ref"] == S).any())
-        arrays, K = device_layout(kept, self.rest, self.lever)
+        self.lanes = lanes_for(S)
+        arrays, K = device_layout(kept, self.rest, self.lever, self.lanes)
         del kept
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         mf = cl.mem_flags
-        frec, irec = chunk_records(arrays, P, S, K, self.lever)
+        frec, irec = chunk_records(arrays, P, S, K, self.lever, self.lanes)
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                       for k, a in (("frec", frec), ("irec", irec), ("len2", arrays["len2"]),
                                    ("pairs", arrays["pairs"]))}
@@ -123,13 +137,13 @@ class Deformer:
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
-        options = ((f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
+        options = ((f"-DVW={self.lanes}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
                    + (() if levers_stored(self.lever, S) else ("-DDERIVED_LEVER",)) + (("-DQUAT_BLEND",) if quat else ())
                    + (("-DGLOBAL_FIT",) if self._global is not None else ()))
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         self._jobs = device.Jobs()        # the pose kernel's job mailbox (kernels/share.h)
-        self._blocks = -(-npad // (LANES * BLOCK))
+        self._blocks = -(-npad // BLOCK_POINTS)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         self._batch = 1       # frames of the last launch
         # frames handed to callers without a copy (pose()): slots of their own, so that a
@@ -154,7 +168,7 @@ class Deformer:
         b = self._bufs
         return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
                 self._pose.arg, self._derived.arg, self._out.arg,
-                self._out.arg if self._handoff.array is None else self._handoff.array.arg, np.int32(BLOCK),
+                self._out.arg if self._handoff.array is None else self._handoff.array.arg, np.int32(BLOCK_POINTS // self.lanes),
                 np.int32(self._pose_stride), np.int32(self._derived_stride), np.int32(self.blend == "paper"),
                 np.int32(self._npairs), b["pairs"], b["pairs"] if self._global is None else self._global.data,
                 self._jobs.box.arg, np.int32(device.ROLE_CALLER)]
@@ -231,7 +245,7 @@ class Deformer:
     def pose_frames(self, poses, out: np.ndarray | None = None) -> np.ndarray:
         """Posed points (F, N, 3) of F poses in one launch (float32; float64 on numpy).
 
-        Each chunk of 8 points reads its bound data once for all F frames.
+        Each chunk of points (:attr:`lanes`) reads its bound data once for all F frames.
         out: optional (F, N, 3) array to write into (and return); without it, a new
         array (one frame: handed over as :meth:`pose` hands it).
         """
@@ -254,20 +268,20 @@ class Deformer:
 
     def bound_indices(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The kernel's per-point indices in stored order (points sorted by reference, padded
-        to a multiple of 8): ref (Npad,) int32, each point's reference rotation (segment s,
+        to a multiple of :attr:`lanes`): ref (Npad,) int32, each point's reference rotation (segment s,
         or S for the global one), and slots (K, Npad) int32, its segment slots (None when
         dense). On OpenCL they are read back from the bound device buffer (diagnostics:
-        bench/roofline.py counts the chunks whose 8 lanes disagree)."""
+        bench/roofline.py counts the chunks whose lanes disagree)."""
         if self.backend == "numpy":
             kept = slot_terms(self._terms, self.k, self.lever)
-            arrays, K = device_layout(kept, self.rest, self.lever)
+            arrays, K = device_layout(kept, self.rest, self.lever, lanes_for(len(self.rest.segments)))
             return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
         import pyopencl as cl
 
         buf = self._bufs["irec"]
         ints = np.empty(buf.size // 4, np.int32)
         cl.enqueue_copy(self._queue, ints, buf)
-        rec = ints.reshape(self._npad // LANES, -1, LANES)   # chunk records: ref, row, then any slots
+        rec = ints.reshape(self._npad // self.lanes, -1, self.lanes)   # chunk records: ref, row, then any slots
         slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
         return rec[:, 0].ravel(), slots
 
@@ -410,21 +424,21 @@ def levers_stored(lever: str, segments: int) -> bool:
     return lever == "paper" or segments == 0
 
 
-def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
+def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[dict, int]:
     """The per-point arrays that kernels/nrmls.cl binds, as rows of all points
     (:func:`chunk_records` packs them into its chunk-major records; its header
     states the rows), and the number K of segment slots per point (S when
     dense, k < S with top-k sparsity). kept: :func:`slot_terms` of all points.
 
     Points are stored sorted by reference rotation, then by their slots, so
-    that a work-item's 8 lanes share them; ``row`` sends each back to the
-    caller's row. Returns float32/int32 arrays padded to a multiple of 8 points.
+    that a work-item's ``lanes`` lanes (:func:`lanes_for`) share them; ``row`` sends each
+    back to the caller's row. Returns float32/int32 arrays padded to a multiple of ``lanes`` points.
     """
     n, P, S = len(kept["u"]), len(rest.points), len(rest.segments)
     refs = kept["ref"]
     slots = kept.get("slot")
     K = S if slots is None else slots.shape[1]
-    npad = -(-n // LANES) * LANES
+    npad = -(-n // lanes) * lanes
 
     def soa(rows: np.ndarray) -> np.ndarray:  # (rows, N) -> (rows, Npad) float32
         out = np.zeros((rows.shape[0], npad), np.float32)
@@ -471,10 +485,10 @@ def device_layout(kept: dict, rest: HandleSet, lever: str) -> tuple[dict, int]:
     return arrays, K
 
 
-def chunk_records(arrays: dict, P: int, S: int, K: int, lever: str) -> tuple[np.ndarray, np.ndarray]:
+def chunk_records(arrays: dict, P: int, S: int, K: int, lever: str, lanes: int) -> tuple[np.ndarray, np.ndarray]:
     """The per-point arrays of :func:`device_layout` packed chunk-major, as
     kernels/nrmls.cl reads them: (float32 records, int32 records), one record
-    of rows of 8 lanes per chunk of 8 stored points (rows in the kernel's order).
+    of rows of ``lanes`` lanes per chunk of ``lanes`` stored points (rows in the kernel's order).
     P point handles, S segments, K segment slots (K < S: sparse, slots stored)."""
     floats = [arrays["u"], arrays["coef"]] + ([arrays["phat"]] if P else [])
     if levers_stored(lever, S):
@@ -483,6 +497,6 @@ def chunk_records(arrays: dict, P: int, S: int, K: int, lever: str) -> tuple[np.
 
     def pack(rows: list[np.ndarray]) -> np.ndarray:  # (R, Npad) blocks -> (Npad/8, R, 8)
         a = np.concatenate(rows)
-        return np.ascontiguousarray(a.reshape(len(a), -1, LANES).transpose(1, 0, 2)).ravel()
+        return np.ascontiguousarray(a.reshape(len(a), -1, lanes).transpose(1, 0, 2)).ravel()
 
     return pack(floats), pack(ints)

@@ -199,7 +199,7 @@ def test_kernel_ab(tmp_path, monkeypatch, capfd):
         assert json.loads(out.read_text())["max_diff_rel_bbox"]["variant"] > 1e-4
     capfd.readouterr()
     variants = {"renamed": shipped.replace("__kernel void nrmls_pose(", "__kernel void nrmls_pose_renamed("),
-                "syntax": shipped.replace("const float8 ux = LOAD8(0, u)", "const float8 ux = LOAD8(0, u) +"),
+                "syntax": shipped.replace("const floatv ux = LOADV(0, u)", "const floatv ux = LOADV(0, u) +"),
                 "arguments": shipped.replace("const int role)", "const int role, const int extra)")}
     cases = [([str(tmp_path / "missing.cl")], "no such file")]
     for name, text in variants.items():

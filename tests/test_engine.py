@@ -60,7 +60,7 @@ def both(points, rest, **kw):
 
 
 # --------------------------------------------------------------------------- kernel vs reference
-CONFIGS = [(4, 0), (0, 4), (3, 3), (1, 0), (0, 1), (2, 7)]
+CONFIGS = [(4, 0), (0, 4), (3, 3), (1, 0), (0, 1), (2, 7), (10, 0)]   # (10, 0): 16 lanes, handle loop not unrolled
 
 
 @pytest.mark.parametrize("n_pts,n_segs", CONFIGS)
@@ -83,14 +83,14 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
     """The kernel takes R_ref^T q_p from the per-pose table where a chunk's 8 points share
     their reference rotation and rotates q_p - q* per lane where they do not: both paths
     against the reference, on a layout that has both kinds of chunk."""
-    from nrpose.engine import LANES, device_layout, slot_terms
+    from nrpose.engine import device_layout, slot_terms
 
     rng = np.random.default_rng(7)
     rest = random_rest(rng, 3, 4)
     points = rng.uniform(-1.5, 1.5, (2001, 3))
     dev, ref = both(points, rest, blend=blend)
-    arrays, _ = device_layout(slot_terms(dev.terms, None, dev.lever), rest, dev.lever)
-    chunks = arrays["ref"].reshape(-1, LANES)
+    arrays, _ = device_layout(slot_terms(dev.terms, None, dev.lever), rest, dev.lever, dev.lanes)
+    chunks = arrays["ref"].reshape(-1, dev.lanes)
     shared = (chunks == chunks[:, :1]).all(axis=1)
     assert shared.any() and not shared.all()
     for _ in range(2):
@@ -141,7 +141,7 @@ def test_sparse_slots_are_the_heaviest_segments():
     """The K slots per point (slot_terms, stored by device_layout) are its K heaviest
     segments (ties: lower index), listed by index, for rows with exactly K, fewer (points
     on a handle) and more (dense rest terms laid out sparse) non-zero segment weights."""
-    from nrpose.engine import device_layout, slot_terms
+    from nrpose.engine import device_layout, lanes_for, slot_terms
 
     rng = np.random.default_rng(8)
     rest = random_rest(rng, 2, 7)
@@ -150,7 +150,7 @@ def test_sparse_slots_are_the_heaviest_segments():
     seen = set()
     for k in (1, 3, 5):
         for terms in (rest_terms(points, rest, k=k), rest_terms(points, rest)):
-            arrays, K = device_layout(slot_terms(terms, k, "weight"), rest, "weight")
+            arrays, K = device_layout(slot_terms(terms, k, "weight"), rest, "weight", lanes_for(len(rest.segments)))
             ws = terms.weights[:, 2:]
             expect = np.sort(np.argsort(-ws, axis=1, kind="stable")[:, :K], axis=1)
             stored = arrays["slot"][:, :len(points)].T
@@ -495,17 +495,18 @@ def test_pose_frames_batch_matches_single_poses(mixed):
 
 
 @pytest.mark.parametrize("blocks", [1, 3])
-def test_shared_launch_any_split_same_points(blocks, monkeypatch):
-    """The pose kernel's blocks of points (engine.BLOCK chunks of 8) may be taken by the
+@pytest.mark.parametrize("n_pts,n_segs", [(2, 3), (3, 0)])     # 8 and 16 lanes
+def test_shared_launch_any_split_same_points(blocks, n_pts, n_segs, monkeypatch):
+    """The pose kernel's blocks of points (engine.BLOCK_POINTS) may be taken by the
     calling thread alone, by PoCL's workers alone or by both, the workers standing or
     woken for the launch (device.launch_shared):
     bitwise the same result each way, equal to the reference; a last block that is
     partly filled and a padded last chunk included."""
-    from nrpose.engine import BLOCK, LANES
+    from nrpose.engine import BLOCK_POINTS
 
     rng = np.random.default_rng(3)
-    rest = random_rest(rng, 2, 3)
-    points = rng.uniform(-1, 1, (blocks * BLOCK * LANES + 5, 3))
+    rest = random_rest(rng, n_pts, n_segs)
+    points = rng.uniform(-1, 1, (blocks * BLOCK_POINTS + 5, 3))
     dev, ref = both(points, rest)
     pose = random_pose(rng, rest)
     expected = ref.pose(pose)
@@ -579,7 +580,7 @@ def test_pose_hands_its_result_over_without_a_copy():
     column = dev.pose(poses[1])[:, 1]    # only a view kept: its slot stays taken
     assert in_slots(column)
     other = dev.pose_kernel_variant(device.kernel_source("nrmls.cl").replace(
-        "const float8 ux = LOAD8(0, u)", "const float8 ux = 2.0f * LOAD8(0, u)"))
+        "const floatv ux = LOADV(0, u)", "const floatv ux = 2.0f * LOADV(0, u)"))
     dev.relaunch(pose_kernel=other)      # another result of the last pose: into the launch's slot
     assert not any(in_slots(dev.pose(p)) for p in poses[3:])    # every slot held: copies
     assert np.abs(held[0] - want[0]).max() <= TOL * diag(points)
@@ -664,7 +665,7 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
         got = dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, :300]
         assert np.array_equal(got, want)
     with pytest.raises(DeviceError, match="does not build.*error:"):
-        dev.pose_kernel_variant(source.replace("const float8 ux = LOAD8(0, u)", "const float8 ux = +"))
+        dev.pose_kernel_variant(source.replace("const floatv ux = LOADV(0, u)", "const floatv ux = +"))
     with pytest.raises(DeviceError, match="does not run its job's prologue"):
         dev.pose_kernel_variant(source.replace("claim_prologue(", "0 && (").replace(
             "open_job(jobs, job_tag_);", ""))
@@ -695,11 +696,11 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     import time
 
     from nrpose import device
-    from nrpose.engine import BLOCK, LANES
+    from nrpose.engine import BLOCK_POINTS
 
     rng = np.random.default_rng(4)
     rest = random_rest(rng, 0, 2)
-    dev = Deformer(rng.uniform(-1, 1, (device.STANDING_MIN_BLOCKS * BLOCK * LANES, 3)), rest)
+    dev = Deformer(rng.uniform(-1, 1, (device.STANDING_MIN_BLOCKS * BLOCK_POINTS, 3)), rest)
     jobs = dev._jobs
     assert 0 < jobs.alone_s < float("inf") and dev._blocks == device.STANDING_MIN_BLOCKS
     decided = []
