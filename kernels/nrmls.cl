@@ -10,7 +10,7 @@
  * kernels/lanes.h): on PoCL CPU explicit vectors were worth ~4x over scalar
  * work-items (shared/notes/pocl.md), and at 16 lanes each operation is two
  * independent 8-lane instructions, which keeps the FMA pipes busier through the
- * point-handle chains (the Table-1 point rows 1.1-1.17x faster in one process).
+ * point-handle chains (the Table-1 point rows 1.00-1.17x in one process, two runs).
  * No fma()/mad() builtins: they are ~10x slower than a*b+c on PoCL.
  *
  * Bound data is stored chunk-major: chunk g (points VW g .. VW g + VW-1 of the

@@ -43,9 +43,9 @@ def lanes_for(segments: int) -> int:
     A rig of point handles spends its kernel in chains of ~90 cycles per handle (cross
     product, inverse square root, atan2) that leave the FMA pipes half idle; with 16 lanes
     every operation is two independent 8-lane instructions. Measured in one process
-    (bench/commit_ab.py, 8 against 16 lanes): Table-1 point rows 1.07-1.12x faster with
-    4-5 handles; segment rows, whose slot loop reads the rotation table (no such chains)
-    and gathers where lanes disagree, 0.89-1.03x, so they keep 8."""
+    (bench/commit_ab.py, 8 against 16 lanes, two runs): Table-1 point rows 0.99-1.17x;
+    segment rows, whose slot loop reads the rotation table (no such chains) and gathers
+    where lanes disagree, 0.83-1.15x, no clear gain, so they keep 8."""
     return 8 if segments else 16
 
 
@@ -67,8 +67,9 @@ class Deformer:
     uses (:func:`slot_terms`), then uploads that; ``terms`` recomputes them from
     the arrays given at bind, which it keeps by reference. Binding a 1M-point,
     65-bone cloud with k = 8 peaks at 0.9 GB of host memory (2.5 GB while the
-    dense terms were built first) and holds 0.5 GB once bound. ``lanes`` (OpenCL):
-    points per chunk of the kernel's bound records (:func:`lanes_for`).
+    dense terms were built first) and holds 0.5 GB once bound. ``lanes``: points per
+    chunk of the kernel's bound records (:func:`lanes_for`; the numpy backend's
+    :meth:`bound_indices` lays them out alike).
     """
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
@@ -83,6 +84,7 @@ class Deformer:
         self.blend = blend
         self.backend = backend
         self.k = k
+        self.lanes = lanes_for(len(rest.segments))
         self._bind_inputs = (points, alpha, lever, distances, weights, k)
         if backend == "opencl":
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
@@ -113,7 +115,6 @@ class Deformer:
         blend = self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
         refs_global = bool((kept["ref"] == S).any())
-        self.lanes = lanes_for(S)
         arrays, K = device_layout(kept, self.rest, self.lever, self.lanes)
         del kept
         npad = len(arrays["ref"])
@@ -274,7 +275,7 @@ class Deformer:
         bench/roofline.py counts the chunks whose lanes disagree)."""
         if self.backend == "numpy":
             kept = slot_terms(self._terms, self.k, self.lever)
-            arrays, K = device_layout(kept, self.rest, self.lever, lanes_for(len(self.rest.segments)))
+            arrays, K = device_layout(kept, self.rest, self.lever, self.lanes)
             return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
         import pyopencl as cl
 
