@@ -79,9 +79,9 @@ __kernel void empty(volatile __global int *jobs, const int role)
 #: Calls and divisions (each counted as 1 flop in the totals) are listed apart.
 FLOP_COUNT = {
     "point handle, q* term (3 mul + 3 add)": (6, 0, 0, 0),
-    "segment slot: lever (ca+cb)*len2, lsum += (1 add + 1 mul + 1 add)": (0, 3, 0, 0),
-    "segment slot: q* += ca*e + cb*e' (3 x (2 mul + 2 add))": (0, 12, 0, 0),
-    "segment slot: r += l*table (3 x (1 mul + 1 add))": (0, 6, 0, 0),
+    "segment slot: q* += w*a + wt*d (3 x (2 mul + 2 add))": (0, 12, 0, 0),
+    "segment slot: r += w*table' (3 x (1 mul + 1 add); the lever factor len2 is in the per-pose "
+    "table)": (0, 6, 0, 0),
     "point handles: Y* = R_ref^T q* (3 x (3 mul + 2 add)), once per point": (0, 0, 0, 15),
     "point handle: y = R_ref^T q_p - Y* (3 sub; R_ref^T q_p is per-pose table data)": (3, 0, 0, 0),
     "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0, 0),
@@ -93,9 +93,9 @@ FLOP_COUNT = {
     "point handle: atan2pos8 (lo/hi 1 div, t = a*a, t^2 and t^4 2 mul, degree-7 polynomial in t by "
     "Estrin's scheme 7 mul + 7 add, *a, 2 octant subs)": (21, 0, 0, 0),
     "point handle: angle * (1/|c|) (1 mul)": (1, 0, 0, 0),
-    "point handle: lever coef*|phat|^2, lsum +=, *k (3 mul + 2 add + 1 mul + 1 add + 1 mul)": (8, 0, 0, 0),
+    "point handle: lever coef*|phat|^2, *k (3 mul + 2 add + 1 mul + 1 mul)": (7, 0, 0, 0),
     "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0, 0),
-    "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4, 0),
+    "normalise r: times the bound 1/lever sum (3 mul)": (0, 0, 3, 0),
     "Rodrigues: x = |r|^2/4 (3 mul + 2 add + 1 mul)": (0, 0, 6, 0),
     "Rodrigues: sinc Horner degree 4 in x (4 mul + 4 add)": (0, 0, 8, 0),
     "Rodrigues: cos Horner degree 5 in x (5 mul + 5 add)": (0, 0, 10, 0),
@@ -105,13 +105,11 @@ FLOP_COUNT = {
     "output: R_ref w + q* (3 x (3 mul + 3 add))": (0, 0, 18, 0),
 }
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
-DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0, 0), "1 / lsum": (0, 0, 1, 0)}
+DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0, 0)}
 #: what a build reading the levers from the bound record (not DERIVED_LEVER: the "paper"
 #: rule, and rigs without segments, nrpose.engine.levers_stored) does not count above
-STORED_LEVERS_SKIP = {"point handle: lever coef*|phat|^2, lsum += (3 mul + 2 add + 1 mul + 1 add; "
-                      "the *k remains)": (7, 0, 0, 0),
-                      "segment slot: lever (ca+cb)*len2, lsum +=": (0, 3, 0, 0),
-                      "normalise r: 1/lsum (1 div), 3 mul": (0, 0, 4, 0)}
+STORED_LEVERS_SKIP = {"point handle: lever coef*|phat|^2 (3 mul + 2 add + 1 mul; the *k remains)": (6, 0, 0, 0),
+                      "normalise r: 3 mul": (0, 0, 3, 0)}
 
 
 def _total(table: dict, P: int, K: int) -> int:
@@ -126,7 +124,7 @@ def pose_flops(P: int, K: int, stored_levers: bool = False) -> dict:
     return {"per_point": _total(FLOP_COUNT, P, K) - skip, "stored_levers_skipped": skip,
             "formula": "{} P + {} K + {} (+ {} when P > 0; P point handles, K segment slots)".format(
                 *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(4))),
-            "divisions_per_point": _total(DIVISIONS, P, K) - (1 if stored_levers else 0),
+            "divisions_per_point": _total(DIVISIONS, P, K),
             "rule": "mul/add/sub = 1 flop (an FMA is 2); divisions counted as 1 each (listed under "
                     "divisions_per_point); sqrt and atan2 are inline code (rsqrt8, atan2pos8), counted by "
                     "their operations as the x86 AVX build runs them (the rsqrtps estimate counted 1); "
@@ -144,7 +142,9 @@ def pose_bytes(P: int, K: int, sparse: bool, derived_levers: bool = True) -> dic
              "out (3 floats written)": 12}
     if sparse:
         parts["slot (K ints)"] = 4 * K
-    if not derived_levers:
+    if derived_levers:
+        parts["inv (1 float)"] = 4
+    else:
         parts["lever ((P + K) floats)"] = 4 * (P + K)
     return {"per_point": int(sum(parts.values())), "parts": parts,
             "rule": "each bound per-point array element read once + the output written once; "
@@ -161,7 +161,9 @@ def pose_work(deformer) -> dict:
     stored = levers_stored(deformer.lever, S)
     fl = pose_flops(P, K, stored)
     by = pose_bytes(P, K, sparse, not stored)
-    per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 1 + 9 * (S + 1) + 3 * (S + 1) * S + 3 * P * (S + 1))
+    # pose block (positions, rotations, slot), derived block (refs, table, quats, ploc, dirs)
+    per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 1
+                          + 9 * (S + 1) + 3 * (S + 1) * S + 4 * (S + 1) + 3 * P * (S + 1) + 3 * S)
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
             "flops_per_pose": fl["per_point"] * n,

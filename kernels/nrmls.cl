@@ -22,19 +22,23 @@
  *   float record, FREC(P, K) floats, rows:
  *   u      [3]            v - p*
  *   coef   [P+2K]         q* coefficients: point handles (w), then per segment slot
- *                         (w(1-t), w t) on the segment's posed ends
+ *                         (w, w t): w on the segment's posed start a, w t on its posed
+ *                         direction b - a (dirs, below), so that w is also the slot's
+ *                         lever coefficient
  *   phat   [3P]           p_i - p* of the point handles (x, y, z rows per handle), times
  *                         2^-e, e the binary exponent of the largest |component| over all
  *                         points (nrpose/engine.py device_layout): exact, and the blend
  *                         does not change (the rotations depend on phat's direction only;
  *                         the derived levers w |phat|^2 and len2 scale alike and are
  *                         normalised per point), but |phat x y|^2 stays a normal float
- *   lever  [P+K]          normalised levers (points, then segment slots); built with
- *                         -DDERIVED_LEVER (lever rules "weight" and "length" on rigs
- *                         with segments: nrpose/engine.py levers_stored) they
- *                         are not stored but derived: w_p |phat_p|^2 for a point
- *                         handle, w_s len2[s] for a segment (w_s = w(1-t) + w t),
- *                         then normalised per point: 1/(P+K) fewer loads per point
+ *   lever  [P+K]          normalised levers (points, then segment slots), or, built with
+ *                         -DDERIVED_LEVER (lever rules "weight" and "length" on rigs with
+ *                         segments: nrpose/engine.py levers_stored), instead
+ *   inv    [1]            1 / the point's lever sum, sum_p w_p |phat_p|^2 + sum_k w_k len2[s_k]
+ *                         (rest-only): the kernel derives the point levers w_p |phat_p|^2,
+ *                         and the segment levers w_k len2[s] are folded into the per-pose
+ *                         table (table' below), so that a slot costs no lever arithmetic
+ *                         (the armadillo's 13 segment slots: 1.10x, kernel on one thread)
  *   int record, IREC(K) ints, rows:
  *   ref    [1]            reference rotation index: segment s, or S for global;
  *                         points are stored sorted by ref (stable), so the VW lanes
@@ -51,14 +55,16 @@
  *          the output slot of the frame (int bits): slot s >= 0 is written at out + s Np*3,
  *          slot code s < 0 at handed + (-1 - s) Np*3
  *   derived (written by the job's prologue from `pose`, once per pose: pose_prologue)
- *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] (| quats [(S+1)*4])
- *          | ploc [(S+1)*P*3]:
- *          relative/paper blends, TW = 3: table[j][s] = log(R_ref_j^-1 R_s);
- *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j, and
- *          quats[j] = Q_j, unit quaternions (x, y, z, w) of the rotations;
+ *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] | quats [(S+1)*4]
+ *          | ploc [(S+1)*P*3] | dirs [S*3]:
+ *          refs[j], the matrix of reference j (segment j, or R_g for j = S; identity for
+ *          the paper blend); quats[j] = Q_j, the unit quaternion (x, y, z, w) of rotation j;
+ *          relative/paper blends, TW = 3: table[j][s] = log(R_j^-1 R_s) (paper: log R_s);
+ *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j;
+ *          table' (-DDERIVED_LEVER): each entry times len2[s];
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
  *          frame (when P > 0; the pose kernel reads it where a chunk's
- *          lanes share their reference)
+ *          lanes share their reference); dirs[s] = b_s - a_s, segment s's posed direction
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order; each
  *                         frame in the slot its pose block names (nrpose/engine.py)
  *   handed [2][Np*3]      the same, slots whose frames are handed to the caller without
@@ -118,9 +124,6 @@
 #else
 #define TW 3
 #endif
-#ifdef DERIVED_LEVER
-#define NORMALISE_LEVERS  /* derived levers are normalised per point (stored ones already are) */
-#endif
 
 /* R_ref, each lane's reference rotation matrix (row-major), into m00..m22 */
 #define LOAD_REF() do {                                                                     \
@@ -138,7 +141,7 @@
 
 /* Q_ref, the unit quaternion of each lane's reference rotation (QUAT_BLEND), into gx..gw */
 #define LOAD_QREF() do {                                                                    \
-        __global const float *qt = table + TW * (S + 1) * S;                                \
+        __global const float *qt = refs + QUATS_OFFSET(S);                                  \
         if (uniform) {                                                                      \
             gx = qt[4 * rf.s0]; gy = qt[4 * rf.s0 + 1]; gz = qt[4 * rf.s0 + 2]; gw = qt[4 * rf.s0 + 3]; \
         } else {                                                                            \
@@ -148,16 +151,14 @@
     } while (0)
 
 #ifdef DERIVED_LEVER
-#define FREC(P, K) (VW * (3 + 4 * (P) + 2 * (K)))
+#define FREC(P, K) (VW * (3 + 4 * (P) + 2 * (K) + 1))
 #else
 #define FREC(P, K) (VW * (3 + 5 * (P) + 3 * (K)))
 #endif
-/* offset of ploc in a frame's derived block (after refs, table and quats) */
-#ifdef QUAT_BLEND
-#define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S) + 4 * ((S) + 1))
-#else
-#define PLOC_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
-#endif
+/* offsets in a frame's derived block */
+#define QUATS_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
+#define PLOC_OFFSET(S) (QUATS_OFFSET(S) + 4 * ((S) + 1))
+#define DIRS_OFFSET(S) (PLOC_OFFSET(S) + 3 * P * ((S) + 1))
 #ifdef SPARSE
 #define IREC(K) (VW * (2 + (K)))
 #else
@@ -211,33 +212,16 @@ static inline floatv atan2posv(const floatv s, const floatv c)
     return c < 0.0f ? 3.14159265f - q : q;
 }
 
-/* Rotation vector of a unit quaternion, angle in [0, pi]. */
-static float3 quat_log(float4 q)
-{
-    if (q.w < 0.0f) q = -q;
-    const float s = length(q.xyz);
-    const float k = s > 1e-12f ? 2.0f * atan2(s, q.w) / s : 2.0f / q.w;
-    return k * q.xyz;
-}
-
-/* Per-pose rotation data of one frame (`pose`: its pose block, `refs`: its derived
- * block), item g of npairs + S + 1. QUAT_BLEND: item g < npairs writes table[j][i] =
- * Q_i in the hemisphere of Q_j, and items npairs + j write quats[j] = Q_j
- * beside refs[j]. Otherwise: item g < npairs writes table[j][i] for the
- * g-th (j, i) pair that some point uses (listed at bind):
- * log(R_j^-1 R_i), or log(R_i) for the paper blend. Items npairs + j,
- * j in [0, S], write refs[j]: the reference's matrix (identity for the paper
- * blend). The relative table is exactly antisymmetric, T[j][i] = -T[i][j],
- * so that blends seen from either handle agree even at an angle of exactly pi. */
-static void prepare_item(const int g, const int nsegs, const int paper, const int npairs,
-                         __global const int *pairs, __global const float *pose, __global float *refs)
+/* Per-pose data of rotation j in [0, S] (segment j, or R_g for j = S) of one frame
+ * (`pose`: its pose block, `refs`: its derived block): refs[j] (identity for the paper
+ * blend), quats[j] and ploc[j]; then the posed segment directions dirs. */
+static void rotation_items(const int nsegs, const int paper, __global const float *pose, __global float *refs)
 {
     __global const float *rots = pose + 3 * (P + 2 * S);
-    __global float *table = refs + 9 * (S + 1);
-    if (g >= npairs) {
-        const int j = g - npairs;
+    for (int j = 0; j <= S; ++j) {
         for (int k = 0; k < 9; ++k)
             refs[9 * j + k] = paper ? (k % 4 == 0 ? 1.0f : 0.0f) : rots[9 * j + k];
+        vstore4(quat_of(rots + 9 * j), j, refs + QUATS_OFFSET(S));
         /* ploc[j][p] = R_j^T q_p: the posed point handles in reference j's frame */
         __global float *ploc = refs + PLOC_OFFSET(S) + 3 * P * j;
         for (int p = 0; p < P; ++p)
@@ -245,44 +229,97 @@ static void prepare_item(const int g, const int nsegs, const int paper, const in
                 ploc[3 * p + k] = paper ? pose[3 * p + k]
                     : rots[9 * j + k] * pose[3 * p] + rots[9 * j + 3 + k] * pose[3 * p + 1]
                       + rots[9 * j + 6 + k] * pose[3 * p + 2];
-#ifdef QUAT_BLEND
-        vstore4(quat_of(rots + 9 * j), j, table + TW * (S + 1) * S);
-#endif
-        return;
     }
-    const int j = pairs[2 * g], i = pairs[2 * g + 1];
+    __global float *dirs = refs + DIRS_OFFSET(S);
+    for (int s = 0; s < S; ++s)
+        for (int k = 0; k < 3; ++k)
+            dirs[3 * s + k] = pose[3 * (P + 2 * s + 1) + k] - pose[3 * (P + 2 * s) + k];
+}
+
+/* Rotation-table entries of one frame (`refs`: its derived block, its quats written) for
+ * pairs g0 .. g0 + VW-1 of the `npairs` (j, i) pairs that some point uses (listed at
+ * bind; lanes past the last pair repeat it), one pair per lane: ~30 times faster than
+ * one scalar pair at a time with the library's atan2 (the armadillo's 169 pairs took
+ * 21 us of a 0.19 ms pose). Relative blend: table[j][i] = log(R_j^-1 R_i), computed as
+ * +-log(Q_a^-1 Q_b) with (a, b) = (min, max)(i, j), so that the table is exactly
+ * antisymmetric, T[j][i] = -T[i][j], and blends seen from either handle agree even at an
+ * angle of exactly pi; paper blend log(R_i); QUAT_BLEND, Q_i in the hemisphere of Q_j.
+ * DERIVED_LEVER: times len2[i], segment i's lever factor (the header's table'). */
+static void table_block(const int g0, const int nsegs, const int paper, const int npairs,
+                        __global const int *pairs, __global const float *len2, __global float *refs)
+{
+    __global float *table = refs + 9 * (S + 1);
+    __global const float *quats = refs + QUATS_OFFSET(S);
+    float qa[4][VW] __attribute__((aligned(64))), qb[4][VW] __attribute__((aligned(64)));
+    float fac[VW] __attribute__((aligned(64)));
+    int dst[VW];
+    for (int l = 0; l < VW; ++l) {
+        const int g = min(g0 + l, npairs - 1);
+        const int j = pairs[2 * g], i = pairs[2 * g + 1];
+        dst[l] = TW * (j * S + i);
 #ifdef QUAT_BLEND
-    const float4 qi = quat_of(rots + 9 * i), qj = quat_of(rots + 9 * j);
-    vstore4(dot(qi, qj) < 0.0f ? -qi : qi, j * S + i, table);
-    return;
+        const float4 A = vload4(j, quats), B = vload4(i, quats);
+        float f = 1.0f;
+#else
+        /* paper: Q_a the identity, so that Q_a^-1 Q_b = Q_i */
+        const float4 A = paper ? (float4)(0.0f, 0.0f, 0.0f, 1.0f) : vload4(min(i, j), quats);
+        const float4 B = vload4(paper ? i : max(i, j), quats);
+        float f = paper ? 1.0f : (i == j ? 0.0f : (j < i ? 1.0f : -1.0f));
 #endif
-    float3 r = (float3)(0.0f);
-    if (paper) {
-        r = quat_log(quat_of(rots + 9 * i));
-    } else if (i != j) {
-        const int a = min(i, j), b = max(i, j);
-        const float4 qa = quat_of(rots + 9 * a), qb = quat_of(rots + 9 * b);
-        const float4 rel = (float4)(qa.w * qb.xyz - qb.w * qa.xyz - cross(qa.xyz, qb.xyz), dot(qa, qb));
-        r = (j < i ? 1.0f : -1.0f) * quat_log(rel);
+#ifdef DERIVED_LEVER
+        f *= len2[i];
+#endif
+        fac[l] = f;
+        qa[0][l] = A.x; qa[1][l] = A.y; qa[2][l] = A.z; qa[3][l] = A.w;
+        qb[0][l] = B.x; qb[1][l] = B.y; qb[2][l] = B.z; qb[3][l] = B.w;
     }
-    vstore3(r, j * S + i, table);
+    const floatv ax = *(const floatv *)qa[0], ay = *(const floatv *)qa[1];
+    const floatv az = *(const floatv *)qa[2], aw = *(const floatv *)qa[3];
+    const floatv bx = *(const floatv *)qb[0], by = *(const floatv *)qb[1];
+    const floatv bz = *(const floatv *)qb[2], bw = *(const floatv *)qb[3];
+    const floatv f = *(const floatv *)fac;
+    const floatv dot = ax * bx + ay * by + az * bz + aw * bw;
+    float out[TW][VW] __attribute__((aligned(64)));
+#ifdef QUAT_BLEND
+    const floatv sf = dot < 0.0f ? -f : f;
+    *(floatv *)out[0] = sf * bx; *(floatv *)out[1] = sf * by;
+    *(floatv *)out[2] = sf * bz; *(floatv *)out[3] = sf * bw;
+#else
+    /* Q_a^-1 Q_b = (aw b - bw a - a x b, a.b); its log: the angle 2 atan2(s, |w|) about
+     * the axis (x, y, z) / s (the sign of w taken into sf) */
+    const floatv x = aw * bx - bw * ax - (ay * bz - az * by);
+    const floatv y = aw * by - bw * ay - (az * bx - ax * bz);
+    const floatv z = aw * bz - bw * az - (ax * by - ay * bx);
+    const floatv sf = dot < 0.0f ? -f : f;
+    const floatv s2 = x * x + y * y + z * z;
+    const intv normal = s2 >= 1.17549435e-38f;    /* else a rotation below float resolution */
+    const floatv isn = rsqrtv_normal(normal ? s2 : (floatv)1.0f);
+    const floatv k = sf * (normal ? 2.0f * atan2posv(s2 * isn, ABSV(dot)) * isn : (floatv)2.0f);
+    *(floatv *)out[0] = k * x; *(floatv *)out[1] = k * y; *(floatv *)out[2] = k * z;
+#endif
+    for (int l = 0; l < VW; ++l)
+        for (int c = 0; c < TW; ++c)
+            table[dst[l] + c] = out[c][l];
 }
 
 /* The pose kernel's prologue (share.h), once per job, for its F frames: R_g, where
  * some point takes it as its reference (built with -DGLOBAL_FIT: global_fit.h, from
  * the posed handle positions and `fit`, written into the frame's pose block), then
- * the frame's rotation data (prepare_item). */
+ * the frame's rotation data (rotation_items, table_block). */
 static void pose_prologue(const int F, const int nsegs, const int paper, const int npairs,
-                          __global const int *pairs, __global float *pose, __global float *derived,
-                          const int pose_stride, const int derived_stride, __global const uchar *fit)
+                          __global const int *pairs, __global const float *len2, __global float *pose,
+                          __global float *derived, const int pose_stride, const int derived_stride,
+                          __global const uchar *fit)
 {
     for (int f = 0; f < F; ++f) {
         __global float *frame = pose + f * pose_stride;
+        __global float *refs = derived + f * derived_stride;
 #ifdef GLOBAL_FIT
         global_rotation_of(frame, (__global const double *)fit, P + 2 * S, 3 * (P + 2 * S) + 9 * S);
 #endif
-        for (int g = 0; g < npairs + S + 1; ++g)
-            prepare_item(g, nsegs, paper, npairs, pairs, frame, derived + f * derived_stride);
+        rotation_items(nsegs, paper, frame, refs);
+        for (int g0 = 0; g0 < npairs; g0 += VW)
+            table_block(g0, nsegs, paper, npairs, pairs, len2, refs);
     }
 }
 
@@ -301,7 +338,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     const int chunks = np / VW;
     FOR_EACH_JOB(jobs, role) {
     if (claim_prologue(jobs, job_tag_)) {
-        pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, pose, derived, pose_stride,
+        pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, len2, pose, derived, pose_stride,
                       derived_stride, fit);
         open_job(jobs, job_tag_);
     }
@@ -312,7 +349,9 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     __global const float *u = frec + (size_t)g * FREC(P, K);
     __global const float *coef = u + VW * 3;
     __global const float *phat = coef + VW * (P + 2 * K);
-#ifndef DERIVED_LEVER
+#ifdef DERIVED_LEVER
+    const floatv inv = LOADV(0, phat + VW * 3 * P);   /* 1 / the point's lever sum */
+#else
     __global const float *lever = phat + VW * 3 * P;
 #endif
     __global const int *ints = irec + (size_t)g * IREC(K);
@@ -320,6 +359,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     __global const float *qpos = pose + f * pose_stride;
     __global const float *refs = derived + f * derived_stride;
     __global const float *table = refs + 9 * (S + 1);
+    __global const float *dirs = refs + DIRS_OFFSET(S);
     const int slot = as_int(qpos[pose_stride - 1]);
     __global float *out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
 
@@ -344,9 +384,6 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     floatv rw = 0.0f;                    /* r: the lever-weighted quaternion sum */
     floatv gx, gy, gz, gw;               /* Q_ref */
 #endif
-#ifdef NORMALISE_LEVERS
-    floatv lsum = 0.0f;                  /* normaliser of the derived levers */
-#endif
     UNROLL_P
     for (int p = 0; p < P; ++p) {
         const floatv c = LOADV(p, coef);
@@ -362,23 +399,21 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #else
         const intv h = (intv)k;
 #endif
-        const floatv ca = LOADV(P + 2 * k, coef);
-        const floatv cb = LOADV(P + 2 * k + 1, coef);
-        const int shared = uniform && SAMEV(h);   /* the lanes read one table entry */
+        /* q* += w a + w t (b - a); r += lever * table entry, the lever w (the table holds
+         * len2 log(...): table') or, stored, normalised */
+        const floatv w = LOADV(P + 2 * k, coef);
+        const floatv wt = LOADV(P + 2 * k + 1, coef);
 #ifdef DERIVED_LEVER
-        const floatv l = (ca + cb) * (shared ? (floatv)len2[h.s0] : GATHERV(len2, h));
+        const floatv l = w;
 #else
         const floatv l = LOADV(P + k, lever);
 #endif
-#ifdef NORMALISE_LEVERS
-        lsum += l;
-#endif
-        if (shared) {
-            __global const float *e = qpos + 3 * (P + 2 * h.s0);
+        if (uniform && SAMEV(h)) {   /* the lanes read one table entry */
+            __global const float *a = qpos + 3 * (P + 2 * h.s0), *d = dirs + 3 * h.s0;
             __global const float *t = table + TW * (S * rf.s0 + h.s0);
-            qx += ca * e[0] + cb * e[3];
-            qy += ca * e[1] + cb * e[4];
-            qz += ca * e[2] + cb * e[5];
+            qx += w * a[0] + wt * d[0];
+            qy += w * a[1] + wt * d[1];
+            qz += w * a[2] + wt * d[2];
             rx += l * t[0];
             ry += l * t[1];
             rz += l * t[2];
@@ -386,10 +421,10 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
             rw += l * t[3];
 #endif
         } else {
-            const intv e = 3 * (P + 2 * h), t = TW * (S * rf + h);
-            qx += ca * GATHERV(qpos, e) + cb * GATHERV(qpos, e + 3);
-            qy += ca * GATHERV(qpos, e + 1) + cb * GATHERV(qpos, e + 4);
-            qz += ca * GATHERV(qpos, e + 2) + cb * GATHERV(qpos, e + 5);
+            const intv a = 3 * (P + 2 * h), d = 3 * h, t = TW * (S * rf + h);
+            qx += w * GATHERV(qpos, a) + wt * GATHERV(dirs, d);
+            qy += w * GATHERV(qpos, a + 1) + wt * GATHERV(dirs, d + 1);
+            qz += w * GATHERV(qpos, a + 2) + wt * GATHERV(dirs, d + 2);
             rx += l * GATHERV(table, t);
             ry += l * GATHERV(table, t + 1);
             rz += l * GATHERV(table, t + 2);
@@ -439,9 +474,6 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
 #else
         const floatv lp = LOADV(p, lever);
 #endif
-#ifdef NORMALISE_LEVERS
-        lsum += lp;
-#endif
 #ifdef QUAT_BLEND
         /* m = (c, |phat||y| + phat.y) / |.|, the half-angle quaternion of the minimal
          * rotation (identity for opposite or zero vectors); r += lp Q_ref (x) m */
@@ -472,8 +504,8 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
         rz += l * cz;
 #endif
     }
-#ifdef NORMALISE_LEVERS
-    const floatv inv = lsum > 0.0f ? 1.0f / lsum : (floatv)0.0f;
+#ifdef DERIVED_LEVER
+    /* derived levers are normalised per point here (stored ones already are) */
     rx *= inv;
     ry *= inv;
     rz *= inv;

@@ -130,8 +130,8 @@ class Deformer:
         # floats per frame: positions, rotations, then the frame's output slot (int32 bits)
         self._pose_stride = self._npos + 9 * (S + 1) + 1
         quat = blend == "quaternion"      # table entries: quaternions (4), else rotation vectors (3)
-        self._derived_stride = (9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + (4 * (S + 1) if quat else 0)
-                                + 3 * P * (S + 1))
+        # floats per frame (kernels/nrmls.cl): refs, table, quats, ploc, dirs
+        self._derived_stride = 9 * (S + 1) + (4 if quat else 3) * (S + 1) * S + 4 * (S + 1) + 3 * P * (S + 1) + 3 * S
         # R_g per pose on the device (the pose kernel's prologue), when some point takes the
         # global rotation as its reference
         self._global = GlobalFit(self.rest) if blend != "paper" and refs_global else None
@@ -385,8 +385,8 @@ def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:
     (float64, per point): ``u`` (n, 3); ``ref`` (n,); ``slot`` (n, K) int64, the K
     segment slots, only with top-k sparsity (k < S: the point's K = k heaviest segments,
     ties to the lower index, listed by index; dense, slot k is segment k); ``coef`` (n, P + 2K), the q*
-    coefficients: point handles' w, then per slot w(1 - t), w t on the segment's posed
-    ends; ``phat`` (n, P, 3); with the "paper" lever rule ``lever`` (n, P + K), the
+    coefficients: point handles' w, then per slot w on the segment's posed start a and w t
+    on its posed direction b - a (w is the slot's lever coefficient too); ``phat`` (n, P, 3); with the "paper" lever rule ``lever`` (n, P + K), the
     normalised levers (other rules derive them in the kernel). Computed block by block
     at bind (:func:`nrpose.blend.rest_terms` ``per_block``), so that the dense (n, H)
     terms never exist for all points at once."""
@@ -406,7 +406,7 @@ def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:
     take = (lambda a: np.take_along_axis(a, slot, axis=1)) if K < S else (lambda a: a)  # noqa: E731
     wk, tk = take(ws), take(t)
     kept = {"u": T.u, "ref": T.ref, "phat": T.phat,
-            "coef": np.concatenate([T.weights[:, :P], np.stack([wk * (1 - tk), wk * tk], 2).reshape(n, 2 * K)], 1)}
+            "coef": np.concatenate([T.weights[:, :P], np.stack([wk, wk * tk], 2).reshape(n, 2 * K)], 1)}
     if K < S:
         kept["slot"] = slot
     if levers_stored(lever, S):
@@ -465,19 +465,33 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
     # |component|: exact, the kernel's blend does not change (it uses phat's direction and
     # levers normalised per point), and |phat x y|^2 stays a normal float32 on tiny models
     # (kernels/nrmls.cl, the point-handle loop)
+    # (without point handles, the longest segment lever's exponent: the table' entries
+    # len2 log(...) and the levers' sum stay normal floats on tiny models too)
     big = float(np.abs(kept["phat"]).max()) if P and n else 0.0
-    scale = 2.0 ** -np.frexp(big)[1] if big > 0 else 1.0
     len2 = segment_levers(rest, lever) if S else np.zeros(0)
-    if len2.size and len2.max() > 0:
+    longest = float(np.sqrt(len2.max())) if len2.size else 0.0
+    scale = 2.0 ** -np.frexp(big or longest)[1] if big or longest else 1.0
+    if longest > 0:
         # at most 2^50 / the longest lever: where every p* sits on a point handle, phat is
         # rounding residue (~1e-19) and its scale would overflow len2 * scale^2 in float32
-        scale = min(scale, 2.0 ** (50 - np.frexp(np.sqrt(len2.max()))[1]))
+        scale = min(scale, 2.0 ** (50 - np.frexp(longest)[1]))
     none = np.zeros(1, np.float32)
+    stored = levers_stored(lever, S)
+    if not stored:
+        # 1 / each point's lever sum (rest-only): point handles' w |phat|^2, the slots' w len2
+        w = kept["coef"]
+        lsum = (w[:, :P] * np.sum(kept["phat"] ** 2, axis=2)).sum(axis=1) if P else np.zeros(n)
+        if K:
+            lsum = lsum + (w[:, P::2] * (len2[slots] if K < S else len2)).sum(axis=1)
+        lsum *= scale ** 2
+        inv = np.divide(1.0, lsum, out=np.zeros(n), where=lsum > 0)
+        inv = np.minimum(inv, np.finfo(np.float32).max)
     arrays = {
         "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot,
         "coef": soa(kept["coef"][order].T),
-        # levers are derived in the kernel from coef, phat and len2 unless stored
-        "lever": soa(kept["lever"][order].T) if levers_stored(lever, S) else none,
+        # levers are stored, or derived in the kernel from coef, phat and len2 and normalised by inv
+        "lever": soa(kept["lever"][order].T) if stored else none,
+        "inv": none if stored else soa(inv[order][None]),
         "len2": (len2 * scale ** 2).astype(np.float32) if S else none,
         "phat": soa(scale * kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
@@ -492,8 +506,7 @@ def chunk_records(arrays: dict, P: int, S: int, K: int, lever: str, lanes: int) 
     of rows of ``lanes`` lanes per chunk of ``lanes`` stored points (rows in the kernel's order).
     P point handles, S segments, K segment slots (K < S: sparse, slots stored)."""
     floats = [arrays["u"], arrays["coef"]] + ([arrays["phat"]] if P else [])
-    if levers_stored(lever, S):
-        floats.append(arrays["lever"])
+    floats.append(arrays["lever"] if levers_stored(lever, S) else arrays["inv"])
     ints = [arrays["ref"][None], arrays["row"][None]] + ([arrays["slot"]] if K < S else [])
 
     def pack(rows: list[np.ndarray]) -> np.ndarray:  # (R, Npad) blocks -> (Npad/8, R, 8)

@@ -78,15 +78,15 @@ def test_roofline(quick):
     for k in ("gflops", "dram_gbs", "l3_gbs"):
         assert _finite_positive(res["roofs"][k]["median"])
     assert _finite_positive(res["roofs"]["launch"]["wall_ms"])
-    assert res["flop_count"]["formula"].startswith("71 P + 21 K + 79 (+ 15 when P > 0")
+    assert res["flop_count"]["formula"].startswith("70 P + 18 K + 78 (+ 15 when P > 0")
     assert len(res["rows"]) == 8
     for r in res["rows"]:
         assert _stats_ok(r["kernel_ms"]) and _stats_ok(r["pose_ms"])
         for k in ("gflops", "gbs", "fraction_arithmetic", "fraction_bandwidth", "roofline_ceiling_gflops"):
             assert _finite_positive(r[k]), k
         P, K = r["work"]["P"], r["work"]["K"]
-        stored = 7 * P + 3 * K + 4 if K == 0 else 0      # point rigs read their levers (levers_stored)
-        assert r["work"]["flops_per_point"] == 71 * P + 21 * K + 79 + (15 if P else 0) - stored
+        stored = 6 * P + 3 if K == 0 else 0      # point rigs read their levers (levers_stored)
+        assert r["work"]["flops_per_point"] == 70 * P + 18 * K + 78 + (15 if P else 0) - stored
         assert 0 <= r["work"]["lanes"]["gathered_slot_fraction"] <= 1
         assert r["kernel_bound"] in ("arithmetic", "memory", "launch", "latency") and r["bound_by"]
 
