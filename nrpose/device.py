@@ -35,6 +35,7 @@ import os
 import re
 import sys
 import time
+import weakref
 from importlib import resources
 
 import numpy as np
@@ -355,11 +356,15 @@ class Jobs:
     a standing worker may still read them). A standing worker runs a clone of the
     kernel made when it first stood, with the arguments of then: owners call
     :meth:`arguments_changed` before they set any argument again (or free an array
-    the kernel reads), :meth:`stop` to end the standing worker.
+    the kernel reads), :meth:`stop` to end the standing worker; ``owner``: the
+    deformer whose arrays the kernel reads, when it is collected the standing worker
+    is ended (:meth:`stop`).
     Not thread-safe: launch a deformer's kernels from one thread at a time.
     """
 
-    def __init__(self, svm: bool | None = None):
+    def __init__(self, svm: bool | None = None, owner=None):
+        if owner is not None:
+            weakref.finalize(owner, self.stop)     # a standing worker reads the owner's arrays
         self.box = HostArray(JOB_INTS, svm=svm, dtype=np.int32, atomics=True)
         self.box.host[:] = 0
         self.box.upload()

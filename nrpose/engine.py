@@ -143,7 +143,7 @@ class Deformer:
                    + (("-DGLOBAL_FIT",) if self._global is not None else ()))
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
-        self._jobs = device.Jobs()        # the pose kernel's job mailbox (kernels/share.h)
+        self._jobs = device.Jobs(owner=self)   # the pose kernel's job mailbox (kernels/share.h)
         self._blocks = -(-npad // BLOCK_POINTS)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         self._batch = 1       # frames of the last launch
@@ -158,11 +158,6 @@ class Deformer:
         # one frame's pose kernel on the calling thread alone (small launches are not
         # shared) and the standby's calibration, once per process
         self._jobs.time_kernel(self._kernel, self._blocks, prologue=True)
-
-    def __del__(self):
-        jobs = getattr(self, "_jobs", None)
-        if jobs is not None:
-            jobs.stop()     # a standing worker reads this deformer's arrays
 
     def _pose_args(self) -> list:
         """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl)."""

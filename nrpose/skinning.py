@@ -317,11 +317,6 @@ class Deformer:
         # shared) and the standby's calibration, once per process
         self._jobs.time_kernel(self._kernel, self._blocks)
 
-    def __del__(self):
-        jobs = getattr(self, "_jobs", None)
-        if jobs is not None:
-            jobs.stop()     # a standing worker reads this deformer's arrays
-
     # -- per pose -------------------------------------------------------------
     def pose(self, mats, out: np.ndarray | None = None) -> np.ndarray:
         """Posed vertices (N, 3) float64 for skinning matrices (J, 4, 4); out: optional
@@ -379,7 +374,7 @@ class Deformer:
             alone_s = float("inf") if self._jobs is None else self._jobs.alone_s
             if self._jobs is not None:
                 self._jobs.stop()
-            self._jobs = device.Jobs(svm=self._svm)
+            self._jobs = device.Jobs(svm=self._svm, owner=self)
             self._jobs.alone_s = alone_s
             self._kernel.set_arg(9, self._jobs.box.arg)
         self._jobs.keep = (arr_in, arr_out)

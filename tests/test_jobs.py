@@ -246,23 +246,30 @@ def test_too_many_blocks_for_the_mailbox():
         m.jobs.publish(1 << device.JOB_TAG_SHIFT, 1)
 
 
-def test_deleted_deformer_leaves_no_standing_worker(standby):
-    """A deformer's standing worker reads its arrays: deleting the deformer ends it."""
+@pytest.mark.parametrize("kind", ["nrmls", "lbs"])
+def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
+    """A deformer's standing worker reads its arrays: deleting the deformer ends it
+    (Jobs(owner=...)), for the NR-MLS and the skinning deformers."""
     _workers_or_skip()
     from nrpose.engine import Deformer
     from nrpose.handles import HandleSet
+    from nrpose.skinning import LbsDeformer
 
     standby(10_000_000)
     rng = np.random.default_rng(5)
-    rest = HandleSet.make(segments=np.array([[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]], float))
-    dev = Deformer(rng.uniform(-1, 3, (5000, 3)), rest)
+    points = rng.uniform(-1, 3, (5000, 3))
+    if kind == "nrmls":
+        rest = HandleSet.make(segments=np.array([[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]], float))
+        dev = Deformer(points, rest)
+    else:
+        dev = LbsDeformer(points, rng.integers(0, 3, (5000, 2)), rng.uniform(0.1, 1, (5000, 2)))
+        dev.pose(np.repeat(np.eye(4)[None], 3, axis=0))
     dev.relaunch(workers=True)
     assert dev._jobs.standing(dev._kernel)
     jobs = dev._jobs
     del dev
     gc.collect()
     assert device._standing is None and jobs.box.host[device.JOB_STANDING] == 0
-
 
 CLAIM = """#include "share.h"
 __kernel void claim(__global int *out, const int tag, volatile __global int *jobs)
