@@ -222,6 +222,8 @@ class Deformer:
         P, k = len(self.rest.points), 3 * len(self.rest.points)
         self._frame_rows = [(b[:k].reshape(P, 3), b[k:self._npos].reshape(S, 2, 3),
                              b[self._npos:self._npos + 9 * S].reshape(S, 3, 3)) for b in blocks]
+        # which of them a pose fills (empty views cost ~0.3 us each to assign)
+        self._fill_points, self._fill_segments = P > 0, S > 0
         self._results = {}    # frames -> view of the output array, (F, N, 3)
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
@@ -233,6 +235,9 @@ class Deformer:
         by the deformer while it or a view of it lives (keeping it keeps both slots, twice
         its size, alive); while both slots are held, a pose returns a copy.
         """
+        if out is None and self.backend == "opencl":    # a frame loop's call: the shortest way
+            self.rest.same_layout(pose.handles, "posed handles")
+            return self._run([pose], owned=True)[0]
         if out is not None and np.shape(out) != (self.n, 3):
             raise InputError(f"out: expected an array of shape {(self.n, 3)} (points, 3), got {np.shape(out)}")
         result = self.pose_frames([pose], None if out is None else out[None])[0]
@@ -308,9 +313,11 @@ class Deformer:
         F = len(poses)
         self._reserve(F)
         for (points, segments, rotations), pose in zip(self._frame_rows, poses):
-            points[...] = pose.handles.points
-            segments[...] = pose.handles.segments
-            rotations[...] = pose.rotations
+            if self._fill_points:
+                points[...] = pose.handles.points
+            if self._fill_segments:
+                segments[...] = pose.handles.segments
+                rotations[...] = pose.rotations
         slot = self._handoff.free() if owned and F == 1 else None
         if slot is None:
             self._slots[:F] = self._own_slots[:F]
