@@ -161,9 +161,11 @@ def pose_work(deformer) -> dict:
     stored = levers_stored(deformer.lever, S)
     fl = pose_flops(P, K, stored)
     by = pose_bytes(P, K, sparse, not stored)
-    # pose block (positions, rotations, slot), derived block (refs, table, quats, ploc, dirs)
+    # pose block (positions, rotations, slot), derived block (refs, table of 3 floats per
+    # entry, 4 with the quaternion blend, quats, ploc, dirs)
+    tw = 4 if deformer.blend == "quaternion" else 3
     per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 1
-                          + 9 * (S + 1) + 3 * (S + 1) * S + 4 * (S + 1) + 3 * P * (S + 1) + 3 * S)
+                          + 9 * (S + 1) + tw * (S + 1) * S + 4 * (S + 1) + 3 * P * (S + 1) + 3 * S)
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
             "flops_per_pose": fl["per_point"] * n,

@@ -49,7 +49,9 @@
  *   K                     segment slots per point: S (dense) or k < S (sparse:
  *                         the k most influential segments of each point)
  *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
- *                         rest length ("length"), see nrpose/blend.py; times 2^-2e (phat)
+ *                         rest length ("length"), see nrpose/blend.py; times 2^-2e, e as
+ *                         for phat (without point handles, the longest lever's exponent;
+ *                         at most 2^50 / the longest lever: nrpose/engine.py device_layout)
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9] | slot [1]: posed handle positions, the
  *          rotations of the segments and the global rotation R_g, row-major, and
  *          the output slot of the frame (int bits): slot s >= 0 is written at out + s Np*3,
@@ -241,9 +243,10 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
  * bind; lanes past the last pair repeat it), one pair per lane: ~30 times faster than
  * one scalar pair at a time with the library's atan2 (the armadillo's 169 pairs took
  * 21 us of a 0.19 ms pose). Relative blend: table[j][i] = log(R_j^-1 R_i), computed as
- * +-log(Q_a^-1 Q_b) with (a, b) = (min, max)(i, j), so that the table is exactly
- * antisymmetric, T[j][i] = -T[i][j], and blends seen from either handle agree even at an
- * angle of exactly pi; paper blend log(R_i); QUAT_BLEND, Q_i in the hemisphere of Q_j.
+ * +-log(Q_a^-1 Q_b) with (a, b) = (min, max)(i, j), so that the logs are exactly
+ * antisymmetric, log(R_j^-1 R_i) = -log(R_i^-1 R_j) (table' entries: each times its
+ * own len2), and blends seen from either handle agree even at an angle of exactly pi;
+ * paper blend log(R_i); QUAT_BLEND, Q_i in the hemisphere of Q_j.
  * DERIVED_LEVER: times len2[i], segment i's lever factor (the header's table'). */
 static void table_block(const int g0, const int nsegs, const int paper, const int npairs,
                         __global const int *pairs, __global const float *len2, __global float *refs)

@@ -363,8 +363,6 @@ class Jobs:
     """
 
     def __init__(self, svm: bool | None = None, owner=None):
-        if owner is not None:
-            weakref.finalize(owner, self.stop)     # a standing worker reads the owner's arrays
         self.box = HostArray(JOB_INTS, svm=svm, dtype=np.int32, atomics=True)
         self.box.host[:] = 0
         self.box.upload()
@@ -375,6 +373,9 @@ class Jobs:
         self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker
         self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
         self._displaced = float("-inf")  # when another mailbox's launch last ended its worker
+        # a standing worker reads the owner's arrays: end it when the owner is collected
+        # (retire() detaches this, when the owner replaces its mailbox)
+        self._finalizer = weakref.finalize(owner, self.stop) if owner is not None else None
 
     def publish(self, blocks: int, frames: int, prologue: bool = False) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
@@ -474,6 +475,12 @@ class Jobs:
             standing[1].wait()
             if displaced:
                 self._displaced = time.perf_counter()
+
+    def retire(self) -> None:
+        """End the standing worker of a mailbox its owner replaces, and forget the owner."""
+        self.stop()
+        if self._finalizer is not None:
+            self._finalizer.detach()
 
     def arguments_changed(self) -> None:
         """Before an owner sets an argument of its kernel again (or frees an array it

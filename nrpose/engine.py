@@ -146,6 +146,8 @@ class Deformer:
         self._jobs = device.Jobs(owner=self)   # the pose kernel's job mailbox (kernels/share.h)
         self._blocks = -(-npad // BLOCK_POINTS)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
+        # which parts of a frame's pose block a pose fills (empty views cost ~0.3 us each)
+        self._fill_points, self._fill_segments = P > 0, S > 0
         self._batch = 1       # frames of the last launch
         # frames handed to callers without a copy (pose()): slots of their own, so that a
         # held result keeps only them alive (twice its size), not the per-frame arrays
@@ -222,8 +224,6 @@ class Deformer:
         P, k = len(self.rest.points), 3 * len(self.rest.points)
         self._frame_rows = [(b[:k].reshape(P, 3), b[k:self._npos].reshape(S, 2, 3),
                              b[self._npos:self._npos + 9 * S].reshape(S, 3, 3)) for b in blocks]
-        # which of them a pose fills (empty views cost ~0.3 us each to assign)
-        self._fill_points, self._fill_segments = P > 0, S > 0
         self._results = {}    # frames -> view of the output array, (F, N, 3)
 
     def pose(self, pose: Pose, out: np.ndarray | None = None) -> np.ndarray:
@@ -388,8 +388,11 @@ def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:
     segment slots, only with top-k sparsity (k < S: the point's K = k heaviest segments,
     ties to the lower index, listed by index; dense, slot k is segment k); ``coef`` (n, P + 2K), the q*
     coefficients: point handles' w, then per slot w on the segment's posed start a and w t
-    on its posed direction b - a (w is the slot's lever coefficient too); ``phat`` (n, P, 3); with the "paper" lever rule ``lever`` (n, P + K), the
-    normalised levers (other rules derive them in the kernel). Computed block by block
+    on its posed direction b - a (w is the slot's lever coefficient too); ``phat`` (n, P, 3);
+    where :func:`levers_stored` (the "paper" rule, rigs without segments) ``lever``
+    (n, P + K), the normalised levers (elsewhere the kernel derives them: w |phat|^2 per
+    point handle, per slot w times the lever factor folded into its per-pose table, and
+    normalises them by 1 / their sum, bound by :func:`device_layout`). Computed block by block
     at bind (:func:`nrpose.blend.rest_terms` ``per_block``), so that the dense (n, H)
     terms never exist for all points at once."""
     n, P, S = len(T.u), T.phat.shape[1], T.t.shape[1]
@@ -421,9 +424,10 @@ def levers_stored(lever: str, segments: int) -> bool:
     (``lever`` rows, kernels/nrmls.cl) instead of deriving them per pose (-DDERIVED_LEVER):
     with the "paper" rule, and on rigs without segments, whose point-handle levers
     w |phat|^2 (the same under every rule) the kernel would derive from three more
-    products and a sum per handle and normalise per point (stored, the Table-1 point rows
-    posed 1.06-1.12x faster, in one process against the derived build; segment rigs keep
-    deriving theirs, one multiply per slot, rather than read P + K more floats per point)."""
+    products per handle and normalise per point (stored, the Table-1 point rows posed
+    1.06-1.12x faster, in one process against the derived build). Segment rigs derive
+    theirs: a slot's lever w times its segment's factor, folded into the per-pose table,
+    and one bound 1 / lever sum per point, rather than P + K more floats per point."""
     return lever == "paper" or segments == 0
 
 
@@ -479,13 +483,19 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
         scale = min(scale, 2.0 ** (50 - np.frexp(longest)[1]))
     none = np.zeros(1, np.float32)
     stored = levers_stored(lever, S)
+    len2_bound = (len2 * scale ** 2).astype(np.float32)
     if not stored:
-        # 1 / each point's lever sum (rest-only): point handles' w |phat|^2, the slots' w len2
-        w = kept["coef"]
-        lsum = (w[:, :P] * np.sum(kept["phat"] ** 2, axis=2)).sum(axis=1) if P else np.zeros(n)
+        # 1 / each point's lever sum (rest-only): point handles' w |phat|^2, the slots'
+        # w len2, from the float32 values the kernel reads (a lever factor that rounds to 0
+        # there drops out of the sum too)
+        w = kept["coef"].astype(np.float32).astype(np.float64)
+        lsum = np.zeros(n)
+        if P:
+            phat32 = (scale * kept["phat"]).astype(np.float32).astype(np.float64)
+            lsum += np.einsum("np,npc,npc->n", w[:, :P], phat32, phat32)
         if K:
-            lsum = lsum + (w[:, P::2] * (len2[slots] if K < S else len2)).sum(axis=1)
-        lsum *= scale ** 2
+            factor = len2_bound.astype(np.float64)
+            lsum += w[:, P::2] @ factor if K == S else np.einsum("nk,nk->n", w[:, P::2], factor[slots])
         inv = np.divide(1.0, lsum, out=np.zeros(n), where=lsum > 0)
         inv = np.minimum(inv, np.finfo(np.float32).max)
     arrays = {
@@ -494,7 +504,7 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
         # levers are stored, or derived in the kernel from coef, phat and len2 and normalised by inv
         "lever": soa(kept["lever"][order].T) if stored else none,
         "inv": none if stored else soa(inv[order][None]),
-        "len2": (len2 * scale ** 2).astype(np.float32) if S else none,
+        "len2": len2_bound if S else none,
         "phat": soa(scale * kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
                   else np.zeros(2, np.int32)),

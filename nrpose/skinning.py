@@ -373,7 +373,7 @@ class Deformer:
         if self._jobs is None or self._jobs.box.svm != self._svm:
             alone_s = float("inf") if self._jobs is None else self._jobs.alone_s
             if self._jobs is not None:
-                self._jobs.stop()
+                self._jobs.retire()
             self._jobs = device.Jobs(svm=self._svm, owner=self)
             self._jobs.alone_s = alone_s
             self._kernel.set_arg(9, self._jobs.box.arg)

@@ -231,28 +231,33 @@ def test_kernel_matches_reference_at_any_scale(scale, n_pts, n_segs, blend):
     assert np.abs(out - ref.pose(scaled)).max() <= TOL * diag(points)
 
 
-@pytest.mark.parametrize("blend", ["relative", "paper", "quaternion"])
-def test_rotation_table_against_float64(blend):
+@pytest.mark.parametrize("blend,lever", [("relative", "weight"), ("relative", "length"),
+                                         ("paper", "length"), ("quaternion", "length")])
+def test_rotation_table_against_float64(blend, lever):
     """The pose prologue's rotation table (kernels/nrmls.cl table_block, VW pairs at a
     time, read back from the device) against float64: relative log(R_j^-1 R_i), paper
     log(R_i), quaternion Q_i in Q_j's hemisphere, each times segment i's lever factor
-    len2; adversarial relative rotations of exactly pi and of 1e-9 rad; the relative
-    table exactly antisymmetric (bitwise), so that blends seen from either handle agree."""
+    len2 (rule "length": segments of different lengths); adversarial relative rotations
+    of exactly pi and of 1e-4 rad; 10 x 10 pairs, so that the last block of 8 is part
+    filled with pairs that are not trivial; the relative logs exactly antisymmetric
+    (bitwise, where the lever factors are equal), so that blends seen from either handle agree."""
     import pyopencl as cl
 
     rng = np.random.default_rng(11)
-    S = 11                         # 11 x 11 pairs: VW-pair blocks and a part-filled last one
+    S = 10
     a = np.stack([np.arange(S) * 2.0, np.zeros(S), np.zeros(S)], 1)
-    rest = HandleSet.make(segments=np.stack([a, a + [0.0, 1.0, 0.0]], 1))
+    length = np.linspace(0.6, 1.4, S)
+    rest = HandleSet.make(segments=np.stack([a, a + length[:, None] * [0.0, 1.0, 0.0]], 1))
     points = a[rng.integers(0, S, 2000)] + rng.uniform(-0.4, 0.4, (2000, 3)) + [0.0, 0.5, 0.0]
     rots = Rotation.random(S, random_state=rng)
     axis = Rotation.random(random_state=rng).as_rotvec()
     rots = Rotation.concatenate([rots[0], rots[0] * Rotation.from_rotvec(np.pi * axis / np.linalg.norm(axis)),
-                                 rots[0] * Rotation.from_rotvec([1e-9, 0.0, 0.0]), rots[3:]])
+                                 rots[0] * Rotation.from_rotvec([1e-4, 0.0, 0.0]), rots[3:]])
     R = rots.as_matrix()
-    start = a + rng.normal(size=(S, 3))
-    pose = Pose.make(rest, segments=np.stack([start, start + R[:, :, 1]], 1), rotations=R)
-    dev = Deformer(points, rest, blend=blend)
+    posed_start = a + rng.normal(size=(S, 3))
+    pose = Pose.make(rest, segments=np.stack([posed_start, posed_start + length[:, None] * R[:, :, 1]], 1),
+                     rotations=R)
+    dev = Deformer(points, rest, blend=blend, lever=lever)
     dev.pose(pose)
     refs = np.unique(dev.bound_indices()[0])
     assert list(refs) == list(range(S))       # every segment is some point's reference
@@ -262,11 +267,12 @@ def test_rotation_table_against_float64(blend):
     table = block[9 * (S + 1): 9 * (S + 1) + tw * (S + 1) * S].reshape(S + 1, S, tw)[:S]
     len2 = np.empty(S, np.float32)
     cl.enqueue_copy(dev._queue, len2, dev._bufs["len2"])
+    assert (len2 > 0).all() and (lever == "weight") == (np.ptp(len2) == 0)
     got = table / len2[None, :, None]
     if blend == "quaternion":
         q = rots.as_quat()                    # (x, y, z, w), up to sign
-        start = 9 * (S + 1) + tw * (S + 1) * S
-        qref = block[start: start + 4 * S].reshape(S, 4)      # the kernel's Q_j (quats)
+        quats = 9 * (S + 1) + tw * (S + 1) * S
+        qref = block[quats: quats + 4 * S].reshape(S, 4)      # the kernel's Q_j (quats)
         assert np.abs(np.abs(np.einsum("jc,jc->j", qref, q)) - 1).max() < 1e-6
         sign = np.sign(np.einsum("jic,ic->ji", got, q))
         assert np.abs(got - sign[..., None] * q[None]).max() < 1e-6
@@ -283,9 +289,9 @@ def test_rotation_table_against_float64(blend):
     for j, i in ((0, 1), (1, 0)):
         assert abs(np.linalg.norm(got[j, i]) - np.pi) < 1e-5
         assert np.linalg.norm(np.cross(got[j, i], axis)) < 1e-5 * np.linalg.norm(axis)
-    assert np.abs(got[0, 2] - [1e-9, 0, 0]).max() < 1e-6
-    assert np.array_equal(table, -table.transpose(1, 0, 2))     # bitwise (equal lever factors)
-
+    assert np.abs(got[0, 2] - [1e-4, 0, 0]).max() < 1e-6 and np.abs(got[2, 0] + [1e-4, 0, 0]).max() < 1e-6
+    if lever == "weight":
+        assert np.array_equal(table, -table.transpose(1, 0, 2))     # bitwise
 
 @pytest.mark.parametrize("lever", ["weight", "length", "paper"])
 def test_kernel_matches_reference_levers(lever):

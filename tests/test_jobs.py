@@ -271,6 +271,7 @@ def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
     gc.collect()
     assert device._standing is None and jobs.box.host[device.JOB_STANDING] == 0
 
+
 CLAIM = """#include "share.h"
 __kernel void claim(__global int *out, const int tag, volatile __global int *jobs)
 {

@@ -1,6 +1,9 @@
 """LBS / DQS kernels against the float64 numpy references, plus properties and input errors."""
 from __future__ import annotations
 
+import gc
+import weakref
+
 import numpy as np
 import pytest
 from launches import relaunch, splits
@@ -136,9 +139,12 @@ def test_padded_influences_and_buffer_fallback(method):
     want = ref(rest, joints, weights, mats)
     assert_close(Deformer(rest, joints8, weights8, method=method).pose(mats), want)
     d = Deformer(rest, joints8, weights8, method=method)
+    replaced = weakref.ref(d._jobs)
     d._svm = False
     assert_close(d.pose(mats), want)
     assert_close(d.pose_frames(np.stack([mats, mats]))[1], want)
+    gc.collect()
+    assert replaced() is None      # the replaced mailbox (and what it kept) is not held by d's finalizer
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
