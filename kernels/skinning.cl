@@ -9,9 +9,16 @@
  *                             the influences are sorted by decreasing weight
  *                             (so k = 0 is the dominant joint) and padding has
  *                             weight 0 and joint 0. Padding vertices (beyond N)
- *                             have weight 0 everywhere.
- *   out     (F, 8G, 3) float: posed vertices as rows (array of structures),
- *           one slab per frame, padding vertices included.
+ *                             have weight 1 on joint 0.
+ *   rows    (G, 8) int      : output row of each stored vertex. Vertices are stored
+ *                             sorted by their joints (influence 0, then 1, ...;
+ *                             nrpose/skinning.py), so that the 8 lanes of a group
+ *                             nearly always share influence k's joint: then its
+ *                             parameters are read once for the 8 (broadcast loads)
+ *                             instead of gathered lane by lane (12 or 8 gathers
+ *                             per influence were most of the kernel's time).
+ *   out     (F, 8G, 3) float: posed vertices as rows (array of structures) in the
+ *           caller's order, one slab per frame, padding vertices last.
  *
  * Per pose:
  *   lbs: mats (F, J, 12) float: rows 0..2 of M_j = G_j @ IBM_j, row-major
@@ -38,12 +45,12 @@
 #include "lanes.h"
 #include "share.h"
 
-/* rows 0..7 of an 8-vertex group */
-#define BLOCK_ROWS ((int8)(0, 1, 2, 3, 4, 5, 6, 7))
+/* lanes.h's vector helpers at 8 lanes (no -DVW): floatv is float8, intv int8 */
 
 __kernel void lbs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
+                  __global const int *restrict rows,
                   __global const float *mats,          /* per pose: not restrict, a standing worker sees it change */
                   __global float *out,
                   const int K, const int J, const int G,
@@ -62,27 +69,34 @@ __kernel void lbs(__global const float *restrict rest,
         const float8 w = LOAD8(0, weights + o);
         if (!ANY_NONZERO8(w)) break;
         const int8 j = LOADI8(0, joints + o) * 12;
-        a0  += w * GATHER8(M, j);
-        a1  += w * GATHER8(M, j + 1);
-        a2  += w * GATHER8(M, j + 2);
-        a3  += w * GATHER8(M, j + 3);
-        a4  += w * GATHER8(M, j + 4);
-        a5  += w * GATHER8(M, j + 5);
-        a6  += w * GATHER8(M, j + 6);
-        a7  += w * GATHER8(M, j + 7);
-        a8  += w * GATHER8(M, j + 8);
-        a9  += w * GATHER8(M, j + 9);
-        a10 += w * GATHER8(M, j + 10);
-        a11 += w * GATHER8(M, j + 11);
+        if (SAMEV(j)) {          /* the 8 vertices share the joint */
+            __global const float *m = M + j.s0;
+            a0 += w * m[0]; a1 += w * m[1]; a2  += w * m[2];  a3  += w * m[3];
+            a4 += w * m[4]; a5 += w * m[5]; a6  += w * m[6];  a7  += w * m[7];
+            a8 += w * m[8]; a9 += w * m[9]; a10 += w * m[10]; a11 += w * m[11];
+        } else {
+            a0  += w * GATHER8(M, j);
+            a1  += w * GATHER8(M, j + 1);
+            a2  += w * GATHER8(M, j + 2);
+            a3  += w * GATHER8(M, j + 3);
+            a4  += w * GATHER8(M, j + 4);
+            a5  += w * GATHER8(M, j + 5);
+            a6  += w * GATHER8(M, j + 6);
+            a7  += w * GATHER8(M, j + 7);
+            a8  += w * GATHER8(M, j + 8);
+            a9  += w * GATHER8(M, j + 9);
+            a10 += w * GATHER8(M, j + 10);
+            a11 += w * GATHER8(M, j + 11);
+        }
     }
 
     __global const float *p = rest + (size_t)g * 24;
     const float8 x = LOAD8(0, p), y = LOAD8(1, p), z = LOAD8(2, p);
-    __global float *q = out + ((size_t)f * G + g) * 24;
+    __global float *q = out + (size_t)f * G * 24;
     const float8 ox = a0 * x + a1 * y + a2  * z + a3;
     const float8 oy = a4 * x + a5 * y + a6  * z + a7;
     const float8 oz = a8 * x + a9 * y + a10 * z + a11;
-    STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
+    STORE_ROWS(ox, oy, oz, q, LOADI8(0, rows + (size_t)g * 8));
     }   /* f */
     }   /* g */
 }
@@ -90,6 +104,7 @@ __kernel void lbs(__global const float *restrict rest,
 __kernel void dqs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
+                  __global const int *restrict rows,
                   __global const float *dq,            /* per pose, likewise */
                   __global float *out,
                   const int K, const int J, const int G,
@@ -102,8 +117,12 @@ __kernel void dqs(__global const float *restrict rest,
     __global const float *D = dq + (size_t)f * (size_t)J * 8;
 
     /* Dominant joint's rotation quaternion for the hemisphere test. */
-    const float8 px = GATHER8(D, j0), py = GATHER8(D, j0 + 1);
-    const float8 pz = GATHER8(D, j0 + 2), pw = GATHER8(D, j0 + 3);
+    float8 px, py, pz, pw;
+    if (SAMEV(j0)) {
+        px = D[j0.s0]; py = D[j0.s0 + 1]; pz = D[j0.s0 + 2]; pw = D[j0.s0 + 3];
+    } else {
+        px = GATHER8(D, j0); py = GATHER8(D, j0 + 1); pz = GATHER8(D, j0 + 2); pw = GATHER8(D, j0 + 3);
+    }
 
     float8 rx = 0.0f, ry = 0.0f, rz = 0.0f, rw = 0.0f;
     float8 dx = 0.0f, dy = 0.0f, dz = 0.0f, dw = 0.0f;
@@ -113,15 +132,18 @@ __kernel void dqs(__global const float *restrict rest,
         const float8 w = LOAD8(0, weights + o);
         if (!ANY_NONZERO8(w)) break;
         const int8 j = LOADI8(0, joints + o) * 8;
-        const float8 qx = GATHER8(D, j), qy = GATHER8(D, j + 1);
-        const float8 qz = GATHER8(D, j + 2), qw = GATHER8(D, j + 3);
+        float8 qx, qy, qz, qw, ex, ey, ez, ew;
+        if (SAMEV(j)) {          /* the 8 vertices share the joint */
+            __global const float *e = D + j.s0;
+            qx = e[0]; qy = e[1]; qz = e[2]; qw = e[3]; ex = e[4]; ey = e[5]; ez = e[6]; ew = e[7];
+        } else {
+            qx = GATHER8(D, j); qy = GATHER8(D, j + 1); qz = GATHER8(D, j + 2); qw = GATHER8(D, j + 3);
+            ex = GATHER8(D, j + 4); ey = GATHER8(D, j + 5); ez = GATHER8(D, j + 6); ew = GATHER8(D, j + 7);
+        }
         const float8 dot = qx * px + qy * py + qz * pz + qw * pw;
         const float8 s = dot < 0.0f ? -w : w;   /* antipodality */
         rx += s * qx; ry += s * qy; rz += s * qz; rw += s * qw;
-        dx += s * GATHER8(D, j + 4);
-        dy += s * GATHER8(D, j + 5);
-        dz += s * GATHER8(D, j + 6);
-        dw += s * GATHER8(D, j + 7);
+        dx += s * ex; dy += s * ey; dz += s * ez; dw += s * ew;
     }
 
     /* Normalise by the blended real part's norm. */
@@ -140,11 +162,11 @@ __kernel void dqs(__global const float *restrict rest,
     const float8 ty = rw * dy - dw * ry + (rz * dx - rx * dz);
     const float8 tz = rw * dz - dw * rz + (rx * dy - ry * dx);
 
-    __global float *q = out + ((size_t)f * G + g) * 24;
+    __global float *q = out + (size_t)f * G * 24;
     const float8 ox = x + 2.0f * ((ry * cz - rz * cy) + tx);
     const float8 oy = y + 2.0f * ((rz * cx - rx * cz) + ty);
     const float8 oz = z + 2.0f * ((rx * cy - ry * cx) + tz);
-    STORE_ROWS(ox, oy, oz, q, BLOCK_ROWS);
+    STORE_ROWS(ox, oy, oz, q, LOADI8(0, rows + (size_t)g * 8));
     }   /* f */
     }   /* g */
 }

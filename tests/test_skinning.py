@@ -127,6 +127,28 @@ def test_out_takes_the_posed_vertices(method):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_shared_and_mixed_joint_groups(method):
+    """Vertices are stored sorted by their joints: a group's 8 lanes that share influence
+    k's joint read its parameters once (broadcast), the others gather them lane by lane.
+    Both kinds of group (read back from the bound joints) against the reference, the
+    results in the caller's vertex order."""
+    import pyopencl as cl
+
+    rng = np.random.default_rng(21)
+    n, j, k = 203, 5, 3
+    rest, joints, weights = make_rig(rng, n, j, k, pad=False)
+    mats = rigid(rng, j) if method == "dqs" else affine(rng, j)
+    ref = lbs_reference if method == "lbs" else dqs_reference
+    d = Deformer(rest, joints, weights, method=method)
+    stored = np.empty(d.n_groups * k * 8, np.int32)
+    cl.enqueue_copy(d._queue, stored, d._joints)
+    groups = stored.reshape(d.n_groups, k, 8)
+    shared = (groups == groups[:, :, :1]).all(axis=2)          # (groups, influences)
+    assert shared[:, 0].sum() >= d.n_groups // 2 and (~shared).any()
+    assert_close(d.pose(mats), ref(rest, joints, weights, mats))
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_padded_influences_and_buffer_fallback(method):
     """K = 8 with only 2 real influences (the kernel stops early), and the
     plain-buffer path used on devices without fine-grained SVM."""
