@@ -77,6 +77,11 @@ WARMUP = 10                        # untimed PoCL poses before timing a cell
 #: reach the loop's steady speed (0.079 -> 0.060 ms); 3 x 20 poses per block time mostly
 #: the frame loop, and each block's first pose is reported apart (pocl_pose_after_pause_ms)
 LOOP_PASSES = 3
+#: ... and at least this long a block (seconds of posing): 3 x 20 of the box's poses took
+#: ~3 ms, half of it in that warm-up (a run's box points 0.080 ms in Table 1, 0.057 ms in
+#: the roofline suite's loop minutes later), the dragon's ~15 ms; every row now poses in a
+#: loop for as long, so that its median is the frame loop's on small and large rows alike
+MIN_BLOCK_S = 0.02
 
 
 # --------------------------------------------------------------------------- models
@@ -334,8 +339,9 @@ def _timed(fn):
 
 
 def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, n_ref: int,
-            repeat: int, bind_repeat: int, blend: str = BLEND) -> dict:
-    """All figures of one (model, handle kind) cell; backends interleaved."""
+            repeat: int, bind_repeat: int, blend: str = BLEND, min_block_s: float = MIN_BLOCK_S) -> dict:
+    """All figures of one (model, handle kind) cell; backends interleaved; each round's
+    PoCL block poses LOOP_PASSES times over the poses and for at least min_block_s."""
     diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
     rng = np.random.default_rng(seed)
     args = [chain_pose_args(rest, rng) if kind == "segments" else point_pose_args(rest, rng, diag)
@@ -374,12 +380,13 @@ def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, 
             # with a few numpy poses (a different set each round), so both backends see the
             # same machine; poses of one backend are not split by the other's, whose ~100 ms
             # of host work would leave PoCL's worker threads asleep and its caches cold
-            posed = None
-            for j in range(LOOP_PASSES * len(poses)):
+            posed, j, block_s = None, 0, 0.0
+            while j < LOOP_PASSES * len(poses) or block_s < min_block_s:
                 dt, posed = _timed(lambda p=poses[j % len(poses)]: dcl.pose(p))
                 cl_s.append(dt)
                 if j == 0:
                     after_pause_s.append(dt)
+                j, block_s = j + 1, block_s + dt
             del posed
             for i, p in enumerate(poses):
                 dt, _out = _timed(lambda p=p, i=i: dcl.pose(p, out=outs[i]))
@@ -478,7 +485,8 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
         for kind in KINDS:
             rest = chain_handles(v, h) if kind == "segments" else fps_handles(v, h)
             seed = zlib.crc32(f"{model}/{kind}".encode())
-            cell = measure(v, rest, kind, seed, n_poses, n_ref, repeat, bind_repeat, blend)
+            cell = measure(v, rest, kind, seed, n_poses, n_ref, repeat, bind_repeat, blend,
+                           min_block_s=0.0 if quick else MIN_BLOCK_S)
             row = {"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                    "paper_points": count, "paper_ms": paper_ms,
                    "paper_ms_per_point_handle": paper_ms / (count * h), "source": src, **cell}
@@ -506,7 +514,8 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
         "nrpose_path": str(pathlib.Path(nrpose.__file__).resolve().parent),
         "git_dirty": dirty.splitlines(),
         "options": {"repeat": repeat, "quick": quick, "poses": n_poses, "reference_poses_per_round": n_ref,
-                    "bind_repeat": bind_repeat, "warmup_poses": WARMUP,
+                    "bind_repeat": bind_repeat, "warmup_poses": WARMUP, "loop_passes": LOOP_PASSES,
+                    "min_block_s": 0.0 if quick else MIN_BLOCK_S,
                     "alpha": ALPHA, "k": None, "blend": blend, "lever": LEVER,
                     "max_rotation_deg": round(float(np.degrees(MAX_BEND)), 6), "data": str(data),
                     "points_override": QUICK_POINTS if quick else None},
