@@ -77,11 +77,15 @@ WARMUP = 10                        # untimed PoCL poses before timing a cell
 #: reach the loop's steady speed (0.079 -> 0.060 ms); 3 x 20 poses per block time mostly
 #: the frame loop, and each block's first pose is reported apart (pocl_pose_after_pause_ms)
 LOOP_PASSES = 3
-#: ... and at least this long a block (seconds of posing): 3 x 20 of the box's poses took
-#: ~3 ms, half of it in that warm-up (a run's box points 0.080 ms in Table 1, 0.057 ms in
-#: the roofline suite's loop minutes later), the dragon's ~15 ms; every row now poses in a
-#: loop for as long, so that its median is the frame loop's on small and large rows alike
-MIN_BLOCK_S = 0.02
+#: ... and at least this long a block (seconds of posing): after the reference's poses the
+#: warm-up lasts 30-50 ms whatever the row (medians by position over 8 rounds: box points
+#: 0.60, 0.32, 0.11, ~0.07 ms until ~6 ms in, then 0.055; armadillo points 0.81, 0.59, 0.44,
+#: ~0.36 ms until ~35 ms in, then 0.325), and 3 x 20 poses took the box ~3 ms, the armadillo
+#: ~20 ms: their medians had measured the warm-up (a run's armadillo points 0.377 ms in Table
+#: 1, 0.298 ms in the roofline suite's loop a minute later). Every row now poses in a loop
+#: for as long, so that its median is the frame loop's; the warm-up's first pose is
+#: reported apart (pocl_pose_after_pause_ms)
+MIN_BLOCK_S = 0.06
 
 
 # --------------------------------------------------------------------------- models
