@@ -34,6 +34,7 @@ import functools
 import os
 import re
 import sys
+import threading
 import time
 import weakref
 from importlib import resources
@@ -467,14 +468,15 @@ class Jobs:
         displaced: another mailbox's launch needs the worker device; this mailbox then does
         not stand a worker again for :data:`STANDING_YIELD_S`."""
         global _standing
-        standing, self._standing = self._standing, None
-        if _standing is self:
-            _standing = None
-        if standing is not None and standing[3] == os.getpid():
-            self.box.host[JOB_QUIT] = 1
-            standing[1].wait()
-            if displaced:
-                self._displaced = time.perf_counter()
+        with _LAUNCHES:         # a finalizer may call this from any thread
+            standing, self._standing = self._standing, None
+            if _standing is self:
+                _standing = None
+            if standing is not None and standing[3] == os.getpid():
+                self.box.host[JOB_QUIT] = 1
+                standing[1].wait()
+                if displaced:
+                    self._displaced = time.perf_counter()
 
     def retire(self) -> None:
         """End the standing worker of a mailbox its owner replaces, and forget the owner."""
@@ -490,14 +492,19 @@ class Jobs:
 
 
 _standing: Jobs | None = None      # the mailbox whose standing worker holds the worker device
+#: launches and the standing worker's state (``_standing``, a mailbox's worker), one thread at
+#: a time: deformers posed from several threads launch in turn (each deformer itself is posed
+#: from one thread at a time; its per-frame arrays are its own)
+_LAUNCHES = threading.RLock()
 
 
 def stop_standing(displaced: bool = False) -> None:
     """End the standing worker, if one holds PoCL's worker device, and wait until it has
     returned: before anything else is enqueued there, and at exit. displaced: as
     :meth:`Jobs.stop`'s."""
-    if _standing is not None:
-        _standing.stop(displaced)
+    with _LAUNCHES:
+        if _standing is not None:
+            _standing.stop(displaced)
 
 
 atexit.register(stop_standing)
@@ -523,6 +530,12 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
     shared memory (``jobs.box.svm`` False) only the calling thread's queue runs the
     kernel. Returns the kernel's events (a standing worker's is not among them).
     """
+    with _LAUNCHES:
+        return _launch_shared(kernel, jobs, blocks, frames, prologue, queues, workers)
+
+
+def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool, queues, workers) -> list:
+    """:func:`launch_shared`, its lock held."""
     cl = _cl()
     if queues is None and workers is None and jobs.standing(kernel):
         # frames in a loop: this kernel's standing worker polls (Jobs.mode "standing", and

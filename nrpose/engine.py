@@ -70,6 +70,10 @@ class Deformer:
     dense terms were built first) and holds 0.5 GB once bound. ``lanes``: points per
     chunk of the kernel's bound records (:func:`lanes_for`; the numpy backend's
     :meth:`bound_indices` lays them out alike).
+
+    Not thread-safe: pose one deformer from one thread at a time (its launches share
+    per-frame arrays and a job mailbox); deformers posed from different threads each
+    take PoCL's worker in turn (:mod:`nrpose.device`).
     """
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",

@@ -263,7 +263,8 @@ class Deformer:
     uploads everything once, poses the identity once (PoCL compiles the kernel
     for each device at its first launch) and times one frame of the kernel on
     the calling thread alone; :meth:`pose` and :meth:`pose_frames` then cost one
-    (shared) kernel launch each.
+    (shared) kernel launch each. Not thread-safe: pose one deformer from one thread at
+    a time (its launches share per-pose arrays and a job mailbox).
     """
 
     def __init__(self, rest, joints, weights, method: str = "lbs"):

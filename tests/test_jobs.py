@@ -440,3 +440,60 @@ def test_a_prologue_is_claimed_once_under_its_jobs_tag(state, tag, claimed):
     assert list(out.host) == [claimed, 0]
     assert jobs.host[device.JOB_NEXT] & ((1 << device.JOB_TAG_SHIFT) - 1) == (
         device.JOB_IN_PROLOGUE if claimed else state)
+
+
+def test_deformers_posed_from_two_threads(standby, monkeypatch):
+    """Launches and the standing worker's state are taken one thread at a time
+    (device._LAUNCHES): two deformers posed from two threads at once, each many times,
+    give each pose's single-threaded result, no launch waits for ever, and no standing
+    worker is left polling once the standing one is stopped."""
+    import threading
+
+    from nrpose.engine import Deformer
+    from nrpose.handles import HandleSet, Pose
+
+    standby(10_000_000)
+    rng = np.random.default_rng(9)
+    rest = HandleSet.make(segments=np.array([[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]], float))
+    deformers = [Deformer(rng.uniform(-1, 3, (3000 + 500 * i, 3)), rest) for i in range(2)]
+    poses = []
+    for angle in np.linspace(0.1, 1.5, 6):
+        c, s = np.cos(angle), np.sin(angle)
+        R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+        poses.append(Pose.make(rest, segments=[[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [1 + c, s, 0]]],
+                               rotations=[np.eye(3), R]))
+    want = [[d.pose(p).copy() for p in poses] for d in deformers]
+    errors, spans = [], []
+    inner = device._launch_shared
+
+    def timed(*args):          # each launch's span, widened by a sleep that releases the GIL
+        start = time.perf_counter()
+        time.sleep(1e-4)
+        events = inner(*args)
+        spans.append((start, time.perf_counter()))
+        return events
+
+    monkeypatch.setattr(device, "_launch_shared", timed)
+
+    def run(i):
+        try:
+            for r in range(60):
+                j = (r + i) % len(poses)
+                got = deformers[i].pose(poses[j])
+                if not np.array_equal(got, want[i][j]):
+                    errors.append((i, r))
+        except Exception as exc:       # noqa: BLE001 - reported below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=run, args=(i,)) for i in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=60)
+    assert not any(t.is_alive() for t in threads) and errors == []
+    spans.sort()
+    assert len(spans) == 120 and all(a[1] <= b[0] for a, b in zip(spans, spans[1:]))   # one at a time
+    # every standing worker stood was tracked, and so is ended here (unlocked, two threads
+    # standing workers at once lost track of one, which polled on for its whole standby)
+    device.stop_standing()
+    assert all(d._jobs.box.host[device.JOB_STANDING] == 0 for d in deformers)
