@@ -249,6 +249,11 @@ STANDING_MIN_BLOCKS = 4
 #: took 2.2-2.5x the time of woken workers (dragon and bunny segments, one process), and
 #: 1.1-1.6x when each waited for the other's worker to return
 STANDING_YIELD_S = 0.1
+#: ... unless it has launched this many times in a row since another mailbox last did: a
+#: deformer posed in blocks of frames between another's (two deformers, 50 poses each in
+#: turn) had never stood again, its launches all within STANDING_YIELD_S of the other's
+#: (the box's segment rig posed alone at 0.041 ms a frame, the other's standing at 0.025)
+STANDING_RUN = 8
 
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(5)
@@ -374,6 +379,7 @@ class Jobs:
         self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker
         self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
         self._displaced = float("-inf")  # when another mailbox's launch last ended its worker
+        self._run = 0                   # launches in a row with no other mailbox's between
         # a standing worker reads the owner's arrays: end it when the owner is collected
         # (retire() detaches this, when the owner replaces its mailbox)
         self._finalizer = weakref.finalize(owner, self.stop) if owner is not None else None
@@ -418,7 +424,9 @@ class Jobs:
           :data:`STANDING_MIN_BLOCKS` blocks or more: frames posed in a loop, where the
           worker woken now stands for the next ones; but not within
           :data:`STANDING_YIELD_S` of another mailbox's launch ending this one's worker
-          (deformers posed in turn would hand the worker back and forth);
+          (deformers posed in turn would hand the worker back and forth) unless this
+          mailbox has launched :data:`STANDING_RUN` times in a row since (deformers posed
+          in blocks of frames in turn);
         * ``"woken"``: the frames take at least :data:`SHARE_MIN_S` on the calling thread
           alone (:func:`worth_sharing`): workers woken for this launch only (launches
           spaced further apart than ``standby``, e.g. one frame per display refresh,
@@ -428,7 +436,7 @@ class Jobs:
         now = time.perf_counter()
         if standby > 0 and (self.standing(kernel) or (
                 blocks >= STANDING_MIN_BLOCKS and now - self._last < standby
-                and now - self._displaced >= STANDING_YIELD_S)):
+                and (now - self._displaced >= STANDING_YIELD_S or self._run >= STANDING_RUN))):
             return "standing"
         return "woken" if worth_sharing(frames, self.alone_s) else "alone"
 
@@ -496,6 +504,7 @@ _standing: Jobs | None = None      # the mailbox whose standing worker holds the
 #: a time: deformers posed from several threads launch in turn (each deformer itself is posed
 #: from one thread at a time; its per-frame arrays are its own)
 _LAUNCHES = threading.RLock()
+_last_mailbox: Jobs | None = None  # the mailbox of the last launch (Jobs.mode: STANDING_RUN)
 
 
 def stop_standing(displaced: bool = False) -> None:
@@ -536,6 +545,10 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
 
 def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool, queues, workers) -> list:
     """:func:`launch_shared`, its lock held."""
+    global _last_mailbox
+    if _last_mailbox is not jobs:
+        _last_mailbox, jobs._run = jobs, 0
+    jobs._run += 1
     cl = _cl()
     if queues is None and workers is None and jobs.standing(kernel):
         # frames in a loop: this kernel's standing worker polls (Jobs.mode "standing", and

@@ -182,6 +182,27 @@ def test_alternating_mailboxes_do_not_hand_the_worker_back_and_forth(standby):
     assert device._standing is None and not a.jobs.standing(a.kernel)
 
 
+def test_mailboxes_launched_in_blocks_in_turn_each_stand_again(standby):
+    """Two mailboxes launched in blocks of launches in turn (two characters each posed for a
+    few frames, then the other): within device.STANDING_YIELD_S of being displaced a mailbox
+    stands a worker again once it has launched device.STANDING_RUN times in a row, so each
+    block's later launches have one (before, the first mailbox never stood again); every
+    block of every job is still taken once."""
+    _workers_or_skip()
+    standby(10_000_000)
+    a, b = Marker(), Marker(by=1000)
+    run = device.STANDING_RUN
+    for block in range(6):
+        m, by = (a, 0) if block % 2 == 0 else (b, 1000)
+        stood = []
+        for j in range(run + 6):
+            who = m.launch(48)
+            assert np.all(np.isin(who[:48] - by - 1, (STANDING, CALLER))) and not who[48:].any()
+            stood.append(m.jobs.standing(m.kernel))
+        if block >= 2:        # both have been displaced by now, within the yield window
+            assert not any(stood[:run - 1]) and all(stood[run:]), (block, stood)
+
+
 def test_standby_setting(standby, monkeypatch):
     """A standby of 0 wakes workers for each shared launch and leaves none standing.
     NRPOSE_STANDBY_US is read at the first launch (or set_standby_s(None)): a value that is
