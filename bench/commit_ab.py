@@ -134,8 +134,7 @@ def run(commit: str, rows: list[tuple[str, str]], rounds: int = 30, poses: int =
                     f"base/this per round {r['base_over_this']['median']:.2f} "
                     f"[{r['base_over_this']['min']:.2f}, {r['base_over_this']['max']:.2f}], "
                     f"max diff {r['max_diff_rel_bbox']:.1e}")
-    base_commit = subprocess.run(["git", "-C", str(ROOT), "rev-parse", commit], capture_output=True,
-                                 text=True).stdout.strip()
+    base_commit = common.git("rev-parse", commit)
     return {"schema": "nrpose-bench-commit-ab/1", "timestamp": common.now(),
             "git_commit": common.git("rev-parse", "HEAD"), "base_commit": base_commit or commit,
             "environment": common.environment(),

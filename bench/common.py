@@ -1,6 +1,6 @@
 """Shared pieces of the benchmark suites: run metadata, timing statistics, output.
 
-Reuses bench/table1.py's helpers (git, environment, statistics, atomic write).
+Reuses bench/table1.py's helpers (git, environment, statistics).
 """
 from __future__ import annotations
 
@@ -23,7 +23,6 @@ import table1  # noqa: E402  (bench/table1.py: the colleague's Table-1 benchmark
 
 stats = table1._stats           # seconds -> {"median", "p10", "p90", "min", "max", "n"} in ms
 git = table1._git
-atomic_write = table1._atomic_write
 
 
 def load() -> list[float]:
@@ -106,10 +105,6 @@ def table1_row(model: str, kind: str, data: pathlib.Path, poses: int = 1, seed: 
 
 def now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-
-
-def median(a) -> float:
-    return float(np.median(a))
 
 
 def add_rows_arguments(ap, rounds: int, poses: int, what: str) -> list[str]:

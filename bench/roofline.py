@@ -161,11 +161,9 @@ def pose_work(deformer) -> dict:
     stored = levers_stored(deformer.lever, S)
     fl = pose_flops(P, K, stored)
     by = pose_bytes(P, K, sparse, not stored)
-    # pose block (positions, rotations, slot), derived block (refs, table of 3 floats per
-    # entry, 4 with the quaternion blend, quats, ploc, dirs)
-    tw = 4 if deformer.blend == "quaternion" else 3
-    per_pose_bytes = 4 * (3 * (P + 2 * S) + 9 * (S + 1) + 1
-                          + 9 * (S + 1) + tw * (S + 1) * S + 4 * (S + 1) + 3 * P * (S + 1) + 3 * S)
+    # the frame's pose block (positions, rotations, slot) and derived block (refs, table,
+    # quats, ploc, dirs), as the deformer lays them out
+    per_pose_bytes = 4 * (deformer._pose_stride + deformer._derived_stride)
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
             "flops_per_pose": fl["per_point"] * n,
@@ -360,8 +358,8 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
     """Roofline suite: device ceilings, then every Table-1 row's pose kernel against them.
 
     Rows are table1's (same models, handles and poses; --quick: 500 points). Each
-    round poses every pose once through ``Deformer.pose`` (wall time) and, right
-    after, re-runs its pose kernel on the profiling queue (event times).
+    round poses every pose through ``Deformer.pose`` back to back (wall time), then
+    poses each again and re-runs its pose kernel on the profiling queue (event times).
     The ceilings are measured before and after the rows; the medians over both are used.
     """
     import pathlib

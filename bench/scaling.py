@@ -117,9 +117,9 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
     gc.disable()
     try:
         for _ in range(rounds):
-            # the poses back to back (as frames are posed: a standing worker serves them),
-            # then each again on the profiling queues (which end the standing worker)
-            # (each result held until the next is made, as Table 1 times them)
+            # the poses back to back as frames are posed (a standing worker serves them; each
+            # result held until the next is made, as Table 1 times them), then each again on
+            # the profiling queues (which end the standing worker)
             for p in poses:
                 t = time.perf_counter()
                 out = d.pose(p)

@@ -8,8 +8,8 @@ Why in one process: on the shared 2-core VM a single thread's speed differs by u
 Table-1 row (bench/table1.py's model and handles, 20 poses of its kind drawn with seed 1)
 one deformer is bound; then rounds alternate the two launch policies of
 nrpose.device.launch_shared, each round posing ``--poses`` poses back to back
-(``Deformer.pose(p, out=)`` into one array, warm after the first round; Table 1 writes
-20 different ones) after 10 untimed ones:
+(``Deformer.pose(p, out=)`` into one array, warm after the first round; Table 1's
+``pocl_pose_into_ms`` writes 20 different ones) after 10 untimed ones:
 
 * ``standing``: the default standby (device.STANDBY_S, 1 ms): from the second pose of
   a loop on, PoCL's worker stands between poses, polling for the next;

@@ -473,6 +473,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
     repeat = max(int(repeat), 1)
     n_poses = 3 if quick else 20
     n_ref = 1 if quick else 3
+    min_block_s = 0.0 if quick else MIN_BLOCK_S    # quick timings mean nothing
     bind_repeat = 1 if quick else max(repeat, 3)
     commit_start = _git("rev-parse", "HEAD")
     # one-time device set-up (context, first PoCL build) kept out of the bind figures; each
@@ -490,7 +491,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
             rest = chain_handles(v, h) if kind == "segments" else fps_handles(v, h)
             seed = zlib.crc32(f"{model}/{kind}".encode())
             cell = measure(v, rest, kind, seed, n_poses, n_ref, repeat, bind_repeat, blend,
-                           min_block_s=0.0 if quick else MIN_BLOCK_S)
+                           min_block_s=min_block_s)
             row = {"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                    "paper_points": count, "paper_ms": paper_ms,
                    "paper_ms_per_point_handle": paper_ms / (count * h), "source": src, **cell}
@@ -519,7 +520,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
         "git_dirty": dirty.splitlines(),
         "options": {"repeat": repeat, "quick": quick, "poses": n_poses, "reference_poses_per_round": n_ref,
                     "bind_repeat": bind_repeat, "warmup_poses": WARMUP, "loop_passes": LOOP_PASSES,
-                    "min_block_s": 0.0 if quick else MIN_BLOCK_S,
+                    "min_block_s": min_block_s,
                     "alpha": ALPHA, "k": None, "blend": blend, "lever": LEVER,
                     "max_rotation_deg": round(float(np.degrees(MAX_BEND)), 6), "data": str(data),
                     "points_override": QUICK_POINTS if quick else None},

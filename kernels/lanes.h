@@ -27,7 +27,7 @@ static inline int or8(const int8 v)
 #define ANY_NONZERO8(x) (or8((x) != 0.0f) != 0)
 
 /* Store lane l of (x, y, z) as the 3 floats at q + 3 * o.sl, for the 8 lanes
- * (o: int8 of row indices; rows 0..7 for consecutive rows). */
+ * (o: int8 of row indices, one output row per lane). */
 #define STORE_ROWS(x, y, z, q, o) do {                                              \
     (q)[3 * (o).s0] = (x).s0; (q)[3 * (o).s0 + 1] = (y).s0; (q)[3 * (o).s0 + 2] = (z).s0; \
     (q)[3 * (o).s1] = (x).s1; (q)[3 * (o).s1 + 1] = (y).s1; (q)[3 * (o).s1 + 2] = (z).s1; \

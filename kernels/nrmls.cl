@@ -282,9 +282,9 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
     const floatv bz = *(const floatv *)qb[2], bw = *(const floatv *)qb[3];
     const floatv f = *(const floatv *)fac;
     const floatv dot = ax * bx + ay * by + az * bz + aw * bw;
+    const floatv sf = dot < 0.0f ? -f : f;
     float out[TW][VW] __attribute__((aligned(64)));
 #ifdef QUAT_BLEND
-    const floatv sf = dot < 0.0f ? -f : f;
     *(floatv *)out[0] = sf * bx; *(floatv *)out[1] = sf * by;
     *(floatv *)out[2] = sf * bz; *(floatv *)out[3] = sf * bw;
 #else
@@ -293,7 +293,6 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
     const floatv x = aw * bx - bw * ax - (ay * bz - az * by);
     const floatv y = aw * by - bw * ay - (az * bx - ax * bz);
     const floatv z = aw * bz - bw * az - (ax * by - ay * bx);
-    const floatv sf = dot < 0.0f ? -f : f;
     const floatv s2 = x * x + y * y + z * z;
     const intv normal = s2 >= 1.17549435e-38f;    /* else a rotation below float resolution */
     const floatv isn = rsqrtv_normal(normal ? s2 : (floatv)1.0f);

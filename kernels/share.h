@@ -113,7 +113,8 @@ static inline int take_block(volatile __global int *jobs, const int tag)
 
 /* Whether to serve a job (again): sets *tag to the job's. ROLE_CALLER serves the
  * published job once, then waits for the blocks others took; a standing worker serves
- * each newly published job that has blocks left and returns 0 after `role` idle polls
+ * each newly published job that has blocks left or its prologue still to run (or
+ * running), and returns 0 after `role` idle polls
  * or on JOB_QUIT. *served: whether the caller has served its job. */
 static inline int next_job(volatile __global int *jobs, const int role, int *tag, int *served)
 {

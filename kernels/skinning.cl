@@ -45,7 +45,7 @@
 #include "lanes.h"
 #include "share.h"
 
-/* lanes.h's vector helpers at 8 lanes (no -DVW): floatv is float8, intv int8 */
+/* lanes.h's 8-lane helpers; SAMEV at its default VW of 8 lanes (no -DVW here) */
 
 __kernel void lbs(__global const float *restrict rest,
                   __global const int *restrict joints,

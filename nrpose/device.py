@@ -474,7 +474,8 @@ class Jobs:
         """End this mailbox's standing worker (if any) and wait until it has returned (in a
         process forked since it stood, only forget it: its thread is not there).
         displaced: another mailbox's launch needs the worker device; this mailbox then does
-        not stand a worker again for :data:`STANDING_YIELD_S`."""
+        not stand a worker again for :data:`STANDING_YIELD_S`, unless it launches
+        :data:`STANDING_RUN` times in a row (:meth:`mode`)."""
         global _standing
         with _LAUNCHES:         # a finalizer may call this from any thread
             standing, self._standing = self._standing, None
@@ -485,6 +486,14 @@ class Jobs:
                 standing[1].wait()
                 if displaced:
                     self._displaced = time.perf_counter()
+
+    def count_launch(self) -> None:
+        """Count a launch of this mailbox: ``_run``, its launches in a row with no other
+        mailbox's between (:meth:`mode`, :data:`STANDING_RUN`)."""
+        global _last_mailbox
+        if _last_mailbox is not self:
+            _last_mailbox, self._run = self, 0
+        self._run += 1
 
     def retire(self) -> None:
         """End the standing worker of a mailbox its owner replaces, and forget the owner."""
@@ -545,10 +554,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
 
 def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool, queues, workers) -> list:
     """:func:`launch_shared`, its lock held."""
-    global _last_mailbox
-    if _last_mailbox is not jobs:
-        _last_mailbox, jobs._run = jobs, 0
-    jobs._run += 1
+    jobs.count_launch()
     cl = _cl()
     if queues is None and workers is None and jobs.standing(kernel):
         # frames in a loop: this kernel's standing worker polls (Jobs.mode "standing", and

@@ -125,7 +125,7 @@ class Deformer:
         self._npad, self.slots = npad, K
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         mf = cl.mem_flags
-        frec, irec = chunk_records(arrays, P, S, K, self.lever, self.lanes)
+        frec, irec = chunk_records(arrays, P, S, K, self.lanes)
         self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
                       for k, a in (("frec", frec), ("irec", irec), ("len2", arrays["len2"]),
                                    ("pairs", arrays["pairs"]))}
@@ -327,7 +327,7 @@ class Deformer:
             self._slots[:F] = self._own_slots[:F]
         else:
             self._slots[0] = slot
-        self._pose.upload()
+        self._pose.upload()           # after the slots: they are part of the pose blocks
         self._batch = F
         self._launch()
         if slot is not None:
@@ -488,6 +488,7 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
     none = np.zeros(1, np.float32)
     stored = levers_stored(lever, S)
     len2_bound = (len2 * scale ** 2).astype(np.float32)
+    phat32 = (scale * kept["phat"]).astype(np.float32)      # (n, P, 3), as the kernel reads it
     if not stored:
         # 1 / each point's lever sum (rest-only): point handles' w |phat|^2, the slots'
         # w len2, from the float32 values the kernel reads (a lever factor that rounds to 0
@@ -495,8 +496,7 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
         w = kept["coef"].astype(np.float32).astype(np.float64)
         lsum = np.zeros(n)
         if P:
-            phat32 = (scale * kept["phat"]).astype(np.float32).astype(np.float64)
-            lsum += np.einsum("np,npc,npc->n", w[:, :P], phat32, phat32)
+            lsum += np.einsum("np,npc,npc->n", w[:, :P], phat32.astype(np.float64), phat32.astype(np.float64))
         if K:
             factor = len2_bound.astype(np.float64)
             lsum += w[:, P::2] @ factor if K == S else np.einsum("nk,nk->n", w[:, P::2], factor[slots])
@@ -505,27 +505,26 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
     arrays = {
         "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot,
         "coef": soa(kept["coef"][order].T),
-        # levers are stored, or derived in the kernel from coef, phat and len2 and normalised by inv
-        "lever": soa(kept["lever"][order].T) if stored else none,
-        "inv": none if stored else soa(inv[order][None]),
+        # the rows after phat: the stored normalised levers (P + K rows), or 1 / the lever sum
+        # of levers derived in the kernel from coef, phat and len2 (1 row)
+        "lever": soa(kept["lever"][order].T) if stored else soa(inv[order][None]),
         "len2": len2_bound if S else none,
-        "phat": soa(scale * kept["phat"][order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
+        "phat": soa(phat32[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S
                   else np.zeros(2, np.int32)),
     }
     return arrays, K
 
 
-def chunk_records(arrays: dict, P: int, S: int, K: int, lever: str, lanes: int) -> tuple[np.ndarray, np.ndarray]:
+def chunk_records(arrays: dict, P: int, S: int, K: int, lanes: int) -> tuple[np.ndarray, np.ndarray]:
     """The per-point arrays of :func:`device_layout` packed chunk-major, as
     kernels/nrmls.cl reads them: (float32 records, int32 records), one record
     of rows of ``lanes`` lanes per chunk of ``lanes`` stored points (rows in the kernel's order).
     P point handles, S segments, K segment slots (K < S: sparse, slots stored)."""
-    floats = [arrays["u"], arrays["coef"]] + ([arrays["phat"]] if P else [])
-    floats.append(arrays["lever"] if levers_stored(lever, S) else arrays["inv"])
+    floats = [arrays["u"], arrays["coef"]] + ([arrays["phat"]] if P else []) + [arrays["lever"]]
     ints = [arrays["ref"][None], arrays["row"][None]] + ([arrays["slot"]] if K < S else [])
 
-    def pack(rows: list[np.ndarray]) -> np.ndarray:  # (R, Npad) blocks -> (Npad/8, R, 8)
+    def pack(rows: list[np.ndarray]) -> np.ndarray:  # (R, Npad) blocks -> (Npad/lanes, R, lanes)
         a = np.concatenate(rows)
         return np.ascontiguousarray(a.reshape(len(a), -1, lanes).transpose(1, 0, 2)).ravel()
 
