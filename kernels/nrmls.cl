@@ -23,7 +23,7 @@
  *   u      [3]            v - p*
  *   coef   [P+2K]         q* coefficients: point handles (w), then per segment slot
  *                         (w, w t): w on the segment's posed start a, w t on its posed
- *                         direction b - a (dirs, below), so that w is also the slot's
+ *                         direction b - a (segv, below), so that w is also the slot's
  *                         lever coefficient
  *   phat   [3P]           p_i - p* of the point handles (x, y, z rows per handle), times
  *                         2^-e, e the binary exponent of the largest |component| over all
@@ -57,16 +57,24 @@
  *          the output slot of the frame (int bits): slot s >= 0 is written at out + s Np*3,
  *          slot code s < 0 at handed + (-1 - s) Np*3
  *   derived (written by the job's prologue from `pose`, once per pose: pose_prologue)
- *          refs [(S+1)*9] row-major | table [(S+1)*S*TW] | quats [(S+1)*4]
- *          | ploc [(S+1)*P*3] | dirs [S*3]:
+ *          refs [(S+1)*9] row-major | quats [(S+1)*4] | ploc [(S+1)*P*3] | (padding to a
+ *          multiple of VW) | segv [S*6 rows of BW] | table [(S+1)*S*TW rows of BW]:
  *          refs[j], the matrix of reference j (segment j, or R_g for j = S; identity for
  *          the paper blend); quats[j] = Q_j, the unit quaternion (x, y, z, w) of rotation j;
- *          relative/paper blends, TW = 3: table[j][s] = log(R_j^-1 R_s) (paper: log R_s);
- *          QUAT_BLEND, TW = 4: table[j][s] = Q_s in the hemisphere of Q_j;
- *          table' (-DDERIVED_LEVER): each entry times len2[s];
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
  *          frame (when P > 0; the pose kernel reads it where a chunk's
- *          lanes share their reference); dirs[s] = b_s - a_s, segment s's posed direction
+ *          lanes share their reference);
+ *          segv[s]: segment s's posed start a_s (x, y, z) and direction b_s - a_s;
+ *          table[j][s]: relative/paper blends, TW = 3: log(R_j^-1 R_s) (paper: log R_s);
+ *          QUAT_BLEND, TW = 4: Q_s in the hemisphere of Q_j; table' (-DDERIVED_LEVER):
+ *          each entry times len2[s].
+ *          segv and table hold each value in a row of BW equal floats (-DBW): on dense
+ *          rigs of up to 16 segments BW = VW, so that the slot loop's multiply-adds take
+ *          it as a vector memory operand where the lanes share the segment, instead of a
+ *          broadcast load each (9 per slot: armadillo segments 1.04-1.07x, bunny 1.02,
+ *          kernel on one thread); elsewhere BW = 1, which keeps a many-bone skeleton's
+ *          per-frame table 8 times smaller (nrpose/engine.py derived_layout). Lanes that
+ *          do not share the segment gather the rows' first floats
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order; each
  *                         frame in the slot its pose block names (nrpose/engine.py)
  *   handed [2][Np*3]      the same, slots whose frames are handed to the caller without
@@ -157,10 +165,27 @@
 #else
 #define FREC(P, K) (VW * (3 + 5 * (P) + 3 * (K)))
 #endif
-/* offsets in a frame's derived block */
-#define QUATS_OFFSET(S) (9 * ((S) + 1) + TW * ((S) + 1) * (S))
+/* floats per value in a frame's segv and table (the header's derived block) */
+#ifndef BW
+#error "build with -DBW=<1 or VW> (nrpose/engine.py)"
+#endif
+#if BW == VW
+typedef floatv floatb;
+#define LOADB LOADV
+#elif BW == 1
+typedef float floatb;
+/* the scalar, widened by the arithmetic it enters (an explicit (floatv) cast of the load
+ * crashes PoCL's LLVM 14 at the build) */
+#define LOADB(g, p) ((p)[g])
+#else
+#error "BW must be 1 or VW"
+#endif
+
+/* offsets in a frame's derived block (floats; nrpose/engine.py derived_layout) */
+#define QUATS_OFFSET(S) (9 * ((S) + 1))
 #define PLOC_OFFSET(S) (QUATS_OFFSET(S) + 4 * ((S) + 1))
-#define DIRS_OFFSET(S) (PLOC_OFFSET(S) + 3 * P * ((S) + 1))
+#define SEGV_OFFSET(S) ((PLOC_OFFSET(S) + 3 * P * ((S) + 1) + VW - 1) / VW * VW)
+#define TABLE_OFFSET(S) (SEGV_OFFSET(S) + 6 * BW * (S))
 #ifdef SPARSE
 #define IREC(K) (VW * (2 + (K)))
 #else
@@ -216,7 +241,7 @@ static inline floatv atan2posv(const floatv s, const floatv c)
 
 /* Per-pose data of rotation j in [0, S] (segment j, or R_g for j = S) of one frame
  * (`pose`: its pose block, `refs`: its derived block): refs[j] (identity for the paper
- * blend), quats[j] and ploc[j]; then the posed segment directions dirs. */
+ * blend), quats[j] and ploc[j]; then segv, the posed segments' starts and directions. */
 static void rotation_items(const int nsegs, const int paper, __global const float *pose, __global float *refs)
 {
     __global const float *rots = pose + 3 * (P + 2 * S);
@@ -232,10 +257,12 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
                     : rots[9 * j + k] * pose[3 * p] + rots[9 * j + 3 + k] * pose[3 * p + 1]
                       + rots[9 * j + 6 + k] * pose[3 * p + 2];
     }
-    __global float *dirs = refs + DIRS_OFFSET(S);
+    __global floatb *segv = (__global floatb *)(refs + SEGV_OFFSET(S));
     for (int s = 0; s < S; ++s)
-        for (int k = 0; k < 3; ++k)
-            dirs[3 * s + k] = pose[3 * (P + 2 * s + 1) + k] - pose[3 * (P + 2 * s) + k];
+        for (int k = 0; k < 3; ++k) {
+            segv[6 * s + k] = (floatb)pose[3 * (P + 2 * s) + k];
+            segv[6 * s + 3 + k] = (floatb)(pose[3 * (P + 2 * s + 1) + k] - pose[3 * (P + 2 * s) + k]);
+        }
 }
 
 /* Rotation-table entries of one frame (`refs`: its derived block, its quats written) for
@@ -251,7 +278,7 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
 static void table_block(const int g0, const int nsegs, const int paper, const int npairs,
                         __global const int *pairs, __global const float *len2, __global float *refs)
 {
-    __global float *table = refs + 9 * (S + 1);
+    __global floatb *table = (__global floatb *)(refs + TABLE_OFFSET(S));
     __global const float *quats = refs + QUATS_OFFSET(S);
     float qa[4][VW] __attribute__((aligned(64))), qb[4][VW] __attribute__((aligned(64)));
     float fac[VW] __attribute__((aligned(64)));
@@ -301,7 +328,7 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
 #endif
     for (int l = 0; l < VW; ++l)
         for (int c = 0; c < TW; ++c)
-            table[dst[l] + c] = out[c][l];
+            table[dst[l] + c] = (floatb)out[c][l];
 }
 
 /* The pose kernel's prologue (share.h), once per job, for its F frames: R_g, where
@@ -360,8 +387,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     for (int f = 0; f < F; ++f) {
     __global const float *qpos = pose + f * pose_stride;
     __global const float *refs = derived + f * derived_stride;
-    __global const float *table = refs + 9 * (S + 1);
-    __global const float *dirs = refs + DIRS_OFFSET(S);
+    __global const float *table = refs + TABLE_OFFSET(S), *segv = refs + SEGV_OFFSET(S);
     const int slot = as_int(qpos[pose_stride - 1]);
     __global float *out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
 
@@ -411,27 +437,27 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
         const floatv l = LOADV(P + k, lever);
 #endif
         if (uniform && SAMEV(h)) {   /* the lanes read one table entry */
-            __global const float *a = qpos + 3 * (P + 2 * h.s0), *d = dirs + 3 * h.s0;
-            __global const float *t = table + TW * (S * rf.s0 + h.s0);
-            qx += w * a[0] + wt * d[0];
-            qy += w * a[1] + wt * d[1];
-            qz += w * a[2] + wt * d[2];
-            rx += l * t[0];
-            ry += l * t[1];
-            rz += l * t[2];
+            __global const float *a = segv + 6 * BW * h.s0;
+            __global const float *t = table + TW * BW * (S * rf.s0 + h.s0);
+            qx += w * LOADB(0, a) + wt * LOADB(3, a);
+            qy += w * LOADB(1, a) + wt * LOADB(4, a);
+            qz += w * LOADB(2, a) + wt * LOADB(5, a);
+            rx += l * LOADB(0, t);
+            ry += l * LOADB(1, t);
+            rz += l * LOADB(2, t);
 #ifdef QUAT_BLEND
-            rw += l * t[3];
+            rw += l * LOADB(3, t);
 #endif
-        } else {
-            const intv a = 3 * (P + 2 * h), d = 3 * h, t = TW * (S * rf + h);
-            qx += w * GATHERV(qpos, a) + wt * GATHERV(dirs, d);
-            qy += w * GATHERV(qpos, a + 1) + wt * GATHERV(dirs, d + 1);
-            qz += w * GATHERV(qpos, a + 2) + wt * GATHERV(dirs, d + 2);
+        } else {                     /* the first float of each lane's rows */
+            const intv a = 6 * BW * h, t = TW * BW * (S * rf + h);
+            qx += w * GATHERV(segv, a) + wt * GATHERV(segv, a + 3 * BW);
+            qy += w * GATHERV(segv, a + BW) + wt * GATHERV(segv, a + 4 * BW);
+            qz += w * GATHERV(segv, a + 2 * BW) + wt * GATHERV(segv, a + 5 * BW);
             rx += l * GATHERV(table, t);
-            ry += l * GATHERV(table, t + 1);
-            rz += l * GATHERV(table, t + 2);
+            ry += l * GATHERV(table, t + BW);
+            rz += l * GATHERV(table, t + 2 * BW);
 #ifdef QUAT_BLEND
-            rw += l * GATHERV(table, t + 3);
+            rw += l * GATHERV(table, t + 3 * BW);
 #endif
         }
     }
@@ -539,12 +565,15 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
      * sinc and cos are polynomials in x = h^2 on [0, (pi/2)^2] (|r| <= pi), degrees
      * 4 and 5, least-squares fitted in a Chebyshev basis: evaluated in float32 their
      * error is 8e-8 and 1.3e-7, as low as the degree-6/8 Taylor polynomials' (float
-     * rounding); no sqrt, no division, no transcendental call. */
+     * rounding); no sqrt, no division, no transcendental call. Evaluated by Estrin's
+     * scheme (x, x^2, x^4: 4 dependent steps instead of Horner's 5): segment rows
+     * 1.02-1.03x (kernel on one thread), where the pose waits on this chain. */
     const floatv x = 0.25f * (rx * rx + ry * ry + rz * rz);
-    const floatv sinc = 0.9999999913f + x * (-0.16666656063f + x * (8.3330316883e-3f + x * (-1.9808525988e-4f
-                      + x * 2.6051343228e-6f)));
-    const floatv ch = 0.9999999995f + x * (-0.49999999169f + x * (4.1666632908e-2f + x * (-1.3888340166e-3f
-                    + x * (2.4759708851e-5f + x * -2.6050851041e-7f))));
+    const floatv x2 = x * x, x4 = x2 * x2;
+    const floatv sinc = (0.9999999913f - 0.16666656063f * x) + (8.3330316883e-3f - 1.9808525988e-4f * x) * x2
+                      + 2.6051343228e-6f * x4;
+    const floatv ch = (0.9999999995f - 0.49999999169f * x) + (4.1666632908e-2f - 1.3888340166e-3f * x) * x2
+                    + (2.4759708851e-5f - 2.6050851041e-7f * x) * x4;
     const floatv a = sinc * ch;
     const floatv b = 0.5f * sinc * sinc;
     const floatv kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
