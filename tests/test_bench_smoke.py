@@ -19,7 +19,8 @@ BENCH = pathlib.Path(__file__).resolve().parent.parent / "bench" / "table1.py"
 
 ROW_FIELDS = {"model", "kind", "points", "handles", "paper_points", "paper_ms", "paper_ms_per_point_handle",
               "source", "bbox_diagonal", "bind_ms", "bind_first_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms",
-              "pocl_pose_into_ms", "pocl_pose_after_pause_ms", "numpy_pose_ms", "speedup_vs_numpy", "pocl_ms_per_point_handle", "numpy_ms_per_point_handle",
+              "pocl_pose_into_ms", "pocl_pose_after_pause_ms", "pocl_pose_warmup_ms", "numpy_pose_ms", "speedup_vs_numpy",
+              "pocl_ms_per_point_handle", "numpy_ms_per_point_handle",
               "paper_over_pocl", "max_error_rel_bbox", "handles_rest"}
 STATS = {"median", "p10", "p90", "min", "max", "n"}
 
@@ -78,6 +79,9 @@ def test_rows(quick_run):
         assert _positive(r["bind_first_ms"]), r["bind_first_ms"]
         assert r["pocl_pose_ms"]["n"] == 3 * 3 and r["pocl_pose_ms"]["p10"] <= r["pocl_pose_ms"]["p90"]
         assert r["pocl_pose_after_pause_ms"]["n"] == 1 and r["pocl_pose_into_ms"]["n"] == 3
+        warm = r["pocl_pose_warmup_ms"]       # by elapsed time in the block; bins hold every pose
+        assert sum(warm["n"]) == r["pocl_pose_ms"]["n"] and warm["from_ms"][0] == 0.0
+        assert all(_positive(m) for m in warm["median_ms"]) and warm["from_ms"] == sorted(warm["from_ms"])
         for key in ("paper_ms", "bbox_diagonal", "speedup_vs_numpy", "pocl_ms_per_point_handle",
                     "numpy_ms_per_point_handle", "paper_over_pocl", "paper_ms_per_point_handle"):
             assert _positive(r[key]), (r["model"], key, r[key])
