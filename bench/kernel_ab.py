@@ -63,6 +63,20 @@ def row_deformer(model: str, kind: str, data: pathlib.Path) -> tuple[Deformer, n
     return deformer, deformer.pose(pose).copy(), diag
 
 
+def paired_launches(deformer: Deformer, kernels: dict, launches: int) -> dict[str, list[float]]:
+    """Seconds of each of ``launches`` rounds of ``kernels`` (name -> pose kernel variant,
+    :meth:`Deformer.pose_kernel_variant`), launched in turn on the calling thread alone
+    (``relaunch(workers=False, pose_kernel=...)``, prologue and enqueue/wait included):
+    round i's times of two kernels were taken side by side."""
+    times: dict[str, list[float]] = {which: [] for which in kernels}
+    for _ in range(launches):
+        for which, kernel in kernels.items():
+            t = time.perf_counter()
+            deformer.relaunch(workers=False, pose_kernel=kernel)
+            times[which].append(time.perf_counter() - t)
+    return times
+
+
 def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box", kind: str = "points",
         launches: int = 400, data: pathlib.Path = table1.DEFAULT_DATA) -> dict:
     """The A/B record (see the module docstring)."""
@@ -76,12 +90,7 @@ def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box",
         deformer._out.download()
         got = deformer._out.host[: 3 * deformer._npad].reshape(-1, 3)[: deformer.n]
         max_diff[which] = float(np.abs(got - want).max() / diag)
-    times: dict[str, list[float]] = {"base": [], "variant": []}
-    for _ in range(launches):
-        for which, kernel in kernels.items():
-            t = time.perf_counter()
-            deformer.relaunch(workers=False, pose_kernel=kernel)
-            times[which].append(time.perf_counter() - t)
+    times = paired_launches(deformer, kernels, launches)
     ms = {which: common.stats(t) for which, t in times.items()}
     paired = np.divide(times["base"], times["variant"])   # each launch against its neighbour: drift cancels
     return {

@@ -26,10 +26,14 @@ import time
 
 import numpy as np
 
+import ablation
 from nrpose import device
 from nrpose.engine import levers_stored
 
 ACCS = 8          # independent float8 accumulators per work-item
+#: a kernel near the copy bandwidth is called memory bound only if taking its memory
+#: traffic away (ablation.py "memory") saves at least this share of its time
+MEMORY_BOUND_SHARE = 0.3
 ITERS = 2048      # updates of each accumulator
 PEAK_ITEMS = 4096  # work-items of the arithmetic kernel (many work-groups for both cores)
 COPY_DRAM_MB = 256
@@ -304,8 +308,14 @@ def lane_divergence(deformer) -> dict:
     return out
 
 
-def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: dict) -> dict:
-    """Achieved rates of one pose kernel against the measured ceilings, and what bounds it."""
+def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: dict,
+           shares: dict | None = None) -> dict:
+    """Achieved rates of one pose kernel against the measured ceilings, and what bounds it:
+    launch overhead (the pose wall outside the kernel, or a kernel near an empty one's
+    time), memory (at least half the copy bandwidth and, where ablations were measured,
+    ``shares`` (:func:`ablation.measure`), at least MEMORY_BOUND_SHARE of the time waiting
+    for memory), else the kernel's instructions. ``work["lanes"]`` (lane_divergence), where
+    present, adds the gathered path's share of slot visits."""
     t = kernel_ms * 1e-3
     gflops = work["flops_per_pose"] / t * 1e-9
     gbs = work["bytes_per_pose"] / t * 1e-9
@@ -326,23 +336,30 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
     if f_arith >= 0.3:
         kernel_bound = "arithmetic"
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof (compute bound)")
-    elif f_bw >= 0.5:
+    elif f_bw >= 0.5 and (shares is None or shares["memory"]["share"] >= MEMORY_BOUND_SHARE):
         kernel_bound = "memory"
         reasons.append(f"kernel at {100 * f_bw:.0f} % of the {'L3' if fits_l3 else 'DRAM'} copy bandwidth "
                        f"(memory bound)")
+    elif kernel_ms < 4 * launch["event_ms"]:
+        kernel_bound = "launch"
+        reasons.append(f"kernel time {kernel_ms:.3f} ms is within 4x of an empty kernel's "
+                       f"{launch['event_ms']:.3f} ms event time (thread wake-up / work distribution)")
     else:
-        floor = launch["event_ms"]
-        if kernel_ms < 4 * floor:
-            kernel_bound = "launch"
-            reasons.append(f"kernel time {kernel_ms:.3f} ms is within 4x of an empty kernel's "
-                           f"{floor:.3f} ms event time (thread wake-up / work distribution)")
-        else:
-            kernel_bound = "latency"
-            reasons.append(f"kernel reaches neither roof ({100 * f_arith:.0f} % arithmetic, {100 * f_bw:.0f} % "
-                           f"{'L3' if fits_l3 else 'DRAM'} bandwidth): scattered scalar stores of the output "
-                           f"(xyz by row), per-slot scalar/gathered loads of handle data and divisions: "
-                           f"instruction throughput of the two worker threads rather than a bandwidth or "
-                           f"arithmetic limit")
+        kernel_bound = "instructions"
+        reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof and {100 * f_bw:.0f} % of the "
+                       f"{'L3' if fits_l3 else 'DRAM'} copy bandwidth, bound by neither: its instructions "
+                       f"(dependency chains of the slot and handle loops and the rotation, loads of "
+                       f"per-pose rows) on the two cores")
+    if shares is not None:
+        measured = [f"{100 * shares['memory']['share']:.0f} % of the kernel's time waiting for memory"]
+        if "stores" in shares:
+            measured.append(f"{100 * shares['stores']['share']:.0f} % in the scattered stores of its output rows")
+        reasons.append("measured by ablation: " + ", ".join(measured))
+    else:
+        reasons.append("no ablation measured (memory: by the copy bandwidth alone)")
+    if "lanes" in work:
+        reasons.append(f"{100 * work['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) visits on the "
+                       f"gathered path")
     return {"gflops": gflops, "gbs": gbs, "fraction_arithmetic": f_arith,
             "fraction_bandwidth": f_bw, "bandwidth_roof": "l3" if fits_l3 else "dram",
             "fraction_bandwidth_dram": gbs / dram, "fraction_bandwidth_l3": gbs / l3,
@@ -406,11 +423,13 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
             batched = [roofs.pose_kernel_once(d) / len(poses) for _ in range(max(repeat, 1))]
             work = pose_work(d)
             work["lanes"] = lane_divergence(d)
+            d.pose(poses[0])           # the ablations relaunch a single pose
+            shares = ablation.measure(d, 5 if quick else ablation.LAUNCHES)
             rows.append({"model": model, "kind": kind, "points": int(len(v)), "handles": h,
                          "source": src.get("kind"), "work": work,
                          "pose_ms": common.stats(wall), "kernel_ms": common.stats(kern),
                          "batched_kernel_ms_per_frame": common.stats(batched),
-                         "batch_frames": len(poses), "load": common.load()})
+                         "batch_frames": len(poses), "ablation": shares, "load": common.load()})
             if log:
                 log(f"roofline {model:9s} {kind:8s} pose {rows[-1]['pose_ms']['median']:.3f} ms, "
                     f"kernel {rows[-1]['kernel_ms']['median']:.3f} ms")
@@ -419,9 +438,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
     ceilings = merge_roofs(before, after)
     for r in rows:
         r.update(assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"], ceilings,
-                        ceilings["launch"]))
-        r["bound_by"] += (f"; measured: {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) "
-                          f"visits on the gathered path")
+                        ceilings["launch"], r["ablation"]))
         r["batched"] = batched_rates(r["work"], r["batched_kernel_ms_per_frame"]["median"], ceilings)
     best = max(rows, key=lambda r: r["fraction_arithmetic"])
     best_batched = max(rows, key=lambda r: r["batched"]["fraction_arithmetic"])

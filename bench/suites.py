@@ -68,8 +68,6 @@ def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=No
                     if "kernel_ms" in r:
                         r.update(roofline.assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"],
                                                  ceil, ceil["launch"]))
-                        r["bound_by"] += (f"; {100 * r['work']['lanes']['gathered_slot_fraction']:.0f} % of "
-                                          f"(chunk, slot) visits on the gathered path")
         else:
             import clips
             res = clips.run(repeat, quick, data, log=log)

@@ -88,7 +88,13 @@ def test_roofline(quick):
         stored = 6 * P + 3 if K == 0 else 0      # point rigs read their levers (levers_stored)
         assert r["work"]["flops_per_point"] == 70 * P + 18 * K + 78 + (15 if P else 0) - stored
         assert 0 <= r["work"]["lanes"]["gathered_slot_fraction"] <= 1
-        assert r["kernel_bound"] in ("arithmetic", "memory", "launch", "latency") and r["bound_by"]
+        assert r["kernel_bound"] in ("arithmetic", "memory", "launch", "instructions") and r["bound_by"]
+        # ablations: stores only where points are stored sorted (rigs with segments)
+        assert set(r["ablation"]) == ({"memory", "stores"} if K else {"memory"})
+        for a in r["ablation"].values():
+            assert math.isfinite(a["share"]) and a["share"] < 1 and _finite_positive(a["variant_ms"])
+            assert a["paired_ratio"]["p10"] <= a["paired_ratio"]["median"] <= a["paired_ratio"]["p90"]
+        assert "measured by ablation" in r["bound_by"]
 
 
 def test_scaling(quick):
