@@ -57,8 +57,8 @@
  *          the output slot of the frame (int bits): slot s >= 0 is written at out + s Np*3,
  *          slot code s < 0 at handed + (-1 - s) Np*3
  *   derived (written by the job's prologue from `pose`, once per pose: pose_prologue)
- *          refs [(S+1)*9] row-major | quats [(S+1)*4] | ploc [(S+1)*P*3] | (padding to a
- *          multiple of VW) | segv [S*6 rows of BW] | table [(S+1)*S*TW rows of BW]:
+ *          refs [(S+1)*9] row-major | quats [(S+1)*4] | ploc [(S+1)*P*3] | segv [S*6]
+ *          | table [(S+1)*S*TW]:
  *          refs[j], the matrix of reference j (segment j, or R_g for j = S; identity for
  *          the paper blend); quats[j] = Q_j, the unit quaternion (x, y, z, w) of rotation j;
  *          ploc[j][p] = R_ref_j^T q_p, the posed point handles in reference j's
@@ -68,13 +68,10 @@
  *          table[j][s]: relative/paper blends, TW = 3: log(R_j^-1 R_s) (paper: log R_s);
  *          QUAT_BLEND, TW = 4: Q_s in the hemisphere of Q_j; table' (-DDERIVED_LEVER):
  *          each entry times len2[s].
- *          segv and table hold each value in a row of BW equal floats (-DBW): on dense
- *          rigs of up to 16 segments BW = VW, so that the slot loop's multiply-adds take
- *          it as a vector memory operand where the lanes share the segment, instead of a
- *          broadcast load each (9 per slot: armadillo segments 1.04-1.07x, bunny 1.02,
- *          kernel on one thread); elsewhere BW = 1, which keeps a many-bone skeleton's
- *          per-frame table 8 times smaller (nrpose/engine.py derived_layout). Lanes that
- *          do not share the segment gather the rows' first floats
+ *          (Each value as a row of VW equal floats, so that the slot loop's multiply-adds
+ *          took vector memory operands instead of broadcast loads, made single poses
+ *          1.02-1.07x faster on one thread, but batched dense poses 1.5-2x slower: a
+ *          launch's frames then read 8 times the per-frame data per chunk, more than L1.)
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order; each
  *                         frame in the slot its pose block names (nrpose/engine.py)
  *   handed [2][Np*3]      the same, slots whose frames are handed to the caller without
@@ -165,27 +162,11 @@
 #else
 #define FREC(P, K) (VW * (3 + 5 * (P) + 3 * (K)))
 #endif
-/* floats per value in a frame's segv and table (the header's derived block) */
-#ifndef BW
-#error "build with -DBW=<1 or VW> (nrpose/engine.py)"
-#endif
-#if BW == VW
-typedef floatv floatb;
-#define LOADB LOADV
-#elif BW == 1
-typedef float floatb;
-/* the scalar, widened by the arithmetic it enters (an explicit (floatv) cast of the load
- * crashes PoCL's LLVM 14 at the build) */
-#define LOADB(g, p) ((p)[g])
-#else
-#error "BW must be 1 or VW"
-#endif
-
 /* offsets in a frame's derived block (floats; nrpose/engine.py derived_layout) */
 #define QUATS_OFFSET(S) (9 * ((S) + 1))
 #define PLOC_OFFSET(S) (QUATS_OFFSET(S) + 4 * ((S) + 1))
-#define SEGV_OFFSET(S) ((PLOC_OFFSET(S) + 3 * P * ((S) + 1) + VW - 1) / VW * VW)
-#define TABLE_OFFSET(S) (SEGV_OFFSET(S) + 6 * BW * (S))
+#define SEGV_OFFSET(S) (PLOC_OFFSET(S) + 3 * P * ((S) + 1))
+#define TABLE_OFFSET(S) (SEGV_OFFSET(S) + 6 * (S))
 #ifdef SPARSE
 #define IREC(K) (VW * (2 + (K)))
 #else
@@ -257,11 +238,11 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
                     : rots[9 * j + k] * pose[3 * p] + rots[9 * j + 3 + k] * pose[3 * p + 1]
                       + rots[9 * j + 6 + k] * pose[3 * p + 2];
     }
-    __global floatb *segv = (__global floatb *)(refs + SEGV_OFFSET(S));
+    __global float *segv = refs + SEGV_OFFSET(S);
     for (int s = 0; s < S; ++s)
         for (int k = 0; k < 3; ++k) {
-            segv[6 * s + k] = (floatb)pose[3 * (P + 2 * s) + k];
-            segv[6 * s + 3 + k] = (floatb)(pose[3 * (P + 2 * s + 1) + k] - pose[3 * (P + 2 * s) + k]);
+            segv[6 * s + k] = pose[3 * (P + 2 * s) + k];
+            segv[6 * s + 3 + k] = pose[3 * (P + 2 * s + 1) + k] - pose[3 * (P + 2 * s) + k];
         }
 }
 
@@ -278,7 +259,7 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
 static void table_block(const int g0, const int nsegs, const int paper, const int npairs,
                         __global const int *pairs, __global const float *len2, __global float *refs)
 {
-    __global floatb *table = (__global floatb *)(refs + TABLE_OFFSET(S));
+    __global float *table = refs + TABLE_OFFSET(S);
     __global const float *quats = refs + QUATS_OFFSET(S);
     float qa[4][VW] __attribute__((aligned(64))), qb[4][VW] __attribute__((aligned(64)));
     float fac[VW] __attribute__((aligned(64)));
@@ -328,7 +309,7 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
 #endif
     for (int l = 0; l < VW; ++l)
         for (int c = 0; c < TW; ++c)
-            table[dst[l] + c] = (floatb)out[c][l];
+            table[dst[l] + c] = out[c][l];
 }
 
 /* The pose kernel's prologue (share.h), once per job, for its F frames: R_g, where
@@ -437,27 +418,27 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
         const floatv l = LOADV(P + k, lever);
 #endif
         if (uniform && SAMEV(h)) {   /* the lanes read one table entry */
-            __global const float *a = segv + 6 * BW * h.s0;
-            __global const float *t = table + TW * BW * (S * rf.s0 + h.s0);
-            qx += w * LOADB(0, a) + wt * LOADB(3, a);
-            qy += w * LOADB(1, a) + wt * LOADB(4, a);
-            qz += w * LOADB(2, a) + wt * LOADB(5, a);
-            rx += l * LOADB(0, t);
-            ry += l * LOADB(1, t);
-            rz += l * LOADB(2, t);
+            __global const float *a = segv + 6 * h.s0;
+            __global const float *t = table + TW * (S * rf.s0 + h.s0);
+            qx += w * a[0] + wt * a[3];
+            qy += w * a[1] + wt * a[4];
+            qz += w * a[2] + wt * a[5];
+            rx += l * t[0];
+            ry += l * t[1];
+            rz += l * t[2];
 #ifdef QUAT_BLEND
-            rw += l * LOADB(3, t);
+            rw += l * t[3];
 #endif
-        } else {                     /* the first float of each lane's rows */
-            const intv a = 6 * BW * h, t = TW * BW * (S * rf + h);
-            qx += w * GATHERV(segv, a) + wt * GATHERV(segv, a + 3 * BW);
-            qy += w * GATHERV(segv, a + BW) + wt * GATHERV(segv, a + 4 * BW);
-            qz += w * GATHERV(segv, a + 2 * BW) + wt * GATHERV(segv, a + 5 * BW);
+        } else {
+            const intv a = 6 * h, t = TW * (S * rf + h);
+            qx += w * GATHERV(segv, a) + wt * GATHERV(segv, a + 3);
+            qy += w * GATHERV(segv, a + 1) + wt * GATHERV(segv, a + 4);
+            qz += w * GATHERV(segv, a + 2) + wt * GATHERV(segv, a + 5);
             rx += l * GATHERV(table, t);
-            ry += l * GATHERV(table, t + BW);
-            rz += l * GATHERV(table, t + 2 * BW);
+            ry += l * GATHERV(table, t + 1);
+            rz += l * GATHERV(table, t + 2);
 #ifdef QUAT_BLEND
-            rw += l * GATHERV(table, t + 3 * BW);
+            rw += l * GATHERV(table, t + 3);
 #endif
         }
     }

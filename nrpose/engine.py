@@ -34,9 +34,6 @@ from .handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
 BLOCK_POINTS = 256   # points per block of work taken from the job mailbox (share.h)
-# dense rigs of up to this many segments keep their per-pose slot data as rows of lanes
-# (derived_layout); more segments, or sparse slots, one float per value
-SLOT_ROWS_MAX = 16
 
 
 def lanes_for(segments: int) -> int:
@@ -137,10 +134,7 @@ class Deformer:
         # floats per frame: positions, rotations, then the frame's output slot (int32 bits)
         self._pose_stride = self._npos + 9 * (S + 1) + 1
         quat = blend == "quaternion"
-        # floats per value of the per-pose slot data (kernels/nrmls.cl, BW): rows of lanes on
-        # dense rigs of up to SLOT_ROWS_MAX segments
-        width = self.lanes if K == S <= SLOT_ROWS_MAX else 1
-        self._derived_at = derived_layout(P, S, quat, self.lanes, width)
+        self._derived_at = derived_layout(P, S, quat)
         self._derived_stride = self._derived_at["stride"]
         # R_g per pose on the device (the pose kernel's prologue), when some point takes the
         # global rotation as its reference
@@ -148,7 +142,7 @@ class Deformer:
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
-        options = ((f"-DVW={self.lanes}", f"-DBW={width}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
+        options = ((f"-DVW={self.lanes}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
                    + (() if levers_stored(self.lever, S) else ("-DDERIVED_LEVER",)) + (("-DQUAT_BLEND",) if quat else ())
                    + (("-DGLOBAL_FIT",) if self._global is not None else ()))
         self._options = options
@@ -522,20 +516,17 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
     return arrays, K
 
 
-def derived_layout(P: int, S: int, quat: bool, lanes: int, width: int) -> dict:
+def derived_layout(P: int, S: int, quat: bool) -> dict:
     """Offsets (floats) of the parts of a frame's derived block, which the pose kernel's
-    prologue writes (kernels/nrmls.cl, its header), and ``stride``, the block's size
-    rounded up to whole rows of ``lanes`` floats: refs (S+1, 3, 3), quats (S+1, 4), ploc
-    (S+1, P, 3), then from a multiple of ``lanes``, each value as ``width`` equal floats
-    (1 or lanes): segv (S, 6), table (S+1, S, TW) with TW = 4 for the quaternion blend
-    (quat), else 3."""
+    prologue writes (kernels/nrmls.cl, its header), and ``stride``, the block's size:
+    refs (S+1, 3, 3), quats (S+1, 4), ploc (S+1, P, 3), segv (S, 6), table (S+1, S, TW)
+    with TW = 4 for the quaternion blend (quat), else 3."""
     quats = 9 * (S + 1)
     ploc = quats + 4 * (S + 1)
-    segv = -(-(ploc + 3 * P * (S + 1)) // lanes) * lanes
-    table = segv + 6 * width * S
-    end = table + (4 if quat else 3) * width * (S + 1) * S
-    return {"refs": 0, "quats": quats, "ploc": ploc, "segv": segv, "table": table, "width": width,
-            "stride": -(-end // lanes) * lanes}
+    segv = ploc + 3 * P * (S + 1)
+    table = segv + 6 * S
+    return {"refs": 0, "quats": quats, "ploc": ploc, "segv": segv, "table": table,
+            "stride": table + (4 if quat else 3) * (S + 1) * S}
 
 
 def chunk_records(arrays: dict, P: int, S: int, K: int, lanes: int) -> tuple[np.ndarray, np.ndarray]:

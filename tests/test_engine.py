@@ -265,10 +265,7 @@ def test_rotation_table_against_float64(blend, lever):
     tw = 4 if blend == "quaternion" else 3
     block = dev._derived.host[: dev._derived_stride].astype(np.float64)
     at = dev._derived_at
-    assert at["width"] == dev.lanes           # dense, 10 segments: rows of lanes
-    rows = block[at["table"]: at["table"] + tw * dev.lanes * (S + 1) * S].reshape(S + 1, S, tw, dev.lanes)[:S]   # j = S, R_g: unused
-    assert (rows == rows[..., :1]).all()      # rows of equal lanes
-    table = rows[..., 0]
+    table = block[at["table"]: at["stride"]].reshape(S + 1, S, tw)[:S]     # j = S, R_g: unused here
     len2 = np.empty(S, np.float32)
     cl.enqueue_copy(dev._queue, len2, dev._bufs["len2"])
     assert (len2 > 0).all() and (lever == "weight") == (np.ptp(len2) == 0)
@@ -522,21 +519,15 @@ def test_bad_handles_raise_typed_errors():
         dev.pose(Pose.make(HandleSet.make(points=[[0, 0, 0]]), [[0, 0, 0]]))
 
 
-@pytest.mark.parametrize("n_segs,k,width", [(16, None, "lanes"), (17, None, 1), (16, 4, 1)])
+@pytest.mark.parametrize("n_segs,k", [(16, None), (17, None), (16, 4)])
 @pytest.mark.parametrize("blend", ["relative", "quaternion"])
-def test_slot_rows_both_widths(n_segs, k, width, blend):
-    """The per-pose slot data (segment starts, directions, rotation table) as rows of
-    lanes (dense rigs of up to SLOT_ROWS_MAX segments) or one float per value (more
-    segments, or sparse), each against the reference; a pose with a single chunk of
-    lanes of mixed references (the gathered path)."""
-    from nrpose.engine import SLOT_ROWS_MAX
-
-    assert SLOT_ROWS_MAX == 16
+def test_slot_loop_unrolled_or_not(n_segs, k, blend):
+    """The slot loop unrolled (dense, up to 16 segments) or not (17; sparse), against the
+    reference; a single chunk of lanes with eight different references (the gathered path)."""
     rng = np.random.default_rng(n_segs + (k or 0))
     rest = random_rest(rng, 0, n_segs)
     for points in (rng.uniform(-1.2, 1.2, (1201, 3)), rest.segments[:8, 0] + 0.01):
         dev, ref = both(points, rest, k=k, blend=blend)
-        assert dev._derived_at["width"] == (dev.lanes if width == "lanes" else 1)
         if len(points) == 8:
             assert len(np.unique(dev.bound_indices()[0][:8])) == 8
         for _ in range(2):
