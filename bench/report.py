@@ -95,9 +95,10 @@ def suites_block(doc: dict) -> str:
     if "roofline" in s:
         ro = s["roofline"]
         c = ro["roofs"]
-        out += ["", f"Roofline ceilings: {c['gflops']['median']:.0f} GFLOP/s arithmetic (best "
-                    f"{c['gflops']['max']:.0f}), copy {c['dram_gbs']['median']:.1f} GB/s DRAM, "
-                    f"{c['l3_gbs']['median']:.1f} GB/s L3-resident; empty kernel shared with the workers "
+        out += ["", f"Roofline ceilings (the best samples, the rows' roofs; medians in brackets): "
+                    f"{c['gflops']['max']:.0f} GFLOP/s arithmetic ({c['gflops']['median']:.0f}), copy "
+                    f"{c['dram_gbs']['max']:.1f} GB/s DRAM ({c['dram_gbs']['median']:.1f}), "
+                    f"{c['l3_gbs']['max']:.1f} GB/s L3-resident ({c['l3_gbs']['median']:.1f}); empty kernel shared with the workers "
                     f"{c['launch']['event_ms'] * 1e3:.1f} µs event, {c['launch']['wall_ms'] * 1e3:.0f} µs "
                     "enqueue+wait"
                     + (f", on the calling thread alone {c['launch_alone']['event_ms'] * 1e3:.1f} µs event, "

@@ -182,8 +182,9 @@ def _plot_table1(ax, res):
 
 
 def _plot_roofline(ax, res):
+    import roofline
     roofs = res["roofs"]
-    peak, dram, l3 = roofs["gflops"]["median"], roofs["dram_gbs"]["median"], roofs["l3_gbs"]["median"]
+    peak, dram, l3 = (roofs[k][roofline.ROOF_RULE] for k in ("gflops", "dram_gbs", "l3_gbs"))
     ai = np.logspace(-1, 2, 200)
     ax.loglog(ai, np.minimum(peak, ai * dram), "k-", lw=1.5, label=f"DRAM roof ({dram:.0f} GB/s, {peak:.0f} GFLOP/s)")
     ax.loglog(ai, np.minimum(peak, ai * l3), "k--", lw=1, label=f"L3 roof ({l3:.0f} GB/s)")
