@@ -179,7 +179,7 @@ def pose_work(deformer) -> dict:
     by = pose_bytes(P, K, sparse, not stored)
     # the frame's pose block (positions, rotations, slot) and derived block (refs, table,
     # quats, ploc, dirs), as the deformer lays them out
-    per_pose_bytes = 4 * (deformer._pose_stride + deformer._derived_stride)
+    per_pose_bytes = 4 * (deformer._pose_stride + deformer._derived_at["stride"])
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
             "flops_per_pose": fl["per_point"] * n,

@@ -135,7 +135,6 @@ class Deformer:
         self._pose_stride = self._npos + 9 * (S + 1) + 1
         quat = blend == "quaternion"
         self._derived_at = derived_layout(P, S, quat)
-        self._derived_stride = self._derived_at["stride"]
         # R_g per pose on the device (the pose kernel's prologue), when some point takes the
         # global rotation as its reference
         self._global = GlobalFit(self.rest) if blend != "paper" and refs_global else None
@@ -171,7 +170,7 @@ class Deformer:
         return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
                 self._pose.arg, self._derived.arg, self._out.arg,
                 self._out.arg if self._handoff.array is None else self._handoff.array.arg, np.int32(BLOCK_POINTS // self.lanes),
-                np.int32(self._pose_stride), np.int32(self._derived_stride), np.int32(self.blend == "paper"),
+                np.int32(self._pose_stride), np.int32(self._derived_at["stride"]), np.int32(self.blend == "paper"),
                 np.int32(self._npairs), b["pairs"], b["pairs"] if self._global is None else self._global.data,
                 self._jobs.box.arg, np.int32(device.ROLE_CALLER)]
 
@@ -217,7 +216,7 @@ class Deformer:
         blocks[:, self._npos + 9 * S: self._npos + 9 * S + 9] = np.eye(3).ravel()   # R_g, unless GlobalFit writes it
         self._slots = self._pose.host.view(np.int32).reshape(frames, self._pose_stride)[:, -1]
         self._own_slots = np.arange(frames, dtype=np.int32)
-        self._derived = device.HostArray(frames * self._derived_stride)   # written and read by kernels
+        self._derived = device.HostArray(frames * self._derived_at["stride"])   # written and read by kernels
         self._out = device.HostArray(frames * 3 * self._npad)
         self._kernel.set_args(*self._pose_args())
         self._jobs.keep = (self._pose, self._derived, self._out, self._handoff.array)

@@ -263,7 +263,7 @@ def test_rotation_table_against_float64(blend, lever):
     assert list(refs) == list(range(S))       # every segment is some point's reference
     dev._derived.download()
     tw = 4 if blend == "quaternion" else 3
-    block = dev._derived.host[: dev._derived_stride].astype(np.float64)
+    block = dev._derived.host[: dev._derived_at["stride"]].astype(np.float64)
     at = dev._derived_at
     table = block[at["table"]: at["stride"]].reshape(S + 1, S, tw)[:S]     # j = S, R_g: unused here
     len2 = np.empty(S, np.float32)
