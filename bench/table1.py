@@ -361,89 +361,97 @@ def warmup_profile(starts_ms: list[float], times_s: list[float]) -> dict:
             "median_ms": [float(np.median(t)) for _, t in bins], "n": [int(len(t)) for _, t in bins]}
 
 
-def measure(v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, n_ref: int,
-            repeat: int, bind_repeat: int, blend: str = BLEND, min_block_s: float = MIN_BLOCK_S) -> dict:
-    """All figures of one (model, handle kind) cell; backends interleaved; each round's
-    PoCL block poses LOOP_PASSES times over the poses and for at least min_block_s."""
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
-    rng = np.random.default_rng(seed)
-    args = [chain_pose_args(rest, rng) if kind == "segments" else point_pose_args(rest, rng, diag)
-            for _ in range(n_poses)]
-    make_s, poses = [], []
-    for a in args:
-        dt, p = _timed(lambda a=a: Pose.make(rest, **a))
-        make_s.append(dt)
-        poses.append(p)
+class Cell:
+    """One (model, handle kind) cell of Table 1: bound at construction, timed in rounds
+    (:meth:`round`) that :func:`run` takes over all cells in turn, summed up by
+    :meth:`result`. Each round's PoCL block poses LOOP_PASSES times over the poses and for
+    at least min_block_s, then the numpy reference poses a few of them."""
 
-    # the first PoCL bind builds this handle configuration's kernels (nrmls.cl is
-    # compiled per point count and slot count): timed on its own, not in bind_ms
-    first_s, _ = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER, backend="opencl"))
-    bind_cl, bind_np = [], []
-    for _ in range(bind_repeat):  # interleaved binds; the last ones are kept
-        dt, dcl = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER, backend="opencl"))
-        bind_cl.append(dt)
-        dt, dnp = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER, backend="numpy"))
-        bind_np.append(dt)
+    def __init__(self, v: np.ndarray, rest: HandleSet, kind: str, seed: int, n_poses: int, n_ref: int,
+                 bind_repeat: int, blend: str = BLEND, min_block_s: float = MIN_BLOCK_S):
+        self.v, self.rest, self.n_ref, self.min_block_s = v, rest, n_ref, min_block_s
+        self.diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+        rng = np.random.default_rng(seed)
+        args = [chain_pose_args(rest, rng) if kind == "segments" else point_pose_args(rest, rng, self.diag)
+                for _ in range(n_poses)]
+        self.make_s, self.poses = [], []
+        for a in args:
+            dt, p = _timed(lambda a=a: Pose.make(rest, **a))
+            self.make_s.append(dt)
+            self.poses.append(p)
+        # the first PoCL bind builds this handle configuration's kernels (nrmls.cl is
+        # compiled per point count and slot count): timed on its own, not in bind_ms
+        self.first_s, _ = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER,
+                                                  backend="opencl"))
+        self.bind_cl, self.bind_np = [], []
+        for _ in range(bind_repeat):  # interleaved binds; the last ones are kept
+            dt, self.dcl = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER,
+                                                   backend="opencl"))
+            self.bind_cl.append(dt)
+            dt, self.dnp = _timed(lambda: Deformer(v, rest, alpha=ALPHA, blend=blend, lever=LEVER,
+                                                   backend="numpy"))
+            self.bind_np.append(dt)
+        for p in self.poses[:WARMUP]:  # warm-up (first enqueues, page faults, caches)
+            self.dcl.pose(p)
+        self.dnp.pose(self.poses[0])
+        self.cl_s, self.cl_start_ms, self.after_pause_s, self.into_s, self.np_s = [], [], [], [], []
+        self.batch_s, self.err = [], 0.0
+        # PoCL poses written into arrays the caller owns (out=), one per pose, as a loop
+        # filling a clip buffer does (a copy of each result), kept for the error; and one
+        # array of all the poses for the batched launches, reused as a clip loop would
+        self.outs = np.zeros((n_poses, len(v), 3), np.float32)
+        self.frames = np.empty((n_poses, len(v), 3), np.float32)
 
-    for p in poses[:WARMUP]:  # warm-up (first enqueues, page faults, caches)
-        dcl.pose(p)
-    dnp.pose(poses[0])
-    cl_s, cl_start_ms, after_pause_s, into_s, np_s, err = [], [], [], [], [], 0.0
-    # PoCL poses as a frame loop makes them: `posed = pose(p)`, each result held until the
-    # next pose is made (pose() hands its frame over without a copy: device.Handoff), the
-    # poses LOOP_PASSES times over;
-    # then the same poses written into arrays the caller owns (out=), one per pose, as a
-    # loop filling a clip buffer does (a copy of each result), and kept for the error
-    outs = np.zeros((len(poses), len(v), 3), np.float32)
-    gc_was = gc.isenabled()
-    gc.disable()
-    try:
-        for r in range(repeat):
-            # rounds alternate a block of the PoCL poses (back to back, as frames are posed)
-            # with a few numpy poses (a different set each round), so both backends see the
-            # same machine; poses of one backend are not split by the other's, whose ~100 ms
-            # of host work would leave PoCL's worker threads asleep and its caches cold
-            posed, j, block_s = None, 0, 0.0
-            while j < LOOP_PASSES * len(poses) or block_s < min_block_s:
-                dt, posed = _timed(lambda p=poses[j % len(poses)]: dcl.pose(p))
-                cl_s.append(dt)
-                cl_start_ms.append(block_s * 1e3)
-                if j == 0:
-                    after_pause_s.append(dt)
-                j, block_s = j + 1, block_s + dt
-            del posed
-            for i, p in enumerate(poses):
-                dt, _out = _timed(lambda p=p, i=i: dcl.pose(p, out=outs[i]))
-                into_s.append(dt)
-            for i in sorted({(r * 7 + j * n_poses // n_ref) % n_poses for j in range(n_ref)}):
-                dt, ref = _timed(lambda p=poses[i]: dnp.pose(p))
-                np_s.append(dt)
-                err = max(err, float(np.abs(outs[i].astype(np.float64) - ref).max()) / diag)
-        # the same poses as one batch per launch (how clips are posed): per-frame time
-        batch_s = []
-        frames = np.empty((len(poses), len(v), 3), np.float32)   # reused, as a clip loop would
-        for _ in range(repeat):
-            dt, _out = _timed(lambda: dcl.pose_frames(poses, out=frames))
-            batch_s.append(dt / len(poses))
-    finally:
-        if gc_was:
-            gc.enable()
-    n, h = len(v), rest.count
-    pose_cl, pose_np = _stats(cl_s), _stats(np_s)
-    batch = _stats(batch_s)
-    return {"bbox_diagonal": diag, "bind_ms": _stats(bind_cl), "bind_numpy_ms": _stats(bind_np),
-            "bind_first_ms": first_s * 1e3,
-            "pose_make_ms": _stats(make_s), "pocl_pose_ms": pose_cl,
-            "pocl_pose_into_ms": _stats(into_s), "pocl_pose_after_pause_ms": _stats(after_pause_s),
-            "pocl_pose_warmup_ms": warmup_profile(cl_start_ms, cl_s),
-            "numpy_pose_ms": pose_np,
-            "speedup_vs_numpy": pose_np["median"] / pose_cl["median"],
-            "pocl_batched_per_frame_ms": batch, "batch_frames": len(poses),
-            "batched_speedup_vs_numpy": pose_np["median"] / batch["median"],
-            "pocl_ms_per_point_handle": pose_cl["median"] / (n * h),
-            "numpy_ms_per_point_handle": pose_np["median"] / (n * h),
-            "max_error_rel_bbox": err,
-            "handles_rest": {"points": rest.points.tolist(), "segments": rest.segments.tolist()}}
+    def round(self, r: int) -> None:
+        """Round r: a block of the PoCL poses (back to back, as frames are posed), then a few
+        numpy poses (a different set each round), so both backends see the same machine;
+        poses of one backend are not split by the other's, whose ~100 ms of host work would
+        leave PoCL's worker threads asleep and its caches cold. Then the poses written into
+        the caller's arrays (out=), and once all as one launch (how clips are posed)."""
+        dcl, poses = self.dcl, self.poses
+        # `posed = pose(p)`: each result held until the next pose is made (pose() hands its
+        # frame over without a copy: device.Handoff), the poses LOOP_PASSES times over
+        posed, j, block_s = None, 0, 0.0
+        while j < LOOP_PASSES * len(poses) or block_s < self.min_block_s:
+            dt, posed = _timed(lambda p=poses[j % len(poses)]: dcl.pose(p))
+            self.cl_s.append(dt)
+            self.cl_start_ms.append(block_s * 1e3)
+            if j == 0:
+                self.after_pause_s.append(dt)
+            j, block_s = j + 1, block_s + dt
+        del posed
+        for i, p in enumerate(poses):
+            dt, _out = _timed(lambda p=p, i=i: dcl.pose(p, out=self.outs[i]))
+            self.into_s.append(dt)
+        dt, _out = _timed(lambda: dcl.pose_frames(poses, out=self.frames))
+        self.batch_s.append(dt / len(poses))
+        n = len(poses)
+        # one numpy pose untimed first: after the other cells' rounds its arrays are out of
+        # the caches and its allocator cold (timed first poses ran up to 1.6x slower)
+        self.dnp.pose(poses[(r * 7 + n - 1) % n])
+        for i in sorted({(r * 7 + j * n // self.n_ref) % n for j in range(self.n_ref)}):
+            dt, ref = _timed(lambda p=poses[i]: self.dnp.pose(p))
+            self.np_s.append(dt)
+            self.err = max(self.err, float(np.abs(self.outs[i].astype(np.float64) - ref).max()) / self.diag)
+
+    def result(self) -> dict:
+        """The cell's figures (bench/README.md, the rows of table1.json)."""
+        n, h = len(self.v), self.rest.count
+        pose_cl, pose_np = _stats(self.cl_s), _stats(self.np_s)
+        batch = _stats(self.batch_s)
+        return {"bbox_diagonal": self.diag, "bind_ms": _stats(self.bind_cl), "bind_numpy_ms": _stats(self.bind_np),
+                "bind_first_ms": self.first_s * 1e3,
+                "pose_make_ms": _stats(self.make_s), "pocl_pose_ms": pose_cl,
+                "pocl_pose_into_ms": _stats(self.into_s), "pocl_pose_after_pause_ms": _stats(self.after_pause_s),
+                "pocl_pose_warmup_ms": warmup_profile(self.cl_start_ms, self.cl_s),
+                "numpy_pose_ms": pose_np,
+                "speedup_vs_numpy": pose_np["median"] / pose_cl["median"],
+                "pocl_batched_per_frame_ms": batch, "batch_frames": len(self.poses),
+                "batched_speedup_vs_numpy": pose_np["median"] / batch["median"],
+                "pocl_ms_per_point_handle": pose_cl["median"] / (n * h),
+                "numpy_ms_per_point_handle": pose_np["median"] / (n * h),
+                "max_error_rel_bbox": self.err,
+                "handles_rest": {"points": self.rest.points.tolist(), "segments": self.rest.segments.tolist()}}
 
 
 # --------------------------------------------------------------------------- run
@@ -503,7 +511,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
     warm = np.random.default_rng(0).random((64, 3))
     Deformer(warm, HandleSet.make(segments=[[[0, 0, 0], [1, 0, 0]]]), backend="opencl")
     setup_ms = (time.perf_counter() - t0) * 1e3
-    rows, sources = [], set()
+    cells, sources = [], set()
     for model, count, h, paper_ms, rel in TABLE1:
         v, src = load_model(model, count, rel, data, quick)
         if rel is not None:  # the box is a grid by construction in every case
@@ -511,23 +519,38 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
         for kind in KINDS:
             rest = chain_handles(v, h) if kind == "segments" else fps_handles(v, h)
             seed = zlib.crc32(f"{model}/{kind}".encode())
-            cell = measure(v, rest, kind, seed, n_poses, n_ref, repeat, bind_repeat, blend,
-                           min_block_s=min_block_s)
-            row = {"model": model, "kind": kind, "points": int(len(v)), "handles": h,
-                   "paper_points": count, "paper_ms": paper_ms,
-                   "paper_ms_per_point_handle": paper_ms / (count * h), "source": src, **cell}
-            row["paper_over_pocl"] = paper_ms / row["pocl_pose_ms"]["median"]
-            rows.append(row)
-            if log:
-                log(f"{model:9s} {kind:8s} N={len(v):6d} h={h:2d}  bind {cell['bind_ms']['median']:8.1f} ms"
-                    f"  PoCL {cell['pocl_pose_ms']['median']:7.3f} ms"
-                    f" [{cell['pocl_pose_ms']['p10']:.3f}, {cell['pocl_pose_ms']['p90']:.3f}]"
-                    f" (into out= {cell['pocl_pose_into_ms']['median']:.3f})"
-                    f"  numpy {cell['numpy_pose_ms']['median']:8.2f} ms"
-                    f"  x{cell['speedup_vs_numpy']:6.1f}  paper/PoCL {row['paper_over_pocl']:6.1f}"
-                    f"  batched {cell['pocl_batched_per_frame_ms']['median']:.3f} ms/frame"
-                    f" (x{cell['batched_speedup_vs_numpy']:.0f})"
-                    f"  err {cell['max_error_rel_bbox']:.1e}")
+            cells.append(({"model": model, "kind": kind, "points": int(len(v)), "handles": h,
+                           "paper_points": count, "paper_ms": paper_ms,
+                           "paper_ms_per_point_handle": paper_ms / (count * h), "source": src},
+                          Cell(v, rest, kind, seed, n_poses, n_ref, bind_repeat, blend, min_block_s)))
+    # the rounds go over all cells in turn: a slow phase of this VM (one vCPU away for a
+    # second or more) then costs every row a round, not one row all its rounds
+    gc_was = gc.isenabled()
+    gc.disable()
+    try:
+        for r in range(repeat):
+            for _, cell in cells:
+                cell.round(r)
+    finally:
+        if gc_was:
+            gc.enable()
+    rows = []
+    for head, cell in cells:
+        row = {**head, **cell.result()}
+        row["paper_over_pocl"] = row["paper_ms"] / row["pocl_pose_ms"]["median"]
+        rows.append(row)
+        if log:
+            log(f"{row['model']:9s} {row['kind']:8s} N={row['points']:6d} h={row['handles']:2d}"
+                f"  bind {row['bind_ms']['median']:8.1f} ms"
+                f"  PoCL {row['pocl_pose_ms']['median']:7.3f} ms"
+                f" [{row['pocl_pose_ms']['p10']:.3f}, {row['pocl_pose_ms']['p90']:.3f}]"
+                f" (into out= {row['pocl_pose_into_ms']['median']:.3f})"
+                f"  numpy {row['numpy_pose_ms']['median']:8.2f} ms"
+                f"  x{row['speedup_vs_numpy']:6.1f}  paper/PoCL {row['paper_over_pocl']:6.1f}"
+                f"  batched {row['pocl_batched_per_frame_ms']['median']:.3f} ms/frame"
+                f" (x{row['batched_speedup_vs_numpy']:.0f})"
+                f"  err {row['max_error_rel_bbox']:.1e}")
+    del cells
     source = {"mesh": "meshes", "synthetic": "synthetic"}[sources.pop()] if len(sources) == 1 else "mixed"
     dragon = next(r for r in rows if r["model"] == "dragon" and r["kind"] == "segments")
     dirty = _git("diff", "--name-only", "HEAD", "--", "nrpose", "kernels", "rigs")
