@@ -34,6 +34,10 @@ ACCS = 8          # independent float8 accumulators per work-item
 #: a kernel near the copy bandwidth is called memory bound only if taking its memory
 #: traffic away (ablation.py "memory") saves at least this share of its time
 MEMORY_BOUND_SHARE = 0.3
+#: ... and launch bound if its time is within this factor of an empty kernel's (the
+#: launch is then at least half of it; 4 until the thirteenth session, which called
+#: segment rows of 0.11-0.12 ms launch bound beside an empty kernel of 30-45 us)
+LAUNCH_BOUND_RATIO = 2
 ITERS = 2048      # updates of each accumulator
 PEAK_ITEMS = 4096  # work-items of the arithmetic kernel (many work-groups for both cores)
 COPY_DRAM_MB = 256
@@ -352,16 +356,17 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
         kernel_bound = "memory"
         reasons.append(f"kernel at {100 * f_bw:.0f} % of the {'L3' if fits_l3 else 'DRAM'} copy bandwidth "
                        f"(memory bound)")
-    elif kernel_ms < 4 * launch["event_ms"]:
+    elif kernel_ms < LAUNCH_BOUND_RATIO * launch["event_ms"]:
         kernel_bound = "launch"
-        reasons.append(f"kernel time {kernel_ms:.3f} ms is within 4x of an empty kernel's "
+        reasons.append(f"kernel time {kernel_ms:.3f} ms is within {LAUNCH_BOUND_RATIO:g}x of an empty kernel's "
                        f"{launch['event_ms']:.3f} ms event time (thread wake-up / work distribution)")
     else:
         kernel_bound = "instructions"
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof and {100 * f_bw:.0f} % of the "
                        f"{'L3' if fits_l3 else 'DRAM'} copy bandwidth, bound by neither: its instructions "
                        f"(dependency chains of the slot and handle loops and the rotation, loads of "
-                       f"per-pose rows) on the two cores")
+                       f"per-pose rows) on the two cores; an empty kernel's event time is "
+                       f"{100 * launch['event_ms'] / kernel_ms:.0f} % of it")
     if shares is not None:
         measured = [f"{100 * shares['memory']['share']:.0f} % of the kernel's time waiting for memory"]
         if "stores" in shares:
