@@ -110,6 +110,8 @@ def targets(doc: dict) -> list[dict]:
                     "target": TARGETS["fraction_arithmetic_min"], "measured": best["fraction_arithmetic"],
                     "where": f"{best['model']}/{best['kind']} (best row)",
                     "per_row": {f"{r['model']}/{r['kind']}": {"fraction_arithmetic": r["fraction_arithmetic"],
+                                                              "fraction_arithmetic_best_round":
+                                                                  r["fraction_arithmetic_best_round"],
                                                               "batched_fraction_arithmetic":
                                                                   r["batched"]["fraction_arithmetic"],
                                                               "bound_by": r["bound_by"]} for r in rows},

@@ -82,8 +82,12 @@ def test_roofline(quick):
     assert len(res["rows"]) == 8
     for r in res["rows"]:
         assert _stats_ok(r["kernel_ms"]) and _stats_ok(r["pose_ms"])
-        for k in ("gflops", "gbs", "fraction_arithmetic", "fraction_bandwidth", "roofline_ceiling_gflops"):
+        for k in ("gflops", "gbs", "fraction_arithmetic", "fraction_bandwidth", "roofline_ceiling_gflops",
+                  "fraction_arithmetic_best_round"):
             assert _finite_positive(r[k]), k
+        # the best round's median is no slower than the median over all rounds
+        assert r["kernel_ms"]["min"] <= r["kernel_ms_best_round"] <= r["kernel_ms"]["median"]
+        assert r["fraction_arithmetic_best_round"] >= r["fraction_arithmetic"]
         P, K = r["work"]["P"], r["work"]["K"]
         stored = 6 * P + 3 if K == 0 else 0      # point rigs read their levers (levers_stored)
         assert r["work"]["flops_per_point"] == 70 * P + 18 * K + 78 + (15 if P else 0) - stored
