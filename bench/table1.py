@@ -398,9 +398,10 @@ class Cell:
         self.batch_s, self.err = [], 0.0
         # PoCL poses written into arrays the caller owns (out=), one per pose, as a loop
         # filling a clip buffer does (a copy of each result), kept for the error; and one
-        # array of all the poses for the batched launches, reused as a clip loop would
+        # array of all the poses for the batched launches, reused as a clip loop would: the
+        # deformer's frames_array, which its kernel writes into directly (CharacterPoser's)
         self.outs = np.zeros((n_poses, len(v), 3), np.float32)
-        self.frames = np.empty((n_poses, len(v), 3), np.float32)
+        self.frames = self.dcl.frames_array(n_poses)
 
     def round(self, r: int) -> None:
         """Round r: a block of the PoCL poses (back to back, as frames are posed), then a few

@@ -737,6 +737,43 @@ class _Owner:
     __slots__ = ("__array_interface__", "memory")
 
 
+class _FrameOwner(_Owner):
+    """The base of a :func:`frame_array`: ``memory`` is its :class:`HostArray`, ``stride``
+    the floats from one frame to the next."""
+    __slots__ = ("stride",)
+
+
+def frame_array(frames: int, stride: int, n: int) -> np.ndarray | None:
+    """An uninitialised float32 array of shape (frames, n, 3) in shared memory that a
+    deformer's kernel writes into directly (:func:`frames_in`); its frames are ``stride``
+    floats apart (a deformer's padded frame, 3 Npad >= 3 n), each (n, 3) C-contiguous.
+    None without fine-grained shared memory."""
+    if not fine_grain_svm():
+        return None
+    owner = _FrameOwner()
+    owner.memory, owner.stride = HostArray(max(frames, 1) * stride), stride
+    owner.__array_interface__ = {"data": (owner.memory.host.ctypes.data, False), "shape": (frames, n, 3),
+                                 "strides": (4 * stride, 12, 4), "typestr": "<f4", "version": 3}
+    return np.asarray(owner)
+
+
+def frames_in(out: np.ndarray, stride: int) -> tuple[HostArray, int] | None:
+    """Where ``out`` lies in a :func:`frame_array` of frames ``stride`` floats apart: (that
+    array's memory, the index of out's first frame in it); None if it does not (another
+    array, other strides, a view that is not a run of whole frames)."""
+    base = out
+    while isinstance(base, np.ndarray) and isinstance(base.base, np.ndarray):
+        base = base.base
+    owner = base.base if isinstance(base, np.ndarray) else None
+    if not isinstance(owner, _FrameOwner) or owner.stride != stride or out.dtype != np.float32 \
+            or out.ndim != 3 or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
+        return None
+    offset = out.ctypes.data - owner.memory.host.ctypes.data
+    if offset % (4 * stride):
+        return None
+    return owner.memory, offset // (4 * stride)
+
+
 class Handoff:
     """Frames that launches write and callers receive without a copy.
 

@@ -52,9 +52,10 @@ BATCH = 16            # frames posed per kernel launch (bound data read once per
 
 @dataclass(frozen=True)
 class Frames:
-    """Posed frames: positions (F, V, 3) float32, faces (M, 3) int64 (indices
-    into the concatenated vertices), mesh_names, mesh_offsets (len(meshes),)
-    int64, and per-frame pose times in milliseconds (F,)."""
+    """Posed frames: positions (F, V, 3) float32 (each frame C-contiguous; nrmls on
+    OpenCL leaves a few padding points between frames, :meth:`nrpose.engine.Deformer.frames_array`),
+    faces (M, 3) int64 (indices into the concatenated vertices), mesh_names,
+    mesh_offsets (len(meshes),) int64, and per-frame pose times in milliseconds (F,)."""
 
     positions: np.ndarray
     faces: np.ndarray
@@ -152,7 +153,10 @@ class CharacterPoser:
         if G.ndim == 3:
             G = G[None]
         F = len(G)
-        out = np.empty((F, self.n, 3), np.float32)
+        whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
+        # nrmls on OpenCL: the frames in memory its kernel writes directly (no copy per frame)
+        out = (self._deformer.frames_array(F) if whole and self.method == "nrmls" and self._backend == "opencl"
+               else np.empty((F, self.n, 3), np.float32))
         frame_ms = np.empty(F)
         skin_rest = G @ self._rest_inv                                    # (F, J, 4, 4)
         # per-frame handle data for all frames at once (vectorised host work)
@@ -162,7 +166,6 @@ class CharacterPoser:
         else:
             mats = (np.concatenate([G @ ibm for ibm in self._ibms], axis=1) if self._bind_space
                     else skin_rest)
-        whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
         for a in range(0, F, BATCH):
             b = min(a + BATCH, F)
             t0 = time.perf_counter()

@@ -572,6 +572,50 @@ def test_pose_frames_batch_matches_single_poses(mixed):
     assert np.array_equal(dev.pose_frames(poses[:2]), single[:2])   # smaller batch after a larger one
 
 
+@pytest.mark.parametrize("n_pts,n_segs", [(2, 3), (3, 0)])     # 8 and 16 lanes: row and vector stores
+def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
+    """pose_frames(out=) into a frames_array (or a run of its frames) is written by the
+    kernel itself: the same frames as a batch into a plain array, bitwise, and the frames
+    around the run untouched; single poses between such batches (the kernel's handed
+    argument bound back and forth) still hand over their frames; an out from another
+    deformer's frames_array (other padding), a column slice or a plain array is copied
+    into, as before. The numpy backend's frames_array is a plain float64 array."""
+    from nrpose import device
+
+    rng = np.random.default_rng(31)
+    rest = random_rest(rng, n_pts, n_segs)
+    points = rng.uniform(-1, 1, (1010, 3))          # not a multiple of the lanes: padded frames
+    dev, ref = both(points, rest)
+    poses = [random_pose(rng, rest) for _ in range(6)]
+    want = dev.pose_frames(poses)
+    frames = dev.frames_array(9)
+    assert frames.shape == (9, len(points), 3) and frames.dtype == np.float32
+    assert device.fine_grain_svm() == (device.frames_in(frames, 3 * dev._npad) is not None)
+    frames[...] = -7.0
+    assert dev.pose_frames(poses[:3], out=frames[2:5]) is not None
+    assert np.array_equal(frames[2:5], want[:3])
+    assert (frames[:2] == -7).all() and (frames[5:] == -7).all()
+    held = dev.pose(poses[4])
+    assert np.array_equal(held, want[4])
+    dev.pose_frames(poses, out=frames[3:])
+    assert np.array_equal(frames[3:], want) and (frames[:2] == -7).all()
+    assert np.array_equal(dev.pose(poses[5]), want[5]) and np.array_equal(held, want[4])
+    assert np.abs(frames[3:] - ref.pose_frames(poses)).max() <= TOL * diag(points)
+    # a frames_array of a deformer with the other lane count pads 1010 points otherwise
+    other = Deformer(points, random_rest(rng, 2, 0 if n_segs else 2)).frames_array(2)
+    assert device.frames_in(other, 3 * dev._npad) is None and device.frames_in(frames[:, 1:], 3 * dev._npad) is None
+    assert dev.pose_frames(poses[:2], out=other) is other and np.array_equal(other, want[:2])
+    with pytest.raises(InputError, match="shape"):
+        dev.pose_frames(poses[:2], out=frames[:2, :5])
+    plain = np.zeros((2, len(points), 3), np.float32)
+    assert dev.pose_frames(poses[:2], out=plain) is plain and np.array_equal(plain, want[:2])
+    empty = dev.frames_array(0)
+    assert dev.pose_frames([], out=empty).shape == (0, len(points), 3)
+    with pytest.raises(InputError, match="frames"):
+        dev.frames_array(-1)
+    assert ref.frames_array(2).dtype == np.float64
+
+
 @pytest.mark.parametrize("blocks", [1, 3])
 @pytest.mark.parametrize("n_pts,n_segs", [(2, 3), (3, 0)])     # 8 and 16 lanes
 def test_shared_launch_any_split_same_points(blocks, n_pts, n_segs, monkeypatch):
@@ -631,6 +675,9 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     assert np.array_equal(got, batches[0])
     assert np.abs(got - ref.pose_frames(poses)).max() <= TOL * diag(points)
     assert np.array_equal(dev.pose_frames(poses[1:]), batches[1])
+    frames = dev.frames_array(3)               # a plain array here: copied into
+    assert device.frames_in(frames, 3 * dev._npad) is None
+    assert dev.pose_frames(poses, out=frames) is frames and np.array_equal(frames, batches[0])
     assert np.array_equal(GlobalFit.fit(rest, poses), fits)
 
 
