@@ -501,6 +501,16 @@ class Jobs:
         if self._finalizer is not None:
             self._finalizer.detach()
 
+    def set_argument(self, kernel, index: int, value) -> None:
+        """Set argument ``index`` of ``kernel`` and of its standing clone, ending a standing
+        worker (it runs with the old one): cloning again after :meth:`arguments_changed`
+        made the next launch ~0.4 ms slower."""
+        self.stop()
+        kernel.set_arg(index, value)
+        clone = self._clones.get(kernel)
+        if clone is not None:
+            clone[0].set_arg(index, value)
+
     def arguments_changed(self) -> None:
         """Before an owner sets an argument of its kernel again (or frees an array it
         reads): end the standing worker and drop the clones, which hold the old ones."""

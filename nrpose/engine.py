@@ -156,7 +156,9 @@ class Deformer:
         # held result keeps only them alive (twice its size), not the per-frame arrays
         self._handoff = device.Handoff(device.HANDOFF_SLOTS, 3 * npad, (1, self.n, 3))
         # the memory bound as the kernel's `handed` argument: the handoff slots, or the
-        # frame_array of the last launch into one (pose_frames)
+        # memory of the frames_array of the last launch into one (pose_frames), bound back
+        # only when a pose hands a frame over: binding stops a standing worker, and binding
+        # back after every batch made a loop of the box's batches 1.6x slower
         self._handed = self._handoff.array
         self._reserve(1)
         # PoCL compiles a kernel's work-group function at its first launch on each
@@ -256,8 +258,8 @@ class Deformer:
         copy took 0.08 ms of a 0.18 ms frame of the dragon's 35,820 points, batched); its
         frames are each (N, 3) C-contiguous but 3 Npad floats apart (:attr:`lanes`
         padding), so the whole is not C-contiguous. Float32 (float64 on numpy); elsewhere
-        a plain array. After a launch into it the deformer holds it (as the kernel's
-        argument) until its next single pose."""
+        a plain array. After a launch into it the deformer keeps its memory (as the
+        kernel's argument) until its next single pose or a launch into another."""
         if frames < 0:
             raise InputError(f"frames must be at least 0, got {frames}")
         if self.backend == "opencl":
@@ -336,9 +338,8 @@ class Deformer:
     def _bind_handed(self, memory) -> None:
         """Bind ``memory`` (a HostArray) as the kernel's ``handed`` argument, if it is not."""
         if memory is not self._handed:
-            self._jobs.arguments_changed()      # a standing worker holds the old argument
             self._handed = memory
-            self._kernel.set_arg(8, memory.arg)
+            self._jobs.set_argument(self._kernel, 8, memory.arg)
             self._jobs.keep = (self._pose, self._derived, self._out, memory)
 
     def _run(self, poses: list, owned: bool, direct: tuple | None = None) -> np.ndarray | None:

@@ -616,6 +616,39 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
     assert ref.frames_array(2).dtype == np.float64
 
 
+def test_standing_worker_follows_the_rebound_output(monkeypatch):
+    """The standing worker runs a clone of the pose kernel; when the kernel's handed
+    argument is rebound (a batch into a frames_array, then single poses handing frames
+    over again: Jobs.set_argument), the clone takes the new argument too. Single poses
+    served by a standing worker before and after such a batch land in their handed
+    frames, and leave the batch's frames as they were."""
+    from nrpose import device
+    from nrpose.engine import BLOCK_POINTS
+
+    if not device.fine_grain_svm() or device.worker_queue() is None:
+        pytest.skip("needs shared memory and PoCL's worker device (standing workers)")
+    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    device.set_standby_s(0.5)
+    rng = np.random.default_rng(37)
+    rest = random_rest(rng, 2, 3)
+    points = rng.uniform(-1, 1, ((device.STANDING_MIN_BLOCKS + 1) * BLOCK_POINTS, 3))
+    dev = Deformer(points, rest)
+    poses = [random_pose(rng, rest) for _ in range(4)]
+    want = dev.pose_frames(poses).copy()
+    stood = []
+    for _ in range(2):
+        held = [dev.pose(p) for p in poses[:2]]
+        stood.append(dev._jobs.standing(dev._kernel))
+        frames = dev.frames_array(4)
+        dev.pose_frames(poses, out=frames)
+        kept = frames.copy()
+        after = [dev.pose(p) for p in poses[2:]]
+        stood.append(dev._jobs.standing(dev._kernel))
+        assert np.array_equal(np.stack(held + after), want) and np.array_equal(frames, kept)
+        assert np.array_equal(frames, want)
+    assert any(stood)          # a standing worker served some of these poses
+
+
 @pytest.mark.parametrize("blocks", [1, 3])
 @pytest.mark.parametrize("n_pts,n_segs", [(2, 3), (3, 0)])     # 8 and 16 lanes
 def test_shared_launch_any_split_same_points(blocks, n_pts, n_segs, monkeypatch):
