@@ -770,13 +770,13 @@ def frame_array(frames: int, stride: int, n: int) -> np.ndarray | None:
 def frames_in(out: np.ndarray, stride: int) -> tuple[HostArray, int] | None:
     """Where ``out`` lies in a :func:`frame_array` of frames ``stride`` floats apart: (that
     array's memory, the index of out's first frame in it); None if it does not (another
-    array, other strides, a view that is not a run of whole frames)."""
+    array, other strides, a view that is not a run of whole frames, or is read-only)."""
     base = out
     while isinstance(base, np.ndarray) and isinstance(base.base, np.ndarray):
         base = base.base
     owner = base.base if isinstance(base, np.ndarray) else None
     if not isinstance(owner, _FrameOwner) or owner.stride != stride or out.dtype != np.float32 \
-            or out.ndim != 3 or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
+            or not out.flags.writeable or out.ndim != 3 or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
         return None
     offset = out.ctypes.data - owner.memory.host.ctypes.data
     if offset % (4 * stride):

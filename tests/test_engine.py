@@ -592,8 +592,14 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
     assert frames.shape == (9, len(points), 3) and frames.dtype == np.float32
     assert device.fine_grain_svm() == (device.frames_in(frames, 3 * dev._npad) is not None)
     frames[...] = -7.0
-    assert dev.pose_frames(poses[:3], out=frames[2:5]) is not None
+    run = frames[2:5]
+    assert dev.pose_frames(poses[:3], out=run) is run
     assert np.array_equal(frames[2:5], want[:3])
+    frozen = frames[:2]
+    frozen.flags.writeable = False            # read-only: refused, not written by the kernel
+    with pytest.raises(InputError, match="not writable"):
+        dev.pose_frames(poses[:2], out=frozen)
+    assert (frames[:2] == -7).all()
     assert (frames[:2] == -7).all() and (frames[5:] == -7).all()
     held = dev.pose(poses[4])
     assert np.array_equal(held, want[4])
