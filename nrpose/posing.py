@@ -158,7 +158,8 @@ class CharacterPoser:
         out = (self._deformer.frames_array(F) if whole and self.method == "nrmls" and self._backend == "opencl"
                else np.empty((F, self.n, 3), np.float32))
         frame_ms = np.empty(F)
-        skin_rest = G @ self._rest_inv                                    # (F, J, 4, 4)
+        # (F, J, 4, 4): skinning matrices, for LBS/DQS and for rigidly attached meshes
+        skin_rest = G @ self._rest_inv if self.method != "nrmls" or self._rigid_idx.size else None
         # per-frame handle data for all frames at once (vectorised host work)
         if self.method == "nrmls":
             segs, rots = self.bones.pose(G)
