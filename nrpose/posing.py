@@ -52,8 +52,8 @@ BATCH = 16            # frames posed per kernel launch (bound data read once per
 
 @dataclass(frozen=True)
 class Frames:
-    """Posed frames: positions (F, V, 3) float32 (each frame C-contiguous; nrmls on
-    OpenCL leaves a few padding points between frames, :meth:`nrpose.engine.Deformer.frames_array`),
+    """Posed frames: positions (F, V, 3) float32 (each frame C-contiguous; posed on
+    OpenCL, a few padding points lie between frames, :meth:`nrpose.engine.Deformer.frames_array`),
     faces (M, 3) int64 (indices into the concatenated vertices), mesh_names,
     mesh_offsets (len(meshes),) int64, and per-frame pose times in milliseconds (F,)."""
 
@@ -154,8 +154,8 @@ class CharacterPoser:
             G = G[None]
         F = len(G)
         whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
-        # nrmls on OpenCL: the frames in memory its kernel writes directly (no copy per frame)
-        out = (self._deformer.frames_array(F) if whole and self.method == "nrmls" and self._backend == "opencl"
+        # on OpenCL: the frames in memory the deformer's kernel writes directly (no copy per frame)
+        out = (self._deformer.frames_array(F) if whole and self._backend == "opencl"
                else np.empty((F, self.n, 3), np.float32))
         frame_ms = np.empty(F)
         # (F, J, 4, 4): skinning matrices, for LBS/DQS and for rigidly attached meshes

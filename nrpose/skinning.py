@@ -321,6 +321,9 @@ class Deformer:
         self._out: device.HostArray | None = None    # posed vertices
         self._jobs: device.Jobs | None = None       # the kernel's job mailbox (share.h)
         self._joints_bound = -1
+        # what the kernel's output argument is bound to: (HostArray, first frame), the
+        # deformer's own slab (_out, 0) or a frames_array's memory (frames_in)
+        self._out_bound: tuple | None = None
         self._batch = 0       # frames of the last launch
         # PoCL compiles a kernel's work-group function at its first launch on each
         # device: pay that at bind (an identity pose, shared: the mailbox shares
@@ -339,11 +342,22 @@ class Deformer:
         result = self._run(self._params(mats[None]), None if out is None else out[None])
         return result[0] if out is None else out
 
+    def frames_array(self, frames: int) -> np.ndarray:
+        """An uninitialised float32 (frames, N, 3) array for :meth:`pose_frames`' ``out``,
+        as :meth:`nrpose.engine.Deformer.frames_array`: with shared memory the kernel
+        writes into it, or into a run of its frames, directly (no copy); its frames are
+        3 Npad floats apart (Npad: N rounded up to groups of 8). After a launch into it the
+        deformer keeps its memory until a launch into another array."""
+        if frames < 0:
+            raise InputError(f"frames must be at least 0, got {frames}")
+        a = device.frame_array(frames, 3 * self.n_groups * LANES, self.n_vertices) if self._svm else None
+        return a if a is not None else np.empty((frames, self.n_vertices, 3), np.float32)
+
     def pose_frames(self, mats, out: np.ndarray | None = None) -> np.ndarray:
         """Posed vertices (F, N, 3) float64 for F frames of matrices (F, J, 4, 4), one launch;
         out: optional (F, N, 3) float array to write them into instead (and return): a
         float32 one takes the device's values without the float64 array between (a
-        clip's frames, `nrpose.posing`)."""
+        clip's frames, `nrpose.posing`), one from :meth:`frames_array` without a copy."""
         mats = _check_mats(mats, self.max_joint, frames=True)
         self._check_out(out, (len(mats), self.n_vertices, 3))
         return self._run(self._params(mats), out)
@@ -353,6 +367,9 @@ class Deformer:
         if out is not None and (np.shape(out) != shape or not np.issubdtype(np.asarray(out).dtype, np.floating)):
             raise InputError(f"out: expected a float array of shape {shape}, got "
                              f"{np.shape(out)} {getattr(out, 'dtype', type(out).__name__)}")
+        if out is not None and not getattr(getattr(out, "flags", None), "writeable", False):
+            raise InputError("out: the array is not writable; give a writable numpy array "
+                             "(e.g. deformer.frames_array(F))")
 
     def _params(self, mats: np.ndarray) -> np.ndarray:
         if self.method == "lbs":
@@ -382,7 +399,8 @@ class Deformer:
         f, j, width = params.shape
         npad = self.n_groups * LANES
         arr_in = self._array("_in", f * j * width, ARG_PARAMS)
-        arr_out = self._array("_out", f * npad * 3, ARG_OUT)
+        direct = device.frames_in(out, 3 * npad) if out is not None and f and self._svm else None
+        arr_out = self._array("_out", f * npad * 3, ARG_OUT) if direct is None else None
         if self._jobs is None or self._jobs.box.svm != self._svm:
             alone_s = float("inf") if self._jobs is None else self._jobs.alone_s
             if self._jobs is not None:
@@ -390,7 +408,8 @@ class Deformer:
             self._jobs = device.Jobs(svm=self._svm, owner=self)
             self._jobs.alone_s = alone_s
             self._kernel.set_arg(ARG_JOBS, self._jobs.box.arg)
-        self._jobs.keep = (arr_in, arr_out)
+        self._bind_out(*(direct or (arr_out, 0)))
+        self._jobs.keep = (arr_in, self._out_bound[0])
         if j != self._joints_bound:
             self._jobs.arguments_changed()        # a standing worker's clone has the old J
             self._kernel.set_arg(ARG_J, np.int32(j))
@@ -399,12 +418,24 @@ class Deformer:
         arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
         arr_in.upload()
         self.relaunch()
+        if direct is not None:
+            self._queue.finish()
+            return out
         arr_out.download()
         posed = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
         if out is None:
             return posed.astype(np.float64)
         out[...] = posed
         return out
+
+    def _bind_out(self, memory: device.HostArray, first: int) -> None:
+        """Bind the kernel's output to frame ``first`` of ``memory``, if it is not bound there."""
+        bound = self._out_bound
+        if bound is None or bound[0] is not memory or bound[1] != first:
+            import pyopencl as cl
+            arg = memory.arg if first == 0 else cl.SVM(memory.host[3 * self.n_groups * LANES * first:])
+            self._jobs.set_argument(self._kernel, ARG_OUT, arg)
+            self._out_bound = (memory, first)
 
     def relaunch(self, queues=None, workers: bool | None = None) -> list:
         """Run the last posing's kernel again (same inputs, same result) and return its

@@ -127,6 +127,49 @@ def test_out_takes_the_posed_vertices(method):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_pose_frames_into_frames_array_directly(method):
+    """pose_frames(out=) into a frames_array, or a run of its frames, is written by the
+    kernel itself (its output bound at that frame): the same float32 values as a plain
+    out, the frames around the run untouched; single poses and plain batches between
+    such launches land where they should (the output bound back); a read-only view is
+    refused; on the buffer path (no shared memory) a frames_array is a plain array."""
+    from nrpose import device
+
+    rng = np.random.default_rng(12)
+    rest, joints, weights = make_rig(rng, 203, 9, 4)          # 203: a padded last group
+    d = Deformer(rest, joints, weights, method=method)
+    mats = np.stack([rigid(rng, 9) for _ in range(6)])
+    want = np.empty((6, 203, 3), np.float32)
+    d.pose_frames(mats, out=want)
+    frames = d.frames_array(9)
+    assert frames.shape == (9, 203, 3) and frames.dtype == np.float32
+    assert device.fine_grain_svm() == (device.frames_in(frames, 3 * 8 * d.n_groups) is not None)
+    frames[...] = -7.0
+    run = frames[2:5]
+    assert d.pose_frames(mats[:3], out=run) is run
+    assert np.array_equal(frames[2:5], want[:3]) and (frames[:2] == -7).all() and (frames[5:] == -7).all()
+    assert np.array_equal(d.pose(mats[4]).astype(np.float32), want[4])
+    d.pose_frames(mats, out=frames[3:])
+    assert np.array_equal(frames[3:], want) and (frames[:2] == -7).all() and np.array_equal(frames[2], want[0])
+    d.pose_frames(mats[1:2], out=frames[1:2])                  # one frame, at frame 1
+    assert np.array_equal(frames[1], want[1])
+    plain = np.zeros((2, 203, 3), np.float32)
+    assert d.pose_frames(mats[:2], out=plain) is plain and np.array_equal(plain, want[:2])
+    assert np.array_equal(frames[3:], want)                    # not written by the plain launch
+    frozen = frames[:2]
+    frozen.flags.writeable = False
+    with pytest.raises(InputError, match="not writable"):
+        d.pose_frames(mats[:2], out=frozen)
+    with pytest.raises(InputError, match="frames"):
+        d.frames_array(-1)
+    d._svm = False                                             # the buffer path
+    plain_frames = d.frames_array(2)
+    assert device.frames_in(plain_frames, 3 * 8 * d.n_groups) is None
+    assert d.pose_frames(mats[:2], out=plain_frames) is plain_frames
+    assert np.array_equal(plain_frames, want[:2])
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_shared_and_mixed_joint_groups(method):
     """Vertices are stored sorted by their joints: a group's 8 lanes that share influence
     k's joint read its parameters once (broadcast), the others gather them lane by lane.
