@@ -31,6 +31,7 @@ from __future__ import annotations
 import atexit
 import contextlib
 import functools
+import operator
 import os
 import re
 import sys
@@ -753,13 +754,26 @@ class _FrameOwner(_Owner):
     __slots__ = ("stride",)
 
 
-def frame_array(frames: int, stride: int, n: int) -> np.ndarray | None:
-    """An uninitialised float32 array of shape (frames, n, 3) in shared memory that a
-    deformer's kernel writes into directly (:func:`frames_in`); its frames are ``stride``
-    floats apart (a deformer's padded frame, 3 Npad >= 3 n), each (n, 3) C-contiguous.
-    None without fine-grained shared memory."""
-    if not fine_grain_svm():
-        return None
+def frame_count(frames) -> int:
+    """``frames`` as a number of frames (a whole number >= 0), else InputError."""
+    try:
+        count = operator.index(frames)
+    except TypeError:
+        count = -1
+    if count < 0:
+        raise InputError(f"frames must be a whole number >= 0, got {frames!r}")
+    return count
+
+
+def frame_array(frames: int, stride: int, n: int, shared: bool = True) -> np.ndarray:
+    """An uninitialised float32 array of shape (frames, n, 3): with ``shared`` and
+    fine-grained shared memory, in memory a deformer's kernel writes into directly
+    (:func:`frames_in`), its frames ``stride`` floats apart (a deformer's padded frame,
+    3 Npad >= 3 n), each (n, 3) C-contiguous; else a plain array. InputError unless
+    ``frames`` is a whole number >= 0."""
+    frames = frame_count(frames)
+    if not (shared and fine_grain_svm()):
+        return np.empty((frames, n, 3), np.float32)
     owner = _FrameOwner()
     owner.memory, owner.stride = HostArray(max(frames, 1) * stride), stride
     owner.__array_interface__ = {"data": (owner.memory.host.ctypes.data, False), "shape": (frames, n, 3),

@@ -260,12 +260,9 @@ class Deformer:
         padding), so the whole is not C-contiguous. Float32 (float64 on numpy); elsewhere
         a plain array. After a launch into it the deformer keeps its memory (as the
         kernel's argument) until its next single pose or a launch into another."""
-        if frames < 0:
-            raise InputError(f"frames must be at least 0, got {frames}")
         if self.backend == "opencl":
-            a = device.frame_array(frames, 3 * self._npad, self.n)
-            return a if a is not None else np.empty((frames, self.n, 3), np.float32)
-        return np.empty((frames, self.n, 3))
+            return device.frame_array(frames, 3 * self._npad, self.n)
+        return np.empty((device.frame_count(frames), self.n, 3))
 
     def pose_frames(self, poses, out: np.ndarray | None = None) -> np.ndarray:
         """Posed points (F, N, 3) of F poses in one launch (float32; float64 on numpy).

@@ -348,10 +348,7 @@ class Deformer:
         writes into it, or into a run of its frames, directly (no copy); its frames are
         3 Npad floats apart (Npad: N rounded up to groups of 8). After a launch into it the
         deformer keeps its memory until a launch into another array."""
-        if frames < 0:
-            raise InputError(f"frames must be at least 0, got {frames}")
-        a = device.frame_array(frames, 3 * self.n_groups * LANES, self.n_vertices) if self._svm else None
-        return a if a is not None else np.empty((frames, self.n_vertices, 3), np.float32)
+        return device.frame_array(frames, 3 * self.n_groups * LANES, self.n_vertices, shared=self._svm)
 
     def pose_frames(self, mats, out: np.ndarray | None = None) -> np.ndarray:
         """Posed vertices (F, N, 3) float64 for F frames of matrices (F, J, 4, 4), one launch;

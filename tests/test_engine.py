@@ -617,8 +617,9 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
     assert dev.pose_frames(poses[:2], out=plain) is plain and np.array_equal(plain, want[:2])
     empty = dev.frames_array(0)
     assert dev.pose_frames([], out=empty).shape == (0, len(points), 3)
-    with pytest.raises(InputError, match="frames"):
-        dev.frames_array(-1)
+    for bad in (-1, 2.5, "3", None):
+        with pytest.raises(InputError, match="frames must be a whole number"):
+            dev.frames_array(bad)
     assert ref.frames_array(2).dtype == np.float64
 
 

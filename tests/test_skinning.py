@@ -160,8 +160,9 @@ def test_pose_frames_into_frames_array_directly(method):
     frozen.flags.writeable = False
     with pytest.raises(InputError, match="not writable"):
         d.pose_frames(mats[:2], out=frozen)
-    with pytest.raises(InputError, match="frames"):
-        d.frames_array(-1)
+    for bad in (-1, 2.5, "3", None):
+        with pytest.raises(InputError, match="frames must be a whole number"):
+            d.frames_array(bad)
     d._svm = False                                             # the buffer path
     plain_frames = d.frames_array(2)
     assert device.frames_in(plain_frames, 3 * 8 * d.n_groups) is None
