@@ -750,8 +750,8 @@ class _Owner:
 
 class _FrameOwner(_Owner):
     """The base of a :func:`frame_array`: ``memory`` is its :class:`HostArray`, ``stride``
-    the floats from one frame to the next."""
-    __slots__ = ("stride",)
+    the floats from one frame to the next, ``n`` the points of a frame."""
+    __slots__ = ("stride", "n")
 
 
 def frame_count(frames) -> int:
@@ -775,7 +775,7 @@ def frame_array(frames: int, stride: int, n: int, shared: bool = True) -> np.nda
     if not (shared and fine_grain_svm()):
         return np.empty((frames, n, 3), np.float32)
     owner = _FrameOwner()
-    owner.memory, owner.stride = HostArray(max(frames, 1) * stride), stride
+    owner.memory, owner.stride, owner.n = HostArray(max(frames, 1) * stride), stride, n
     owner.__array_interface__ = {"data": (owner.memory.host.ctypes.data, False), "shape": (frames, n, 3),
                                  "strides": (4 * stride, 12, 4), "typestr": "<f4", "version": 3}
     return np.asarray(owner)
@@ -784,13 +784,14 @@ def frame_array(frames: int, stride: int, n: int, shared: bool = True) -> np.nda
 def frames_in(out: np.ndarray, stride: int) -> tuple[HostArray, int] | None:
     """Where ``out`` lies in a :func:`frame_array` of frames ``stride`` floats apart: (that
     array's memory, the index of out's first frame in it); None if it does not (another
-    array, other strides, a view that is not a run of whole frames, or is read-only)."""
+    array, other strides, a view that is not a run of whole frames, e.g. fewer points of a
+    frame_array of more, whose other points a launch would overwrite, or is read-only)."""
     base = out
     while isinstance(base, np.ndarray) and isinstance(base.base, np.ndarray):
         base = base.base
     owner = base.base if isinstance(base, np.ndarray) else None
     if not isinstance(owner, _FrameOwner) or owner.stride != stride or out.dtype != np.float32 \
-            or not out.flags.writeable or out.ndim != 3 or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
+            or not out.flags.writeable or out.ndim != 3 or out.shape[1:] != (owner.n, 3) or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
         return None
     offset = out.ctypes.data - owner.memory.host.ctypes.data
     if offset % (4 * stride):

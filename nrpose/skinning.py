@@ -414,7 +414,7 @@ class Deformer:
         self._batch = f
         arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
         arr_in.upload()
-        self.relaunch()
+        self._launch()
         if direct is not None:
             self._queue.finish()
             return out
@@ -438,7 +438,14 @@ class Deformer:
         """Run the last posing's kernel again (same inputs, same result) and return its
         events (:func:`nrpose.device.launch_shared`); queues: as there, e.g. profiling queues; workers: share the kernel with
         PoCL's worker threads (True), run it on the calling thread alone (False) or let
-        launch_shared decide (None, default)."""
+        launch_shared decide (None, default). The frames are written into the deformer's
+        own output (never into a caller's :meth:`frames_array`)."""
+        self._bind_out(self._array("_out", self._batch * self.n_groups * LANES * 3, ARG_OUT), 0)
+        self._jobs.keep = (self._in, self._out)
+        return self._launch(queues, workers)
+
+    def _launch(self, queues=None, workers: bool | None = None) -> list:
+        """:meth:`relaunch`, into the output the kernel is bound to."""
         return device.launch_shared(self._kernel, self._jobs, self._blocks, self._batch,
                                     queues=queues, workers=workers)
 

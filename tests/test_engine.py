@@ -593,13 +593,14 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
     assert device.fine_grain_svm() == (device.frames_in(frames, 3 * dev._npad) is not None)
     frames[...] = -7.0
     run = frames[2:5]
+    dev._out.host[:] = np.nan                 # the launch's own slots: not written, nothing copied
     assert dev.pose_frames(poses[:3], out=run) is run
     assert np.array_equal(frames[2:5], want[:3])
+    assert np.isnan(dev._out.host).all() == device.fine_grain_svm()
     frozen = frames[:2]
     frozen.flags.writeable = False            # read-only: refused, not written by the kernel
     with pytest.raises(InputError, match="not writable"):
         dev.pose_frames(poses[:2], out=frozen)
-    assert (frames[:2] == -7).all()
     assert (frames[:2] == -7).all() and (frames[5:] == -7).all()
     held = dev.pose(poses[4])
     assert np.array_equal(held, want[4])
@@ -611,6 +612,14 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
     other = Deformer(points, random_rest(rng, 2, 0 if n_segs else 2)).frames_array(2)
     assert device.frames_in(other, 3 * dev._npad) is None and device.frames_in(frames[:, 1:], 3 * dev._npad) is None
     assert dev.pose_frames(poses[:2], out=other) is other and np.array_equal(other, want[:2])
+    # fewer points of a frames_array of more, the same padding: copied into, so that the
+    # kernel's whole padded frames do not overwrite the points past the view
+    fewer = Deformer(points[:-1], rest)
+    assert fewer._npad == dev._npad
+    frames[...] = -7.0
+    view = frames[:2, :-1]
+    assert device.frames_in(view, 3 * fewer._npad) is None
+    assert fewer.pose_frames(poses[:2], out=view) is view and (frames[:2, -1] == -7).all()
     with pytest.raises(InputError, match="shape"):
         dev.pose_frames(poses[:2], out=frames[:2, :5])
     plain = np.zeros((2, len(points), 3), np.float32)

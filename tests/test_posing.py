@@ -131,6 +131,7 @@ def test_methods_match_their_references_and_rest_is_identity(method, weights):
         d = dev._deformer
         found = device.frames_in(out, 3 * (d._npad if method == "nrmls" else 8 * d.n_groups))
         assert found is not None and found[1] == 0
+        assert (d._handed if method == "nrmls" else d._out_bound[0]) is found[0]   # bound: no copy
     assert np.isfinite(out).all()
     assert np.abs(out - expect).max() <= 1e-4 * size
     assert np.abs(out[0] - rest).max() > 1e-2 * size     # the clip does move the fox

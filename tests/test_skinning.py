@@ -146,8 +146,16 @@ def test_pose_frames_into_frames_array_directly(method):
     assert device.fine_grain_svm() == (device.frames_in(frames, 3 * 8 * d.n_groups) is not None)
     frames[...] = -7.0
     run = frames[2:5]
+    d._out.host[:] = np.nan                   # the deformer's own output: not written, nothing copied
     assert d.pose_frames(mats[:3], out=run) is run
     assert np.array_equal(frames[2:5], want[:3]) and (frames[:2] == -7).all() and (frames[5:] == -7).all()
+    assert np.isnan(d._out.host).all() == device.fine_grain_svm()
+    frames[2:5] = 0.0                         # relaunch writes its own output, not the caller's frames
+    d.relaunch()
+    assert (frames[2:5] == 0).all()
+    d._out.download()
+    assert np.array_equal(d._out.host[: 3 * 3 * 8 * d.n_groups].reshape(3, -1, 3)[:, :203], want[:3])
+    frames[2:5] = want[:3]
     assert np.array_equal(d.pose(mats[4]).astype(np.float32), want[4])
     d.pose_frames(mats, out=frames[3:])
     assert np.array_equal(frames[3:], want) and (frames[:2] == -7).all() and np.array_equal(frames[2], want[0])
@@ -163,11 +171,49 @@ def test_pose_frames_into_frames_array_directly(method):
     for bad in (-1, 2.5, "3", None):
         with pytest.raises(InputError, match="frames must be a whole number"):
             d.frames_array(bad)
+    fewer = Deformer(rest[:-1], joints[:-1], weights[:-1], method=method)   # the same padding
+    view = frames[:2, :-1]
+    assert fewer.n_groups == d.n_groups and device.frames_in(view, 3 * 8 * fewer.n_groups) is None
+    frames[...] = -7.0
+    assert fewer.pose_frames(mats[:2], out=view) is view and (frames[:2, -1] == -7).all()
     d._svm = False                                             # the buffer path
     plain_frames = d.frames_array(2)
     assert device.frames_in(plain_frames, 3 * 8 * d.n_groups) is None
     assert d.pose_frames(mats[:2], out=plain_frames) is plain_frames
     assert np.array_equal(plain_frames, want[:2])
+
+
+def test_standing_worker_follows_the_rebound_output(monkeypatch):
+    """A standing worker runs a clone of the skinning kernel; when the output argument is
+    rebound (runs of a frames_array, then single poses into the deformer's own output:
+    Jobs.set_argument), the clone takes it too: every frame lands where it should."""
+    from nrpose import device
+    from nrpose.skinning import BLOCK, LANES
+
+    if not device.fine_grain_svm() or device.worker_queue() is None:
+        pytest.skip("needs shared memory and PoCL's worker device (standing workers)")
+    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    device.set_standby_s(0.5)
+    rng = np.random.default_rng(5)
+    n = (device.STANDING_MIN_BLOCKS + 2) * BLOCK * LANES - 5
+    d = LbsDeformer(*make_rig(rng, n, 9, 4))
+    mats = np.stack([rigid(rng, 9) for _ in range(4)])
+    want = np.stack([d.pose(m) for m in mats]).astype(np.float32)
+    stood = []
+    for _ in range(3):
+        for m in mats:
+            d.pose(m)
+            stood.append(d._jobs.standing(d._kernel))
+        frames = d.frames_array(6)
+        frames[...] = -7.0
+        d.pose_frames(mats[:2], out=frames[1:3])
+        stood.append(d._jobs.standing(d._kernel))
+        d.pose_frames(mats[2:], out=frames[4:6])
+        singles = [d.pose(m).astype(np.float32) for m in mats]
+        stood.append(d._jobs.standing(d._kernel))
+        assert np.array_equal(frames[1:3], want[:2]) and np.array_equal(frames[4:6], want[2:])
+        assert (frames[[0, 3]] == -7).all() and np.array_equal(np.stack(singles), want)
+    assert any(stood)          # a standing worker served some of these poses
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
