@@ -191,6 +191,8 @@ class CharacterPoser:
             frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
             if progress:
                 progress(b, F)
+        if self._backend == "opencl" and self._deformer is not None:
+            self._deformer.release_frames()       # the Frames are the caller's: not kept by the poser
         return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
 
 

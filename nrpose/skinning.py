@@ -347,7 +347,8 @@ class Deformer:
         as :meth:`nrpose.engine.Deformer.frames_array`: with shared memory the kernel
         writes into it, or into a run of its frames, directly (no copy); its frames are
         3 Npad floats apart (Npad: N rounded up to groups of 8). After a launch into it the
-        deformer keeps its memory until a launch into another array."""
+        deformer keeps its memory until a launch into another array or
+        :meth:`release_frames`."""
         return device.frame_array(frames, 3 * self.n_groups * LANES, self.n_vertices, shared=self._svm)
 
     def pose_frames(self, mats, out: np.ndarray | None = None) -> np.ndarray:
@@ -424,6 +425,13 @@ class Deformer:
             return posed.astype(np.float64)
         out[...] = posed
         return out
+
+    def release_frames(self) -> None:
+        """Stop keeping the memory of the last :meth:`frames_array` posed into (the kernel's
+        output bound back to the deformer's own)."""
+        if self._out is not None and self._out_bound is not None and self._out_bound[0] is not self._out:
+            self._bind_out(self._out, 0)
+            self._jobs.keep = (self._in, self._out)
 
     def _bind_out(self, memory: device.HostArray, first: int) -> None:
         """Bind the kernel's output to frame ``first`` of ``memory``, if it is not bound there."""

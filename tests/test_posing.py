@@ -1,6 +1,8 @@
 """Characters posed with nrmls, lbs and dqs: glTF skinning formula, references, rigid parts."""
 from __future__ import annotations
 
+import gc
+import weakref
 from pathlib import Path
 
 import numpy as np
@@ -126,15 +128,24 @@ def test_methods_match_their_references_and_rest_is_identity(method, weights):
     rest = np.concatenate([m.vertices for m in ch.meshes])
     size = np.ptp(rest, axis=0).max()
     assert np.abs(dev.pose(ch.skeleton.rest_pose).positions[0] - rest).max() <= 1e-5 * size
+    d = dev._deformer
+    dev.pose(local)                          # the deformer's arrays grown to the clip's frames
+    d._out.host[:] = np.nan                  # its own output
     out, expect = dev.pose(local).positions, ref.pose(local).positions
-    if device.fine_grain_svm():          # written by the kernel itself, no copy
-        d = dev._deformer
+    if device.fine_grain_svm():          # written by the kernel itself: nothing copied
         found = device.frames_in(out, 3 * (d._npad if method == "nrmls" else 8 * d.n_groups))
-        assert found is not None and found[1] == 0
-        assert (d._handed if method == "nrmls" else d._out_bound[0]) is found[0]   # bound: no copy
+        assert found is not None and found[1] == 0 and np.isnan(d._out.host).all()
+        # and released once posed: the poser does not keep the caller's frames
+        assert (d._handed is d._handoff.array) if method == "nrmls" else (d._out_bound[0] is d._out)
+        memory = weakref.ref(found[0])
+        del found
     assert np.isfinite(out).all()
     assert np.abs(out - expect).max() <= 1e-4 * size
     assert np.abs(out[0] - rest).max() > 1e-2 * size     # the clip does move the fox
+    if device.fine_grain_svm():
+        del out
+        gc.collect()
+        assert memory() is None
 
 
 def two_bone_character() -> Character:
