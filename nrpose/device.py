@@ -765,6 +765,13 @@ def frame_count(frames) -> int:
     return count
 
 
+def check_out_writable(out) -> None:
+    """InputError unless ``out`` is None or a writable numpy array (a deformer's ``out=``)."""
+    if out is not None and not getattr(getattr(out, "flags", None), "writeable", False):
+        raise InputError("out: the array is not writable; give a writable numpy array "
+                         "(e.g. deformer.frames_array(F))")
+
+
 def frame_array(frames: int, stride: int, n: int, shared: bool = True) -> np.ndarray:
     """An uninitialised float32 array of shape (frames, n, 3): with ``shared`` and
     fine-grained shared memory, in memory a deformer's kernel writes into directly
@@ -791,7 +798,8 @@ def frames_in(out: np.ndarray, stride: int) -> tuple[HostArray, int] | None:
         base = base.base
     owner = base.base if isinstance(base, np.ndarray) else None
     if not isinstance(owner, _FrameOwner) or owner.stride != stride or out.dtype != np.float32 \
-            or not out.flags.writeable or out.ndim != 3 or out.shape[1:] != (owner.n, 3) or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
+            or not out.flags.writeable or out.ndim != 3 or out.shape[1:] != (owner.n, 3) \
+            or out.strides[1:] != (12, 4) or (len(out) > 1 and out.strides[0] != 4 * stride):
         return None
     offset = out.ctypes.data - owner.memory.host.ctypes.data
     if offset % (4 * stride):

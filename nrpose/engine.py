@@ -281,9 +281,7 @@ class Deformer:
         if out is not None and np.shape(out) != (F, self.n, 3):
             raise InputError(f"out: expected an array of shape {(F, self.n, 3)} (frames, points, 3), "
                              f"got {np.shape(out)}")
-        if out is not None and not getattr(getattr(out, "flags", None), "writeable", False):
-            raise InputError("out: the array is not writable; give a writable numpy array "
-                             "(e.g. deformer.frames_array(F))")
+        device.check_out_writable(out)
         if self.backend == "numpy":
             result = np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses]) if F \
                 else np.zeros((0, self.n, 3))

@@ -365,9 +365,7 @@ class Deformer:
         if out is not None and (np.shape(out) != shape or not np.issubdtype(np.asarray(out).dtype, np.floating)):
             raise InputError(f"out: expected a float array of shape {shape}, got "
                              f"{np.shape(out)} {getattr(out, 'dtype', type(out).__name__)}")
-        if out is not None and not getattr(getattr(out, "flags", None), "writeable", False):
-            raise InputError("out: the array is not writable; give a writable numpy array "
-                             "(e.g. deformer.frames_array(F))")
+        device.check_out_writable(out)
 
     def _params(self, mats: np.ndarray) -> np.ndarray:
         if self.method == "lbs":
@@ -407,7 +405,6 @@ class Deformer:
             self._jobs.alone_s = alone_s
             self._kernel.set_arg(ARG_JOBS, self._jobs.box.arg)
         self._bind_out(*(direct or (arr_out, 0)))
-        self._jobs.keep = (arr_in, self._out_bound[0])
         if j != self._joints_bound:
             self._jobs.arguments_changed()        # a standing worker's clone has the old J
             self._kernel.set_arg(ARG_J, np.int32(j))
@@ -431,16 +428,17 @@ class Deformer:
         output bound back to the deformer's own)."""
         if self._out is not None and self._out_bound is not None and self._out_bound[0] is not self._out:
             self._bind_out(self._out, 0)
-            self._jobs.keep = (self._in, self._out)
 
     def _bind_out(self, memory: device.HostArray, first: int) -> None:
-        """Bind the kernel's output to frame ``first`` of ``memory``, if it is not bound there."""
+        """Bind the kernel's output to frame ``first`` of ``memory``, if it is not bound there,
+        and keep it and the parameters alive while a standing worker may use them."""
         bound = self._out_bound
         if bound is None or bound[0] is not memory or bound[1] != first:
             import pyopencl as cl
             arg = memory.arg if first == 0 else cl.SVM(memory.host[3 * self.n_groups * LANES * first:])
             self._jobs.set_argument(self._kernel, ARG_OUT, arg)
             self._out_bound = (memory, first)
+        self._jobs.keep = (self._in, memory)
 
     def relaunch(self, queues=None, workers: bool | None = None) -> list:
         """Run the last posing's kernel again (same inputs, same result) and return its
@@ -449,7 +447,6 @@ class Deformer:
         launch_shared decide (None, default). The frames are written into the deformer's
         own output (never into a caller's :meth:`frames_array`)."""
         self._bind_out(self._array("_out", self._batch * self.n_groups * LANES * 3, ARG_OUT), 0)
-        self._jobs.keep = (self._in, self._out)
         return self._launch(queues, workers)
 
     def _launch(self, queues=None, workers: bool | None = None) -> list:
