@@ -33,7 +33,11 @@ from .errors import DeviceError, InputError
 from .handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
-BLOCK_POINTS = 256   # points per block of work taken from the job mailbox (share.h)
+#: points per block of work taken from the job mailbox (share.h): at least BLOCK_POINTS,
+#: about BLOCKS_PER_LAUNCH blocks per launch, at most MAX_BLOCK_POINTS (block_points)
+BLOCK_POINTS = 256
+BLOCKS_PER_LAUNCH = 32
+MAX_BLOCK_POINTS = 4096
 
 
 def lanes_for(segments: int) -> int:
@@ -47,6 +51,22 @@ def lanes_for(segments: int) -> int:
     segment rows, whose slot loop reads the rotation table (no such chains) and gathers
     where lanes disagree, 0.83-1.15x, no clear gain, so they keep 8."""
     return 8 if segments else 16
+
+
+def block_points(npad: int, lanes: int) -> int:
+    """Points per block of work of a launch over ``npad`` points (a multiple of ``lanes``):
+    about :data:`BLOCKS_PER_LAUNCH` blocks, each a whole number of chunks of ``lanes`` points,
+    from :data:`BLOCK_POINTS` to :data:`MAX_BLOCK_POINTS` points.
+
+    Every block taken is a compare-and-swap on the mailbox's counter, whose cache line then
+    moves between the cores (~0.1-0.2 us each time); a few dozen blocks still share the work
+    evenly between a calling thread and a worker that starts late. Against a fixed 256
+    points (140 blocks for the dragon), paired in one process (bench/commit_ab.py, two
+    runs): single poses of the Table-1 rows of 20,000-36,000 points 1.01-1.07x (dragon
+    segments 0.98x once), 1M points x 65 bones 1.10x; the box (6,006 points) keeps 256;
+    batches of 10-64 frames 0.98-1.01x."""
+    chunks = -(-npad // BLOCKS_PER_LAUNCH // lanes)
+    return lanes * min(max(chunks, BLOCK_POINTS // lanes), MAX_BLOCK_POINTS // lanes)
 
 
 class Deformer:
@@ -147,7 +167,8 @@ class Deformer:
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         self._jobs = device.Jobs(owner=self)   # the pose kernel's job mailbox (kernels/share.h)
-        self._blocks = -(-npad // BLOCK_POINTS)
+        self._block = block_points(npad, self.lanes)
+        self._blocks = -(-npad // self._block)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # which parts of a frame's pose block a pose fills (empty views cost ~0.3 us each)
         self._fill_points, self._fill_segments = P > 0, S > 0
@@ -174,7 +195,7 @@ class Deformer:
         b = self._bufs
         return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
                 self._pose.arg, self._derived.arg, self._out.arg,
-                (self._out if self._handed is None else self._handed).arg, np.int32(BLOCK_POINTS // self.lanes),
+                (self._out if self._handed is None else self._handed).arg, np.int32(self._block // self.lanes),
                 np.int32(self._pose_stride), np.int32(self._derived_at["stride"]), np.int32(self.blend == "paper"),
                 np.int32(self._npairs), b["pairs"], b["pairs"] if self._global is None else self._global.data,
                 self._jobs.box.arg, np.int32(device.ROLE_CALLER)]

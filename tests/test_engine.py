@@ -691,6 +691,48 @@ def test_shared_launch_any_split_same_points(blocks, n_pts, n_segs, monkeypatch)
         assert np.array_equal(got, shared), name
 
 
+def test_block_points_sizes():
+    """Blocks of work (engine.block_points): whole chunks, about BLOCKS_PER_LAUNCH of them
+    per launch, between BLOCK_POINTS and MAX_BLOCK_POINTS points each."""
+    from nrpose.engine import BLOCK_POINTS, BLOCKS_PER_LAUNCH, MAX_BLOCK_POINTS, block_points
+
+    for lanes in (8, 16):
+        for npad in (lanes, 256, 6_016, 8_192, 20_008, 35_824, 131_072, 1_000_000 // lanes * lanes):
+            b = block_points(npad, lanes)
+            assert b % lanes == 0 and BLOCK_POINTS <= b <= MAX_BLOCK_POINTS, (npad, lanes, b)
+            blocks = -(-npad // b)
+            assert blocks <= BLOCKS_PER_LAUNCH or b == MAX_BLOCK_POINTS, (npad, lanes, b)
+            assert blocks >= BLOCKS_PER_LAUNCH - 1 or b == BLOCK_POINTS, (npad, lanes, b)
+    assert block_points(35_824, 8) == 1_120 and block_points(6_016, 8) == BLOCK_POINTS
+
+
+@pytest.mark.parametrize("n_pts,n_segs", [(0, 3), (2, 0)])     # 8 and 16 lanes
+def test_large_blocks_same_points(n_pts, n_segs, monkeypatch):
+    """A deformer of 20,000 points takes its points in 32 blocks of 632 or 640 (engine.block_points,
+    8 or 16 lanes), not 79 of 256: bitwise the same frames as with 256-point blocks, each way a launch may
+    split the blocks, and equal to the reference."""
+    from nrpose import engine
+
+    rng = np.random.default_rng(41)
+    rest = random_rest(rng, n_pts, n_segs)
+    points = rng.uniform(-1, 1, (20_000, 3))
+    dev, ref = both(points, rest)
+    assert dev._blocks == 32 and dev._block == (632 if dev.lanes == 8 else 640)
+    monkeypatch.setattr(engine, "block_points", lambda npad, lanes: engine.BLOCK_POINTS)
+    small = Deformer(points, rest)
+    assert small._blocks == -(-small._npad // 256)
+    poses = [random_pose(rng, rest) for _ in range(3)]
+    want = small.pose_frames(poses)
+    assert np.abs(want - ref.pose_frames(poses)).max() <= TOL * diag(points)
+    assert np.array_equal(dev.pose_frames(poses), want)
+    for name, kw in splits().items():
+        dev._out.host[: 3 * dev._npad] = np.nan
+        relaunch(dev, kw, monkeypatch)
+        dev._out.download()
+        got = dev._out.host[: 3 * 3 * dev._npad].reshape(3, -1, 3)[:, : len(points)]
+        assert np.array_equal(got, want), name
+
+
 @pytest.mark.parametrize("blend", ["relative", "quaternion"])
 @pytest.mark.parametrize("n_pts,n_segs", [(3, 2), (4, 0)])
 def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
