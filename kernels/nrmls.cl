@@ -65,7 +65,9 @@
  *          frame (when P > 0; the pose kernel reads it where a chunk's
  *          lanes share their reference);
  *          segv[s]: segment s's posed start a_s (x, y, z) and direction b_s - a_s;
- *          table[j][s]: relative/paper blends, TW = 3: log(R_j^-1 R_s) (paper: log R_s);
+ *          table[j][s]: relative/paper blends, TW = 3: log(R_j^-1 R_s) (paper: log R_s), on
+ *          rigs of segments only (P = 0) turned into the world frame, R_j log(R_j^-1 R_s) =
+ *          log(R_s R_j^-1) (the pose then needs no R_ref product after the rotation);
  *          QUAT_BLEND, TW = 4: Q_s in the hemisphere of Q_j; table' (-DDERIVED_LEVER):
  *          each entry times len2[s].
  *          (Each value as a row of VW equal floats, so that the slot loop's multiply-adds
@@ -305,7 +307,19 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
     const intv normal = s2 >= 1.17549435e-38f;    /* else a rotation below float resolution */
     const floatv isn = rsqrtv_normal(normal ? s2 : (floatv)1.0f);
     const floatv k = sf * (normal ? 2.0f * atan2posv(s2 * isn, ABSV(dot)) * isn : (floatv)2.0f);
+#if P == 0
+    /* segments only: into the world frame, table[j][i] = R_j log(R_j^-1 R_i) = log(R_i R_j^-1)
+     * (the pose kernel's header), turned by Q_a: R_a v = R_b v for v on the axis of
+     * R_a^-1 R_b, so that the entries stay exactly antisymmetric */
+    const floatv vx = k * x, vy = k * y, vz = k * z;
+    const floatv cx = ay * vz - az * vy, cy = az * vx - ax * vz, cz = ax * vy - ay * vx;
+    const floatv dx = ay * cz - az * cy, dy = az * cx - ax * cz, dz = ax * cy - ay * cx;
+    *(floatv *)out[0] = vx + 2.0f * (aw * cx + dx);
+    *(floatv *)out[1] = vy + 2.0f * (aw * cy + dy);
+    *(floatv *)out[2] = vz + 2.0f * (aw * cz + dz);
+#else
     *(floatv *)out[0] = k * x; *(floatv *)out[1] = k * y; *(floatv *)out[2] = k * z;
+#endif
 #endif
     for (int l = 0; l < VW; ++l)
         for (int c = 0; c < TW; ++c)
@@ -557,17 +571,33 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
                     + (2.4759708851e-5f - 2.6050851041e-7f * x) * x4;
     const floatv a = sinc * ch;
     const floatv b = 0.5f * sinc * sinc;
-    const floatv kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
+#if P == 0
+    /* segments only, r in the world frame (the table's entries turned by R_ref): v' =
+     * exp(r) e + q* with e = R_ref u, which (with e + q*) is computed while r is summed,
+     * rather than R_ref exp(r) u + q*, whose R_ref product waited for the rotation (segment
+     * rows 1.02-1.05x, kernel on one thread, bench/kernel_ab.py) */
+    LOAD_REF();
+    const floatv ex = m00 * ux + m01 * uy + m02 * uz;
+    const floatv ey = m10 * ux + m11 * uy + m12 * uz;
+    const floatv ez = m20 * ux + m21 * uy + m22 * uz;
+    const floatv cx = ex + qx, cy = ey + qy, cz = ez + qz;
+#else
+    const floatv ex = ux, ey = uy, ez = uz, cx = ux, cy = uy, cz = uz;
+#endif
+    const floatv kx = ry * ez - rz * ey, ky = rz * ex - rx * ez, kz = rx * ey - ry * ex;
     const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
-    const floatv wx = ux + a * kx + b * jx;
-    const floatv wy = uy + a * ky + b * jy;
-    const floatv wz = uz + a * kz + b * jz;
-
+    const floatv wx = cx + a * kx + b * jx;
+    const floatv wy = cy + a * ky + b * jy;
+    const floatv wz = cz + a * kz + b * jz;
+#if P == 0
+    const floatv ox = wx, oy = wy, oz = wz;
+#else
     /* v' = R_ref w + q* */
     LOAD_REF();
     const floatv ox = m00 * wx + m01 * wy + m02 * wz + qx;
     const floatv oy = m10 * wx + m11 * wy + m12 * wz + qy;
     const floatv oz = m20 * wx + m21 * wy + m22 * wz + qz;
+#endif
 #endif
 #if K == 0 && !defined(SPARSE)
     /* no segments: points are stored in their own order, chunk g holds rows VW g ..

@@ -231,11 +231,14 @@ def test_kernel_matches_reference_at_any_scale(scale, n_pts, n_segs, blend):
     assert np.abs(out - ref.pose(scaled)).max() <= TOL * diag(points)
 
 
-@pytest.mark.parametrize("blend,lever", [("relative", "weight"), ("relative", "length"),
-                                         ("paper", "length"), ("quaternion", "length")])
-def test_rotation_table_against_float64(blend, lever):
+@pytest.mark.parametrize("blend,lever,point", [("relative", "weight", False), ("relative", "length", False),
+                                               ("relative", "weight", True), ("paper", "length", False),
+                                               ("quaternion", "length", False)])
+def test_rotation_table_against_float64(blend, lever, point):
     """The pose prologue's rotation table (kernels/nrmls.cl table_block, VW pairs at a
-    time, read back from the device) against float64: relative log(R_j^-1 R_i), paper
+    time, read back from the device) against float64: relative log(R_j^-1 R_i) (on a rig
+    of segments only turned into the world frame, R_j log(R_j^-1 R_i) = log(R_i R_j^-1);
+    with a point handle, far from the points, in R_j's frame), paper
     log(R_i), quaternion Q_i in Q_j's hemisphere, each times segment i's lever factor
     len2 (rule "length": segments of different lengths); adversarial relative rotations
     of exactly pi and of 1e-4 rad; 10 x 10 pairs, so that the last block of 8 is part
@@ -247,7 +250,8 @@ def test_rotation_table_against_float64(blend, lever):
     S = 10
     a = np.stack([np.arange(S) * 2.0, np.zeros(S), np.zeros(S)], 1)
     length = np.linspace(0.6, 1.4, S)
-    rest = HandleSet.make(segments=np.stack([a, a + length[:, None] * [0.0, 1.0, 0.0]], 1))
+    rest = HandleSet.make(segments=np.stack([a, a + length[:, None] * [0.0, 1.0, 0.0]], 1),
+                          **({"points": [[9.0, 40.0, 0.0]]} if point else {}))
     points = a[rng.integers(0, S, 2000)] + rng.uniform(-0.4, 0.4, (2000, 3)) + [0.0, 0.5, 0.0]
     rots = Rotation.random(S, random_state=rng)
     axis = Rotation.random(random_state=rng).as_rotvec()
@@ -256,7 +260,7 @@ def test_rotation_table_against_float64(blend, lever):
     R = rots.as_matrix()
     posed_start = a + rng.normal(size=(S, 3))
     pose = Pose.make(rest, segments=np.stack([posed_start, posed_start + length[:, None] * R[:, :, 1]], 1),
-                     rotations=R)
+                     rotations=R, **({"points": [[9.0, 41.0, 0.0]]} if point else {}))
     dev = Deformer(points, rest, blend=blend, lever=lever)
     dev.pose(pose)
     refs = np.unique(dev.bound_indices()[0])
@@ -282,14 +286,19 @@ def test_rotation_table_against_float64(blend, lever):
         assert np.abs(got - rots.as_rotvec()[None]).max() < 1e-6
         return
     want = np.stack([(rots[j].inv() * rots).as_rotvec() for j in range(S)])
-    err = np.linalg.norm(got - want, axis=2)
+    world = R[0] if not point else np.eye(3)   # (R_0 = R_1 on the axis of R_0^-1 R_1, and R_0 = R_2 nearly)
+    if not point:
+        want = np.einsum("jab,jib->jia", R, want)
+    # float32: 1e-6 and (turned into the world frame: a few roundings more) 1e-6 of the angle
+    err = np.linalg.norm(got - want, axis=2) / (1 + np.linalg.norm(want, axis=2))
     at_pi = np.zeros((S, S), bool)
     at_pi[0, 1] = at_pi[1, 0] = True           # +-pi about the axis: both logs are right
     assert err[~at_pi].max() < 1e-6
     for j, i in ((0, 1), (1, 0)):
         assert abs(np.linalg.norm(got[j, i]) - np.pi) < 1e-5
-        assert np.linalg.norm(np.cross(got[j, i], axis)) < 1e-5 * np.linalg.norm(axis)
-    assert np.abs(got[0, 2] - [1e-4, 0, 0]).max() < 1e-6 and np.abs(got[2, 0] + [1e-4, 0, 0]).max() < 1e-6
+        assert np.linalg.norm(np.cross(got[j, i], world @ axis)) < 1e-5 * np.linalg.norm(axis)
+    small = world @ [1e-4, 0, 0]
+    assert np.abs(got[0, 2] - small).max() < 1e-6 and np.abs(got[2, 0] + small).max() < 1e-6
     if lever == "weight":
         assert np.array_equal(table, -table.transpose(1, 0, 2))     # bitwise
 
