@@ -122,7 +122,7 @@ FLOP_COUNT = {
     "Rodrigues: a = sinc*cos, b = 0.5*sinc*sinc (3 mul)": (0, 0, 3, 0),
     "Rodrigues: k = r x u, j = r x k (2 x 3 x (2 mul + 1 sub))": (0, 0, 18, 0),
     "Rodrigues: w = u + a k + b j (3 x (2 mul + 2 add))": (0, 0, 12, 0),
-    "output: R_ref w + q* (3 x (3 mul + 3 add))": (0, 0, 18, 0),
+    "output: R_ref w + q* (3 x (3 mul + 3 add); segments only: e = R_ref u, e + q* before the rotation, as many)": (0, 0, 18, 0),
 }
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
 DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0, 0)}
