@@ -256,7 +256,8 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
  * +-log(Q_a^-1 Q_b) with (a, b) = (min, max)(i, j), so that the logs are exactly
  * antisymmetric, log(R_j^-1 R_i) = -log(R_i^-1 R_j) (table' entries: each times its
  * own len2), and blends seen from either handle agree even at an angle of exactly pi;
- * paper blend log(R_i); QUAT_BLEND, Q_i in the hemisphere of Q_j.
+ * paper blend log(R_i); QUAT_BLEND, Q_i in the hemisphere of Q_j. Rigs of segments only
+ * (P = 0) keep the relative logs in the world frame (the header's table).
  * DERIVED_LEVER: times len2[i], segment i's lever factor (the header's table'). */
 static void table_block(const int g0, const int nsegs, const int paper, const int npairs,
                         __global const int *pairs, __global const float *len2, __global float *refs)

@@ -286,7 +286,7 @@ def test_rotation_table_against_float64(blend, lever, point):
         assert np.abs(got - rots.as_rotvec()[None]).max() < 1e-6
         return
     want = np.stack([(rots[j].inv() * rots).as_rotvec() for j in range(S)])
-    world = R[0] if not point else np.eye(3)   # (R_0 = R_1 on the axis of R_0^-1 R_1, and R_0 = R_2 nearly)
+    world = R[0] if not point else np.eye(3)   # the pairs (0, 1) and (0, 2) are turned by R_0 (the lower index)
     if not point:
         want = np.einsum("jab,jib->jia", R, want)
     # float32: 1e-6 and (turned into the world frame: a few roundings more) 1e-6 of the angle
@@ -735,7 +735,7 @@ def test_large_blocks_same_points(n_pts, n_segs, monkeypatch):
     assert np.abs(want - ref.pose_frames(poses)).max() <= TOL * diag(points)
     assert np.array_equal(dev.pose_frames(poses), want)
     for name, kw in splits().items():
-        dev._out.host[: 3 * dev._npad] = np.nan
+        dev._out.host[: 3 * 3 * dev._npad] = np.nan       # the launch's three slots
         relaunch(dev, kw, monkeypatch)
         dev._out.download()
         got = dev._out.host[: 3 * 3 * dev._npad].reshape(3, -1, 3)[:, : len(points)]
