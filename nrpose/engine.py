@@ -59,7 +59,7 @@ def block_points(npad: int, lanes: int) -> int:
     from :data:`BLOCK_POINTS` to :data:`MAX_BLOCK_POINTS` points.
 
     Every block taken is a compare-and-swap on the mailbox's counter, whose cache line then
-    moves between the cores (~0.1-0.2 us each time); a few dozen blocks still share the work
+    moves between the cores; a few dozen blocks still share the work
     evenly between a calling thread and a worker that starts late. Against a fixed 256
     points (140 blocks for the dragon), paired in one process (bench/commit_ab.py, two
     runs): single poses of the Table-1 rows of 20,000-36,000 points 1.01-1.07x (dragon
