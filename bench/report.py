@@ -95,24 +95,30 @@ def suites_block(doc: dict) -> str:
     if "roofline" in s:
         ro = s["roofline"]
         c = ro["roofs"]
-        out += ["", f"Roofline ceilings (the best samples, the rows' roofs; medians in brackets): "
-                    f"{c['gflops']['max']:.0f} GFLOP/s arithmetic ({c['gflops']['median']:.0f}), copy "
-                    f"{c['dram_gbs']['max']:.1f} GB/s DRAM ({c['dram_gbs']['median']:.1f}), "
-                    f"{c['l3_gbs']['max']:.1f} GB/s L3-resident ({c['l3_gbs']['median']:.1f}); empty kernel shared with the workers "
+        rule = ro.get("roof_rule", "max")
+        standing = c.get("launch_standing") or {}
+        out += ["", f"Roofline ceilings (the rows' roofs, `ROOF_RULE` {rule}; medians in brackets): "
+                    f"{c['gflops'][rule]:.0f} GFLOP/s arithmetic ({c['gflops']['median']:.0f}), copy "
+                    f"{c['dram_gbs'][rule]:.1f} GB/s DRAM ({c['dram_gbs']['median']:.1f}), "
+                    f"{c['l3_gbs'][rule]:.1f} GB/s L3-resident ({c['l3_gbs']['median']:.1f}); empty kernel shared with the workers "
                     f"{c['launch']['event_ms'] * 1e3:.1f} µs event, {c['launch']['wall_ms'] * 1e3:.0f} µs "
                     "enqueue+wait"
                     + (f", on the calling thread alone {c['launch_alone']['event_ms'] * 1e3:.1f} µs event, "
                        f"{c['launch_alone']['wall_ms'] * 1e3:.0f} µs enqueue+wait" if "launch_alone" in c else "")
-                    + (f", with a standing worker {c['launch_standing']['wall_ms'] * 1e3:.0f} µs enqueue+wait"
-                       if "launch_standing" in c else "")
-                    + ".", "",
+                    + (f", with a standing worker {standing['span_ms'] * 1e3:.1f} µs from publication to end, "
+                       if "span_ms" in standing else ", with a standing worker " if standing else "")
+                    + (f"{standing['wall_ms'] * 1e3:.0f} µs enqueue+wait" if standing else "")
+                    + ".", "", f"Pose kernels timed {ro['method']['timing'].split('pose kernels: ')[-1]}.", "",
                 _table(["row", "flop/pt", "B/pt", "pose ms", "kernel ms", "GFLOP/s", "% arith",
-                        "best round: kernel ms, % arith", "batched kernel ms/frame", "batched % arith", "bound"],
+                        "best round: kernel ms, % arith", "worker woken: kernel ms, % arith",
+                        "batched kernel ms/frame", "batched % arith", "bound"],
                        [[f"{r['model']}/{r['kind']}", r["work"]["flops_per_point"], r["work"]["bytes_per_point"],
                          _ms(r["pose_ms"]["median"]), _ms(r["kernel_ms"]["median"]), f"{r['gflops']:.1f}",
                          f"{100 * r['fraction_arithmetic']:.1f}",
                          f"{_ms(r['kernel_ms_best_round'])}, {100 * r['fraction_arithmetic_best_round']:.1f}"
                          if "kernel_ms_best_round" in r else "—",
+                         f"{_ms(r['kernel_woken_ms']['median'])}, {100 * r['fraction_arithmetic_woken']:.1f}"
+                         if "kernel_woken_ms" in r else "—",
                          _ms(r["batched"]["kernel_ms_per_frame"]),
                          f"{100 * r['batched']['fraction_arithmetic']:.1f}", r["kernel_bound"]]
                         for r in ro["rows"]])]

@@ -57,6 +57,14 @@ ROW_ROUNDS = 2
 ROW_WARM_S = 0.05
 COPY_BLOCK = 4096  # float8 elements (128 KB) per block of the copy kernel
 STANDING_EMPTY_BLOCKS = 2   # empty blocks of the job timed with a standing worker polling
+#: how the pose kernels are timed (Roofs.timing): as a frame loop runs them, or (where PoCL's
+#: event clock is not the host's, so that a span cannot start at the job's publication) on
+#: the profiling queues with the workers woken for each launch, as until the fifteenth session
+TIMING_STANDING = ("as a frame loop runs them (Deformer.time_launch): a standing worker serving, from "
+                   "the job's publication to the end of the calling thread's kernel, which returns "
+                   "once every block is done")
+TIMING_WOKEN = ("OpenCL profiling events on private queues, PoCL's worker woken for each launch, first "
+                "start to last end")
 
 ROOF_SOURCE = r"""
 #include "share.h"
@@ -221,15 +229,23 @@ class Roofs:
             dst.host[:] = 0.0
             self.copy[name] = (src_, dst, nbytes)
         self.k_empty.set_args(self.jobs.box.arg, np.int32(0))
+        self.timing = TIMING_STANDING     # how pose_kernel_once timed the pose kernels
 
     def _launch_s(self, kernel, blocks: int, workers: bool = True, standing: bool = False) -> tuple[float, float]:
-        """(event seconds, wall seconds) of one shared launch of ``kernel``: from the first
-        device's start to the last one's end, and the caller's enqueue-to-return time."""
+        """(kernel seconds, wall seconds) of one shared launch of ``kernel``, and the
+        caller's enqueue-to-return time. Kernel seconds: on the profiling queues (workers
+        woken), from the first device's start to the last one's end; ``standing`` (a
+        standing worker, as poses in a loop run), from the job's publication to the end of
+        the calling thread's kernel (:func:`nrpose.device.published_span_s`; NaN where the
+        event clock is not the host's)."""
         t = time.perf_counter()
         events = device.launch_shared(kernel, self.jobs, blocks, queues=None if standing else self.queues,
-                                      workers=workers)
+                                      workers=workers, timed=standing)
         wall = time.perf_counter() - t
-        return (float("nan") if standing else device.events_span_s(events)), wall
+        if standing:
+            span = device.published_span_s(self.jobs, events[-1])
+            return (float("nan") if span is None else span), wall
+        return device.events_span_s(events), wall
 
     def flops(self, n: int) -> list[float]:
         """n samples of the arithmetic kernel's rate, GFLOP/s."""
@@ -262,13 +278,15 @@ class Roofs:
             return None
         blocks = STANDING_EMPTY_BLOCKS
         self._launch_s(self.k_empty, blocks, standing=True)     # stands the worker
-        wall, taken = [], 0
+        span, wall, taken = [], [], 0
         for _ in range(n):
-            wall.append(self._launch_s(self.k_empty, blocks, standing=True)[1])
             taken += self.jobs.standing(self.k_empty)
+            k, w = self._launch_s(self.k_empty, blocks, standing=True)
+            span.append(k)
+            wall.append(w)
         device.stop_standing()
-        return {"wall_ms": float(np.median(wall) * 1e3), "blocks": blocks,
-                "stood_fraction": taken / n}
+        return {"span_ms": float(np.median(span) * 1e3), "wall_ms": float(np.median(wall) * 1e3),
+                "blocks": blocks, "stood_fraction": taken / n}
 
     def measure(self, rounds: int) -> dict:
         """Interleaved rounds of the three ceilings; medians and bests."""
@@ -292,15 +310,41 @@ class Roofs:
                 "launch": "every kernel launched as the pose kernels are (nrpose.device.launch_shared): "
                           f"{', '.join(f'{q.device.name} x {n}' for q, n in device.work_items(self.queues))} "
                           "work-items taking blocks of one job (nrpose.device.Jobs)",
-                "timing": "OpenCL profiling events on private queues, first start to last end over the "
-                          "devices of a launch; ceilings: the best sample (ROOF_RULE), kernels: medians"}
+                "timing": "ceilings: OpenCL profiling events on private queues, first start to last end over "
+                          "the devices of a launch, the best sample (ROOF_RULE); pose kernels: " + self.timing
+                          + "; medians"}
 
     # ------------------------------------------------------------------ pose kernel
-    def pose_kernel_once(self, deformer) -> float:
-        """The pose kernel's time in seconds (its prologue, the R_g fit and rotation
-        tables, included), re-running the deformer's last posing on the profiling queues:
-        from the first device's start to the last one's end."""
+    def pose_kernel_once(self, deformer) -> tuple[float, bool]:
+        """(seconds, stood): the pose kernel's time (its prologue, the R_g fit and rotation
+        tables, included), re-running the deformer's last posing as a frame loop runs it
+        (:meth:`nrpose.engine.Deformer.time_launch`): from the job's publication, where a
+        standing worker starts on it, to the end of the calling thread's kernel, which
+        returns once every block is done; stood: whether a standing worker served it. Where
+        the event clock is not the host's, :meth:`pose_kernel_woken` instead (and
+        :attr:`timing` says so)."""
+        span, stood = deformer.time_launch()
+        if span is None:
+            self.timing = TIMING_WOKEN
+            return self.pose_kernel_woken(deformer), False
+        return span, stood
+
+    def pose_kernel_woken(self, deformer) -> float:
+        """The pose kernel's time in seconds re-running the deformer's last posing on the
+        profiling queues, PoCL's worker woken for the launch (it starts 20-40 us late): from
+        the first device's start to the last one's end."""
         return device.events_span_s(deformer.relaunch(queues=self.queues))
+
+    def launch_floor(self, ceilings: dict) -> dict:
+        """An empty kernel's time measured as :meth:`pose_kernel_once` measures the pose
+        kernels (``event_ms``; with ``wall_ms``, the woken launch's enqueue + wait): what a
+        pose kernel is held against to be called launch bound."""
+        standing = ceilings.get("launch_standing")
+        if self.timing == TIMING_STANDING and standing and np.isfinite(standing.get("span_ms", np.nan)):
+            return {"event_ms": standing["span_ms"], "wall_ms": ceilings["launch"]["wall_ms"],
+                    "what": "an empty kernel's span with a standing worker"}
+        return {"event_ms": ceilings["launch"]["event_ms"], "wall_ms": ceilings["launch"]["wall_ms"],
+                "what": "an empty kernel's event time with workers woken"}
 
 
 
@@ -330,8 +374,10 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
     launch overhead (the pose wall outside the kernel, or a kernel near an empty one's
     time), memory (at least half the copy bandwidth and, where ablations were measured,
     ``shares`` (:func:`ablation.measure`), at least MEMORY_BOUND_SHARE of the time waiting
-    for memory), else the kernel's instructions. ``work["lanes"]`` (lane_divergence), where
-    present, adds the gathered path's share of slot visits."""
+    for memory), else the kernel's instructions. ``launch``: the empty kernel's floor
+    measured as the pose kernel was (:meth:`Roofs.launch_floor`: ``event_ms``, ``wall_ms``,
+    ``what``). ``work["lanes"]`` (lane_divergence), where present, adds the gathered path's
+    share of slot visits."""
     t = kernel_ms * 1e-3
     gflops = work["flops_per_pose"] / t * 1e-9
     gbs = work["bytes_per_pose"] / t * 1e-9
@@ -358,14 +404,15 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
                        f"(memory bound)")
     elif kernel_ms < LAUNCH_BOUND_RATIO * launch["event_ms"]:
         kernel_bound = "launch"
-        reasons.append(f"kernel time {kernel_ms:.3f} ms is within {LAUNCH_BOUND_RATIO:g}x of an empty kernel's "
-                       f"{launch['event_ms']:.3f} ms event time (thread wake-up / work distribution)")
+        reasons.append(f"kernel time {kernel_ms:.3f} ms is within {LAUNCH_BOUND_RATIO:g}x of "
+                       f"{launch.get('what', 'an empty kernel')}, {launch['event_ms']:.3f} ms "
+                       f"(publishing the job, thread start, work distribution)")
     else:
         kernel_bound = "instructions"
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof and {100 * f_bw:.0f} % of the "
                        f"{'L3' if fits_l3 else 'DRAM'} copy bandwidth, bound by neither: its instructions "
                        f"(dependency chains of the slot and handle loops and the rotation, loads of "
-                       f"per-pose rows) on the two cores; an empty kernel's event time is "
+                       f"per-pose rows) on the two cores; {launch.get('what', 'an empty kernel')} is "
                        f"{100 * launch['event_ms'] / kernel_ms:.0f} % of it")
     if shares is not None:
         measured = [f"{100 * shares['memory']['share']:.0f} % of the kernel's time waiting for memory"]
@@ -422,7 +469,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
                                         else table1.point_pose_args(rest, rng, diag))) for _ in range(n_poses)]
             d = Deformer(v, rest, alpha=table1.ALPHA, blend=table1.BLEND, lever=table1.LEVER)
             bound.append((model, kind, int(len(v)), h, src.get("kind"), d, poses))
-    wall, kern, batched = ([[] for _ in bound] for _ in range(3))
+    wall, kern, woken, stood, batched = ([[] for _ in bound] for _ in range(5))
     # rounds over all rows in turn, so that a slow phase of this VM (one vCPU away for a
     # second or so) costs every row a round rather than one row all its samples
     for _ in range(max(repeat, 1) * ROW_ROUNDS):
@@ -434,8 +481,9 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
                 d.pose(poses[j % len(poses)])
                 j += 1
             # the poses back to back as Table 1 times them (a standing worker serves them,
-            # each result held until the next is made), then each again on the profiling
-            # queues (which end the standing worker)
+            # each result held until the next is made), then each again with its kernel timed
+            # as a frame loop runs it, then on the profiling queues with the worker woken for
+            # each launch (which ends the standing worker)
             posed = None
             for p in poses:
                 t = time.perf_counter()
@@ -444,10 +492,15 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
             del posed
             for p in poses:
                 d.pose(p)
-                kern[i].append(roofs.pose_kernel_once(d))
+                t, s = roofs.pose_kernel_once(d)
+                kern[i].append(t)
+                stood[i].append(s)
+            for p in poses:
+                d.pose(p)
+                woken[i].append(roofs.pose_kernel_woken(d))
             # the same poses as one launch of F frames (how clips are posed): kernel time per frame
             d.pose_frames(poses)
-            batched[i].append(roofs.pose_kernel_once(d) / len(poses))
+            batched[i].append(roofs.pose_kernel_once(d)[0] / len(poses))
     rows = []
     for i, (model, kind, n, h, source, d, poses) in enumerate(bound):
         work = pose_work(d)
@@ -456,6 +509,8 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
         shares = ablation.measure(d, 5 if quick else ablation.LAUNCHES)
         rows.append({"model": model, "kind": kind, "points": n, "handles": h, "source": source, "work": work,
                      "pose_ms": common.stats(wall[i]), "kernel_ms": common.stats(kern[i]),
+                     "kernel_stood_fraction": float(np.mean(stood[i])),
+                     "kernel_woken_ms": common.stats(woken[i]),
                      "batched_kernel_ms_per_frame": common.stats(batched[i]),
                      # the round with the lowest median kernel time: the machine undisturbed
                      "kernel_ms_best_round": 1e3 * float(np.median(np.reshape(kern[i], (-1, len(poses))),
@@ -467,14 +522,17 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
     del bound, d
     after = roofs.measure(rounds)
     ceilings = merge_roofs(before, after)
+    floor = roofs.launch_floor(ceilings)
     for r in rows:
         r.update(assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"], ceilings,
-                        ceilings["launch"], r["ablation"]))
+                        floor, r["ablation"]))
+        r["fraction_arithmetic_woken"] = r["fraction_arithmetic"] * r["kernel_ms"]["median"] / r["kernel_woken_ms"]["median"]
         r["fraction_arithmetic_best_round"] = r["fraction_arithmetic"] * r["kernel_ms"]["median"] / r["kernel_ms_best_round"]
         r["batched"] = batched_rates(r["work"], r["batched_kernel_ms_per_frame"]["median"], ceilings)
     best = max(rows, key=lambda r: r["fraction_arithmetic"])
     best_batched = max(rows, key=lambda r: r["batched"]["fraction_arithmetic"])
-    return {"roofs": ceilings, "roofs_before": before, "roofs_after": after, "method": roofs.describe(),
+    return {"roofs": ceilings, "roof_rule": ROOF_RULE, "roofs_before": before, "roofs_after": after,
+            "method": roofs.describe(),
             "flop_count": {"table": {k: list(v) for k, v in FLOP_COUNT.items()},
                            "columns": ["per point handle", "per segment slot", "fixed", "once per point when P > 0"],
                            "divisions": {k: list(v) for k, v in DIVISIONS.items()},

@@ -118,15 +118,15 @@ def measure(mode: str, N: int, H: int, repeat: int, roofs, quick: bool) -> dict:
     try:
         for _ in range(rounds):
             # the poses back to back as frames are posed (a standing worker serves them; each
-            # result held until the next is made, as Table 1 times them), then each again on
-            # the profiling queues (which end the standing worker)
+            # result held until the next is made, as Table 1 times them), then each again with
+            # its kernel timed as a frame loop runs it (roofline.Roofs.pose_kernel_once)
             for p in poses:
                 t = time.perf_counter()
                 out = d.pose(p)
                 wall.append(time.perf_counter() - t)
             for p in poses if roofs is not None else ():
                 out = d.pose(p)
-                kern.append(roofs.pose_kernel_once(d))
+                kern.append(roofs.pose_kernel_once(d)[0])
     finally:
         if gc_was:
             gc.enable()

@@ -64,10 +64,11 @@ def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=No
                 ceil = (doc["suites"].get("roofline") or {}).get("roofs") or roofline.merge_roofs(
                     *(roofs.measure(2 if quick else 3) for _ in range(2)))
                 res["roofs"] = ceil
+                floor = roofs.launch_floor(ceil)
                 for r in res["rows"]:
                     if "kernel_ms" in r:
                         r.update(roofline.assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"],
-                                                 ceil, ceil["launch"]))
+                                                 ceil, floor))
         else:
             import clips
             res = clips.run(repeat, quick, data, log=log)
@@ -106,9 +107,12 @@ def targets(doc: dict) -> list[dict]:
     if "roofline" in s:
         rows = s["roofline"]["rows"]
         best = max(rows, key=lambda r: r["fraction_arithmetic"])
-        out.append({"name": "NR-MLS pose kernel >= 30 % of the measured arithmetic roof at Table-1 sizes",
-                    "target": TARGETS["fraction_arithmetic_min"], "measured": best["fraction_arithmetic"],
-                    "where": f"{best['model']}/{best['kind']} (best row)",
+        worst = min(rows, key=lambda r: r["fraction_arithmetic"])
+        out.append({"name": "NR-MLS pose kernel >= 30 % of the measured arithmetic roof at Table-1 sizes (every row)",
+                    "target": TARGETS["fraction_arithmetic_min"], "measured": worst["fraction_arithmetic"],
+                    "where": f"{worst['model']}/{worst['kind']} (worst row; best {best['model']}/{best['kind']} "
+                             f"{best['fraction_arithmetic']:.3f})",
+                    "best_row": {"where": f"{best['model']}/{best['kind']}", "measured": best["fraction_arithmetic"]},
                     "per_row": {f"{r['model']}/{r['kind']}": {"fraction_arithmetic": r["fraction_arithmetic"],
                                                               "fraction_arithmetic_best_round":
                                                                   r["fraction_arithmetic_best_round"],
@@ -118,8 +122,7 @@ def targets(doc: dict) -> list[dict]:
                     "batched": {"measured": s["roofline"]["best_batched_fraction_arithmetic"],
                                 "where": s["roofline"]["best_batched_row"] + " (best row, one launch of "
                                          f"{rows[0]['batch_frames']} frames, kernel time per frame)"},
-                    "met": best["fraction_arithmetic"] >= TARGETS["fraction_arithmetic_min"],
-                    "met_all_rows": all(r["fraction_arithmetic"] >= TARGETS["fraction_arithmetic_min"] for r in rows),
+                    "met": worst["fraction_arithmetic"] >= TARGETS["fraction_arithmetic_min"],
                     "meaningful": not q})
     if "scaling" in s:
         t = s["scaling"]["target"]
@@ -200,7 +203,7 @@ def _plot_roofline(ax, res):
         ax.loglog(r["work"]["arithmetic_intensity"], r["batched"]["gflops"], mk, ms=9, mfc="none",
                   mec=line.get_color())
     ax.set_xlabel("arithmetic intensity (counted flop / byte)")
-    ax.set_ylabel("GFLOP/s (pose kernel, events)")
+    ax.set_ylabel("GFLOP/s (pose kernel as a frame loop runs it)")
     ax.set_title("Roofline: nrmls_pose at Table-1 sizes against this device's measured ceilings "
                  "(filled: single pose; hollow: batched launch, per frame)", fontsize=9)
     ax.legend(fontsize=6, ncol=2, loc="lower right")

@@ -381,6 +381,7 @@ class Jobs:
         self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
         self._displaced = float("-inf")  # when another mailbox's launch last ended its worker
         self._run = 0                   # launches in a row with no other mailbox's between
+        self.published_ns = 0           # EVENT_CLOCK at the last publish() (published_span_s)
         # a standing worker reads the owner's arrays: end it when the owner is collected
         # (retire() detaches this, when the owner replaces its mailbox)
         self._finalizer = weakref.finalize(owner, self.stop) if owner is not None else None
@@ -396,6 +397,7 @@ class Jobs:
                               f"{JOB_IN_PROLOGUE - 1}; pose fewer points per deformer")
         self._tag = self._tag % 2047 + 1
         b = self.box.host
+        self.published_ns = time.clock_gettime_ns(EVENT_CLOCK)
         # closed first: from here no block can be taken, neither by a work-item still
         # holding the last job's tag (it would read this job's counts) nor of this job
         b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | JOB_CLOSED
@@ -540,7 +542,7 @@ atexit.register(stop_standing)
 
 
 def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bool = False,
-                  queues=None, workers: bool | None = None) -> list:
+                  queues=None, workers: bool | None = None, timed: bool = False) -> list:
     """Run ``kernel`` on every device of the context at once, and wait for it.
 
     kernel: a ``cl.Kernel`` whose work-items take blocks of the job published in
@@ -558,26 +560,30 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
     thread waits in the kernel until every block is done, whoever took it. Without
     shared memory (``jobs.box.svm`` False) only the calling thread's queue runs the
     kernel. Returns the kernel's events (a standing worker's is not among them).
+    timed: the launch as without it (a standing worker serves it where one stands), but
+    the calling thread's share runs on a profiling queue (:func:`timing_queue`): its
+    event, the last returned, ends when every block is done (:func:`published_span_s`).
     """
     with _LAUNCHES:
-        return _launch_shared(kernel, jobs, blocks, frames, prologue, queues, workers)
+        return _launch_shared(kernel, jobs, blocks, frames, prologue, queues, workers, timed)
 
 
-def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool, queues, workers) -> list:
+def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool, queues, workers,
+                   timed: bool = False) -> list:
     """:func:`launch_shared`, its lock held."""
     jobs.count_launch()
     cl = _cl()
     if queues is None and workers is None and jobs.standing(kernel):
         # frames in a loop: this kernel's standing worker polls (Jobs.mode "standing", and
         # nothing to stop or stand): publish, run the calling thread's share, wait
-        host_q = context()[1]
+        host_q = timing_queue() if timed else context()[1]
         jobs.publish(blocks, frames, prologue)
         events = [cl.enqueue_nd_range_kernel(host_q, kernel, (1,), (1,))]
         host_q.finish()
         jobs._last = time.perf_counter()
         return events
     plan = work_items(queues)
-    host_q = plan[-1][0]
+    host_q = timing_queue() if timed and queues is None else plan[-1][0]
     worker_q = plan[0][0] if len(plan) > 1 and jobs.box.svm else None
     standby = standby_s() if queues is None and worker_q is not None else 0.0
     if workers is None:
@@ -626,6 +632,36 @@ def profiling_queues() -> tuple:
     prof = cl.command_queue_properties.PROFILING_ENABLE
     return (None if wq is None else cl.CommandQueue(ctx, wq.device, properties=prof),
             cl.CommandQueue(ctx, q.device, properties=prof))
+
+
+#: the clock of PoCL's profiling timestamps on Linux (its pocl_gettimemono_ns), which
+#: :meth:`Jobs.publish` reads too, so that a launch's span can start at its publication
+EVENT_CLOCK = getattr(time, "CLOCK_MONOTONIC_RAW", time.CLOCK_MONOTONIC)
+
+
+def timing_queue():
+    """A profiling queue on the calling thread's device (:func:`context`), made once:
+    ``launch_shared(timed=True)`` runs the calling thread's share there."""
+    return _timing_queue(*context())
+
+
+@functools.lru_cache(maxsize=None)
+def _timing_queue(ctx, host_queue):
+    cl = _cl()
+    return cl.CommandQueue(ctx, host_queue.device, properties=cl.command_queue_properties.PROFILING_ENABLE)
+
+
+def published_span_s(jobs: Jobs, event) -> float | None:
+    """Seconds from ``jobs``' last publication to the end of ``event``, the calling
+    thread's kernel of a ``launch_shared(timed=True)`` (it returns once every block is
+    done, whoever took it): the launch's kernel time as the devices ran it, a standing
+    worker's share, which starts at the publication, included. None where the event's
+    timestamps are not on :data:`EVENT_CLOCK` (its enqueue seen before the publication,
+    or its end after now)."""
+    now = time.clock_gettime_ns(EVENT_CLOCK)
+    if not jobs.published_ns <= event.profile.queued <= event.profile.end <= now:
+        return None
+    return (event.profile.end - jobs.published_ns) * 1e-9
 
 
 def events_span_s(events) -> float:

@@ -347,13 +347,26 @@ class Deformer:
         self._slots[: self._batch] = self._own_slots[: self._batch]
         return self._launch(queues, workers, pose_kernel)
 
-    def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> list:
+    def time_launch(self) -> tuple[float | None, bool]:
+        """Run the last posing's launch again as a frame loop runs it (a standing worker
+        serves it where one stands, :func:`nrpose.device.launch_shared` deciding) and time
+        it: ``(seconds, stood)``, seconds from the job's publication to the end of the
+        calling thread's kernel, which returns once every block is done
+        (:func:`nrpose.device.published_span_s`; None where PoCL's event clock is not the
+        host's), and whether a standing worker was there to serve it. Same inputs, same
+        result, written into the launch's own output slots."""
+        stood = self._jobs.standing(self._kernel)
+        self._slots[: self._batch] = self._own_slots[: self._batch]
+        events = self._launch(timed=True)
+        return device.published_span_s(self._jobs, events[-1]), stood
+
+    def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
         """:meth:`relaunch`, into the output slots that the pose blocks name."""
         if pose_kernel is not None:
             pose_kernel.set_args(*self._pose_args())   # the current arrays
         return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._jobs,
                                     self._blocks, self._batch, prologue=True, queues=queues,
-                                    workers=workers)
+                                    workers=workers, timed=timed)
 
     def release_frames(self) -> None:
         """Stop keeping the memory of the last :meth:`frames_array` posed into (the kernel's

@@ -78,13 +78,18 @@ def test_roofline(quick):
     for k in ("gflops", "dram_gbs", "l3_gbs"):
         assert _finite_positive(res["roofs"][k]["median"])
     assert _finite_positive(res["roofs"]["launch"]["wall_ms"])
+    assert res["method"]["timing"].endswith("; medians") and "pose kernels: " in res["method"]["timing"]
     assert res["flop_count"]["formula"].startswith("70 P + 18 K + 78 (+ 15 when P > 0")
     assert len(res["rows"]) == 8
     for r in res["rows"]:
         assert _stats_ok(r["kernel_ms"]) and _stats_ok(r["pose_ms"])
         for k in ("gflops", "gbs", "fraction_arithmetic", "fraction_bandwidth", "roofline_ceiling_gflops",
-                  "fraction_arithmetic_best_round"):
+                  "fraction_arithmetic_best_round", "fraction_arithmetic_woken"):
             assert _finite_positive(r[k]), k
+        # the kernel timed as a frame loop runs it and, beside it, with the worker woken per launch
+        assert _stats_ok(r["kernel_woken_ms"]) and 0 <= r["kernel_stood_fraction"] <= 1
+        assert math.isclose(r["fraction_arithmetic_woken"] * r["kernel_woken_ms"]["median"],
+                            r["fraction_arithmetic"] * r["kernel_ms"]["median"])
         # the best round's median is no slower than the median over all rounds
         assert r["kernel_ms"]["min"] <= r["kernel_ms_best_round"] <= r["kernel_ms"]["median"]
         assert r["fraction_arithmetic_best_round"] >= r["fraction_arithmetic"]
@@ -165,6 +170,7 @@ def test_report_renders_the_documents(quick, tmp_path):
         assert f"| {r['model']} | {r['kind']} |" in text and f"| {r['model']}/{r['kind']} |" in text
     for t in doc["targets"]:
         assert t["name"] in text
+    assert "worker woken: kernel ms, % arith" in text and "Pose kernels timed " in text
     readme.write_text("no markers")
     assert report.main(["--table1", str(tmp_path / "t1.json"), "--suites", str(tmp_path / "s.json"),
                         "--readme", str(readme)]) == 2

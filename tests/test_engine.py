@@ -1,6 +1,7 @@
 """The core engine: PoCL kernel against the float64 reference, and the blend's properties."""
 from __future__ import annotations
 
+import time
 import weakref
 
 import numpy as np
@@ -740,6 +741,36 @@ def test_large_blocks_same_points(n_pts, n_segs, monkeypatch):
         dev._out.download()
         got = dev._out.host[: 3 * 3 * dev._npad].reshape(3, -1, 3)[:, : len(points)]
         assert np.array_equal(got, want), name
+
+
+def test_time_launch_reruns_the_pose_as_a_frame_loop(monkeypatch):
+    """Deformer.time_launch: the last posing run again as a frame loop runs it (a
+    standing worker serving it, after poses in a loop), its kernel time from the job's
+    publication (finite, positive, at most the call's own time) and the same frames in
+    the launch's slots, single poses and batches."""
+    from nrpose import device
+
+    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    device.set_standby_s(0.2)
+    rng = np.random.default_rng(43)
+    rest = random_rest(rng, 2, 3)
+    points = rng.uniform(-1, 1, (3_000, 3))
+    dev = Deformer(points, rest)
+    poses = [random_pose(rng, rest) for _ in range(2)]
+    for frames in ([poses[0]], poses):
+        want = dev.pose_frames(frames).copy()
+        dev.pose_frames(frames)
+        dev._out.host[: 3 * len(frames) * dev._npad] = np.nan
+        t = time.perf_counter()
+        span, stood = dev.time_launch()
+        wall = time.perf_counter() - t
+        assert span is not None and 0 < span <= wall
+        assert stood == (device.worker_queue() is not None and device.fine_grain_svm()
+                         and device.standing_workers_possible())
+        dev._out.download()
+        got = dev._out.host[: 3 * len(frames) * dev._npad].reshape(len(frames), -1, 3)[:, : len(points)]
+        assert np.array_equal(got, want)
+    device.stop_standing()
 
 
 @pytest.mark.parametrize("blend", ["relative", "quaternion"])
