@@ -397,7 +397,7 @@ class Jobs:
                               f"{JOB_IN_PROLOGUE - 1}; pose fewer points per deformer")
         self._tag = self._tag % 2047 + 1
         b = self.box.host
-        self.published_ns = time.clock_gettime_ns(EVENT_CLOCK)
+        self.published_ns = event_clock_ns()
         # closed first: from here no block can be taken, neither by a work-item still
         # holding the last job's tag (it would read this job's counts) nor of this job
         b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | JOB_CLOSED
@@ -635,8 +635,14 @@ def profiling_queues() -> tuple:
 
 
 #: the clock of PoCL's profiling timestamps on Linux (its pocl_gettimemono_ns), which
-#: :meth:`Jobs.publish` reads too, so that a launch's span can start at its publication
-EVENT_CLOCK = getattr(time, "CLOCK_MONOTONIC_RAW", time.CLOCK_MONOTONIC)
+#: :meth:`Jobs.publish` reads too, so that a launch's span can start at its publication;
+#: None where Python has no such clock (then no span is given: published_span_s)
+EVENT_CLOCK = getattr(time, "CLOCK_MONOTONIC_RAW", None)
+
+
+def event_clock_ns() -> int:
+    """Nanoseconds on :data:`EVENT_CLOCK` (0 where there is none)."""
+    return time.clock_gettime_ns(EVENT_CLOCK) if EVENT_CLOCK is not None else 0
 
 
 def timing_queue():
@@ -658,8 +664,8 @@ def published_span_s(jobs: Jobs, event) -> float | None:
     worker's share, which starts at the publication, included. None where the event's
     timestamps are not on :data:`EVENT_CLOCK` (its enqueue seen before the publication,
     or its end after now)."""
-    now = time.clock_gettime_ns(EVENT_CLOCK)
-    if not jobs.published_ns <= event.profile.queued <= event.profile.end <= now:
+    now = event_clock_ns()
+    if not 0 < jobs.published_ns <= event.profile.queued <= event.profile.end <= now:
         return None
     return (event.profile.end - jobs.published_ns) * 1e-9
 

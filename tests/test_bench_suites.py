@@ -296,3 +296,29 @@ def test_commit_ab(tmp_path, monkeypatch, capfd):
         assert commit_ab.main(argv) == 2
         err = capfd.readouterr().err.strip().splitlines()
         assert len(err) == 1 and err[0].startswith("commit_ab: ")
+
+
+def test_pose_kernel_timing_falls_back_to_woken_events(monkeypatch):
+    """roofline.Roofs.pose_kernel_once times a pose kernel as a frame loop runs it; where no
+    span from the job's publication can be had (no CLOCK_MONOTONIC_RAW to read), it gives the
+    woken-worker event span instead, says so in `timing`, and holds the kernels against the
+    woken empty kernel's event time."""
+    import numpy as np
+
+    from nrpose import Deformer, HandleSet, Pose, device
+
+    roofline = _bench_module("roofline")
+    roofs = roofline.Roofs(quick=True)
+    rest = HandleSet.make(segments=[[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]])
+    d = Deformer(np.random.default_rng(5).uniform(-0.5, 2.5, (600, 3)), rest)
+    d.pose(Pose.make(rest, segments=rest.segments + 0.1))
+    t, stood = roofs.pose_kernel_once(d)
+    assert math.isfinite(t) and t > 0 and roofs.timing == roofline.TIMING_STANDING
+    ceilings = {"launch": {"event_ms": 0.04, "wall_ms": 0.1},
+                "launch_standing": {"span_ms": 0.003, "wall_ms": 0.01}}
+    assert roofs.launch_floor(ceilings)["event_ms"] == 0.003
+    monkeypatch.setattr(device, "EVENT_CLOCK", None)
+    t, stood = roofs.pose_kernel_once(d)
+    assert math.isfinite(t) and t > 0 and not stood and roofs.timing == roofline.TIMING_WOKEN
+    assert roofs.launch_floor(ceilings)["event_ms"] == 0.04
+    assert roofs.describe()["timing"].endswith(roofline.TIMING_WOKEN + "; medians")
