@@ -170,6 +170,11 @@ class Deformer:
         self._block = block_points(npad, self.lanes)
         self._blocks = -(-npad // self._block)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
+        # the pose kernel's arguments change with _reserve and _bind_handed: a variant
+        # (pose_kernel_variant) is bound again only after such a change (set_args of the 18
+        # arguments takes ~24 us, which diluted bench/kernel_ab.py's paired ratios)
+        self._args_version = 0
+        self._variants: dict = {}   # id(variant) -> (variant, _args_version it is bound at)
         # which parts of a frame's pose block a pose fills (empty views cost ~0.3 us each)
         self._fill_points, self._fill_segments = P > 0, S > 0
         self._batch = 1       # frames of the last launch
@@ -217,8 +222,8 @@ class Deformer:
             prg = cl.Program(device.context()[0], device.with_headers(source)).build(options=list(self._options))
             kernel = cl.Kernel(prg, "nrmls_pose")
             args = self._pose_args()
-            # typed scalars: relaunch rebinds the variant each time, and pyopencl's untyped
-            # set_arg of an int takes 10-15 us (typed, three arguments took 1.3 us)
+            # typed scalars: relaunch rebinds the variant after the arguments change, and
+            # pyopencl's untyped set_arg of an int takes 10-15 us (typed, three took 1.3 us)
             kernel.set_scalar_arg_dtypes([type(a) if isinstance(a, np.generic) else None for a in args])
             kernel.set_args(*args)
         except (cl.RuntimeError, cl.LogicError, TypeError) as exc:
@@ -245,6 +250,7 @@ class Deformer:
         self._derived = device.HostArray(frames * self._derived_at["stride"])   # written and read by kernels
         self._out = device.HostArray(frames * 3 * self._npad)
         self._kernel.set_args(*self._pose_args())
+        self._args_version += 1
         self._jobs.keep = (self._pose, self._derived, self._out, self._handed)
         self._frames = frames
         # each frame's posed point handles (P, 3), segments (S, 2, 3) and rotations (S, 3, 3)
@@ -363,7 +369,10 @@ class Deformer:
     def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
         """:meth:`relaunch`, into the output slots that the pose blocks name."""
         if pose_kernel is not None:
-            pose_kernel.set_args(*self._pose_args())   # the current arrays
+            bound = self._variants.get(id(pose_kernel))
+            if bound is None or bound[0] is not pose_kernel or bound[1] != self._args_version:
+                pose_kernel.set_args(*self._pose_args())   # the current arrays
+                self._variants[id(pose_kernel)] = (pose_kernel, self._args_version)
         return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._jobs,
                                     self._blocks, self._batch, prologue=True, queues=queues,
                                     workers=workers, timed=timed)
@@ -379,6 +388,7 @@ class Deformer:
         """Bind ``memory`` (a HostArray) as the kernel's ``handed`` argument, if it is not."""
         if memory is not self._handed:
             self._handed = memory
+            self._args_version += 1
             self._jobs.set_argument(self._kernel, 8, memory.arg)
             self._jobs.keep = (self._pose, self._derived, self._out, memory)
 

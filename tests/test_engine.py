@@ -901,8 +901,10 @@ def test_a_handed_off_result_changed_by_its_caller_changes_no_later_one():
 def test_pose_kernel_variant_follows_the_deformers_arrays():
     """A kernel variant (Deformer.pose_kernel_variant, for bench/kernel_ab.py) run by
     relaunch(pose_kernel=) uses the deformer's arrays and batch size as they are at the
-    launch: after a larger batch (new arrays) and a smaller one, the shipped source as a
-    variant gives the deformer's own results bitwise; a source that does not build is a
+    launch (bound again only after they change): after a single pose, a larger batch (new
+    arrays), a batch into a frames_array (its memory bound) and a smaller batch, each
+    relaunched twice, the shipped source as a variant gives the deformer's own results
+    bitwise; a source that does not build is a
     DeviceError naming the compiler's error, one that does not run the job's prologue a
     DeviceError saying so (its launch would wait for ever)."""
     from nrpose import DeviceError, device
@@ -913,13 +915,16 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
     source = device.kernel_source("nrmls.cl")
     variant = dev.pose_kernel_variant(source)
     poses = [random_pose(rng, rest) for _ in range(3)]
-    for batch in (poses, poses[:1]):                     # 3 frames (the arrays regrow), then 1
-        want = dev.pose_frames(batch)
-        dev._out.host[: len(batch) * 3 * dev._npad] = np.nan    # the launch's slots
-        dev.relaunch(pose_kernel=variant)
-        dev._out.download()
-        got = dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, :300]
-        assert np.array_equal(got, want)
+    for batch, into in ((poses[:1], False), (poses, False), (poses[1:], True), (poses[:1], False)):
+        want = dev.pose_frames(batch).copy()
+        if into:                                         # the kernel's `handed` argument rebound
+            dev.pose_frames(batch, out=dev.frames_array(len(batch)))
+        for _ in range(2):
+            dev._out.host[: len(batch) * 3 * dev._npad] = np.nan    # the launch's slots
+            dev.relaunch(pose_kernel=variant)
+            dev._out.download()
+            got = dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, :300]
+            assert np.array_equal(got, want)
     with pytest.raises(DeviceError, match="does not build.*error:"):
         dev.pose_kernel_variant(source.replace("const floatv ux = LOADV(0, u)", "const floatv ux = +"))
     with pytest.raises(DeviceError, match="does not run its job's prologue"):
