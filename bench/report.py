@@ -108,7 +108,7 @@ def suites_block(doc: dict) -> str:
                     + (f", with a standing worker {standing['span_ms'] * 1e3:.1f} µs from publication to end, "
                        if "span_ms" in standing else ", with a standing worker " if standing else "")
                     + (f"{standing['wall_ms'] * 1e3:.0f} µs enqueue+wait" if standing else "")
-                    + ".", "", f"Pose kernels timed {ro['method']['timing'].split('pose kernels: ')[-1]}.", "",
+                    + ".", "", f"Pose kernels timed {ro['method'].get('pose_timing', ro['method']['timing'])}.", "",
                 _table(["row", "flop/pt", "B/pt", "pose ms", "kernel ms", "GFLOP/s", "% arith",
                         "best round: kernel ms, % arith", "worker woken: kernel ms, % arith",
                         "batched kernel ms/frame", "batched % arith", "bound"],

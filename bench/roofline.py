@@ -312,7 +312,8 @@ class Roofs:
                           "work-items taking blocks of one job (nrpose.device.Jobs)",
                 "timing": "ceilings: OpenCL profiling events on private queues, first start to last end over "
                           "the devices of a launch, the best sample (ROOF_RULE); pose kernels: " + self.timing
-                          + "; medians"}
+                          + "; medians",
+                "pose_timing": self.timing}
 
     # ------------------------------------------------------------------ pose kernel
     def pose_kernel_once(self, deformer) -> tuple[float, bool]:

@@ -386,18 +386,19 @@ class Jobs:
         # (retire() detaches this, when the owner replaces its mailbox)
         self._finalizer = weakref.finalize(owner, self.stop) if owner is not None else None
 
-    def publish(self, blocks: int, frames: int, prologue: bool = False) -> None:
+    def publish(self, blocks: int, frames: int, prologue: bool = False, timed: bool = False) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
         blocks of (share.h: closed, then its counts, then opened at block 0, or, with a
         ``prologue``, at the prologue, which the first work-item to arrive runs before
-        opening the blocks). The mailbox is uploaded (no-op with shared memory) on the
+        opening the blocks); timed: record when (``published_ns``, :func:`published_span_s`;
+        0 otherwise). The mailbox is uploaded (no-op with shared memory) on the
         context's queue."""
         if not 0 <= blocks < JOB_IN_PROLOGUE:
             raise DeviceError(f"a launch of {blocks} blocks exceeds the job mailbox's "
                               f"{JOB_IN_PROLOGUE - 1}; pose fewer points per deformer")
         self._tag = self._tag % 2047 + 1
         b = self.box.host
-        self.published_ns = event_clock_ns()
+        self.published_ns = event_clock_ns() if timed else 0   # only timed launches read the clock
         # closed first: from here no block can be taken, neither by a work-item still
         # holding the last job's tag (it would read this job's counts) nor of this job
         b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | JOB_CLOSED
@@ -494,8 +495,8 @@ class Jobs:
         """Count a launch of this mailbox: ``_run``, its launches in a row with no other
         mailbox's between (:meth:`mode`, :data:`STANDING_RUN`)."""
         global _last_mailbox
-        if _last_mailbox is not self:
-            _last_mailbox, self._run = self, 0
+        if _last_mailbox is None or _last_mailbox() is not self:
+            _last_mailbox, self._run = weakref.ref(self), 0
         self._run += 1
 
     def retire(self) -> None:
@@ -526,7 +527,9 @@ _standing: Jobs | None = None      # the mailbox whose standing worker holds the
 #: a time: deformers posed from several threads launch in turn (each deformer itself is posed
 #: from one thread at a time; its per-frame arrays are its own)
 _LAUNCHES = threading.RLock()
-_last_mailbox: Jobs | None = None  # the mailbox of the last launch (Jobs.mode: STANDING_RUN)
+#: the mailbox of the last launch (Jobs.mode: STANDING_RUN), weakly: its owner's arrays
+#: (Jobs.keep) are not kept alive by it
+_last_mailbox: "weakref.ref[Jobs] | None" = None
 
 
 def stop_standing(displaced: bool = False) -> None:
@@ -577,7 +580,7 @@ def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool,
         # frames in a loop: this kernel's standing worker polls (Jobs.mode "standing", and
         # nothing to stop or stand): publish, run the calling thread's share, wait
         host_q = timing_queue() if timed else context()[1]
-        jobs.publish(blocks, frames, prologue)
+        jobs.publish(blocks, frames, prologue, timed)
         events = [cl.enqueue_nd_range_kernel(host_q, kernel, (1,), (1,))]
         host_q.finish()
         jobs._last = time.perf_counter()
@@ -599,7 +602,7 @@ def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool,
     if _standing is not None and _standing is not jobs and any(q.device == _standing_device()
                                                                 for q, _ in plan):
         stop_standing(displaced=True)   # another mailbox's: it holds these queues' device
-    jobs.publish(blocks, frames, prologue)
+    jobs.publish(blocks, frames, prologue, timed)
     if not jobs.box.svm and host_q != jobs.box._queue:
         jobs.box._queue.finish()        # its upload and the owner's, on the context's queue
     events = []

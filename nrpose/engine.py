@@ -174,7 +174,7 @@ class Deformer:
         # (pose_kernel_variant) is bound again only after such a change (set_args of the 18
         # arguments takes ~24 us, which diluted bench/kernel_ab.py's paired ratios)
         self._args_version = 0
-        self._variants: dict = {}   # id(variant) -> (variant, _args_version it is bound at)
+        self._variants: dict = {}   # variant -> the _args_version it is bound at
         # which parts of a frame's pose block a pose fills (empty views cost ~0.3 us each)
         self._fill_points, self._fill_segments = P > 0, S > 0
         self._batch = 1       # frames of the last launch
@@ -341,17 +341,18 @@ class Deformer:
         slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
         return rec[:, 0].ravel(), slots
 
-    def relaunch(self, queues=None, workers: bool | None = None, pose_kernel=None) -> list:
+    def relaunch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
         """Run the last posing's launch again (same inputs, same result) and return its
         events (:func:`nrpose.device.launch_shared`; the pose kernel, its prologue
         included, on each device that ran it); queues: as there,
         e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
         (True), run it on the calling thread alone (False) or let
         :func:`nrpose.device.launch_shared` decide (None, default); pose_kernel: a
-        :meth:`pose_kernel_variant` to run instead of the deformer's own. The frames are
-        written into the launch's own output slots (never into a result handed to a caller)."""
+        :meth:`pose_kernel_variant` to run instead of the deformer's own; timed: as
+        ``launch_shared``'s (:meth:`time_launch`). The frames are written into the launch's
+        own output slots (never into a result handed to a caller)."""
         self._slots[: self._batch] = self._own_slots[: self._batch]
-        return self._launch(queues, workers, pose_kernel)
+        return self._launch(queues, workers, pose_kernel, timed)
 
     def time_launch(self) -> tuple[float | None, bool]:
         """Run the last posing's launch again as a frame loop runs it (a standing worker
@@ -362,17 +363,14 @@ class Deformer:
         host's), and whether a standing worker was there to serve it. Same inputs, same
         result, written into the launch's own output slots."""
         stood = self._jobs.standing(self._kernel)
-        self._slots[: self._batch] = self._own_slots[: self._batch]
-        events = self._launch(timed=True)
+        events = self.relaunch(timed=True)
         return device.published_span_s(self._jobs, events[-1]), stood
 
     def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
         """:meth:`relaunch`, into the output slots that the pose blocks name."""
-        if pose_kernel is not None:
-            bound = self._variants.get(id(pose_kernel))
-            if bound is None or bound[0] is not pose_kernel or bound[1] != self._args_version:
-                pose_kernel.set_args(*self._pose_args())   # the current arrays
-                self._variants[id(pose_kernel)] = (pose_kernel, self._args_version)
+        if pose_kernel is not None and self._variants.get(pose_kernel) != self._args_version:
+            pose_kernel.set_args(*self._pose_args())   # the current arrays
+            self._variants[pose_kernel] = self._args_version
         return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._jobs,
                                     self._blocks, self._batch, prologue=True, queues=queues,
                                     workers=workers, timed=timed)
@@ -418,8 +416,7 @@ class Deformer:
         self._pose.upload()           # after the slots: they are part of the pose blocks
         self._batch = F
         self._launch()
-        if direct is not None:
-            self._out.download()      # (shared memory: the wait)
+        if direct is not None:        # shared memory: launch_shared has waited for the frames
             return None
         if slot is not None:
             return self._handoff.take(slot)

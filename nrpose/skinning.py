@@ -413,8 +413,7 @@ class Deformer:
         arr_in.host[: f * j * width].reshape(params.shape)[...] = params   # float64 -> float32
         arr_in.upload()
         self._launch()
-        if direct is not None:
-            self._queue.finish()
+        if direct is not None:        # shared memory: launch_shared has waited for the frames
             return out
         arr_out.download()
         posed = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
