@@ -122,11 +122,21 @@
 #else
 #define UNROLL_P
 #endif
-#define SHARED_SLOTS_MAX 8   /* dense rigs of up to this many slots test their lanes once */
 #if K <= UNROLL_MAX && !defined(SPARSE)
 #define UNROLL_K _Pragma("unroll")
 #else
 #define UNROLL_K
+#endif
+/* Dense rigs pose a chunk whose lanes do not share their reference (under 1 % of the
+ * Table-1 chunks) by a second slot loop that gathers; above this many slots it is not
+ * unrolled, which keeps the body small enough to inline twice (pose_chunk): the
+ * armadillo's 13 slots unrolled there made its segment row 0.95-0.97x as fast, rolled
+ * 1.035x; with 4-5 slots rolling it cost 1-2 % */
+#define GATHERED_UNROLL_MAX 8
+#if !defined(SPARSE) && K > GATHERED_UNROLL_MAX
+#define UNROLL_GATHERED _Pragma("nounroll")
+#else
+#define UNROLL_GATHERED UNROLL_K
 #endif
 
 #ifdef QUAT_BLEND
@@ -349,28 +359,30 @@ static void pose_prologue(const int F, const int nsegs, const int paper, const i
     }
 }
 
-__kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
-                         __global const float *len2,
-                         __global float *pose, __global float *derived,
-                         __global float *out_frames, __global float *handed, const int block,
-                         const int pose_stride, const int derived_stride,
-                         const int paper, const int npairs, __global const int *pairs,
-                         __global const uchar *fit,
-                         volatile __global int *jobs, const int role)
+/* Frame f of a launch: its pose block (`qpos`), its derived block (`refs`) and its output,
+ * the slot its pose block names (the header's `out` and `handed`). */
+typedef struct {
+    __global const float *qpos, *refs;
+    __global float *out;
+} frame_t;
+
+static inline frame_t frame_at(const int f, __global const float *pose, __global const float *derived,
+                               __global float *out_frames, __global float *handed, const int pose_stride,
+                               const int derived_stride, const int np)
 {
-    /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
-     * host publishes ceil(chunks / block) blocks and the job's frames F, with a
-     * prologue that writes the frames' rotation data (pose_prologue) */
-    const int chunks = np / VW;
-    FOR_EACH_JOB(jobs, role) {
-    if (claim_prologue(jobs, job_tag_)) {
-        pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, len2, pose, derived, pose_stride,
-                      derived_stride, fit);
-        open_job(jobs, job_tag_);
-    }
-    FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, chunks) {
-    /* frames innermost: a chunk's bound data is read from memory once and
-     * reused from L1 for every frame of the batch */
+    frame_t fr;
+    fr.qpos = pose + f * pose_stride;
+    fr.refs = derived + f * derived_stride;
+    const int slot = as_int(fr.qpos[pose_stride - 1]);
+    fr.out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
+    return fr;
+}
+
+/* Pose chunk g (points VW g .. VW g + VW-1 of the stored order) for frame `fr`. Inlined
+ * into both of the kernel's loops (single pose, batch). */
+static inline __attribute__((always_inline)) void pose_chunk(const int g, const int nsegs, __global const float *frec,
+                                                             __global const int *irec, const frame_t fr)
+{
     /* the chunk's records: row j of a record is at + VW j (LOADV(j, ...)) */
     __global const float *u = frec + (size_t)g * FREC(P, K);
     __global const float *coef = u + VW * 3;
@@ -381,12 +393,9 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     __global const float *lever = phat + VW * 3 * P;
 #endif
     __global const int *ints = irec + (size_t)g * IREC(K);
-    for (int f = 0; f < F; ++f) {
-    __global const float *qpos = pose + f * pose_stride;
-    __global const float *refs = derived + f * derived_stride;
+    __global const float *qpos = fr.qpos, *refs = fr.refs;
     __global const float *table = refs + TABLE_OFFSET(S), *segv = refs + SEGV_OFFSET(S);
-    const int slot = as_int(qpos[pose_stride - 1]);
-    __global float *out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
+    __global float *out = fr.out;
 
     /* reference rotation: shared by the lanes (points are sorted by it) or gathered;
      * its matrix is loaded where it is used (LOAD_REF), not held in 9 registers
@@ -443,11 +452,10 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
         rz += l * t[2];                                                                        \
         SLOT_W(l, t);                                                                          \
     } while (0)
-#if !defined(SPARSE) && K <= SHARED_SLOTS_MAX
-    /* dense, few slots: one test of the chunk's lanes for all slots, so that the slots'
-     * loads and multiply-adds are one straight run (dragon segments 1.05-1.06x, bunny
-     * 1.02-1.03x, box 1.02-1.03x on one thread, bench/kernel_ab.py; with the armadillo's 13
-     * slots, unrolled in both loops, 0.98x: SHARED_SLOTS_MAX) */
+#ifndef SPARSE
+    /* dense: one test of the chunk's lanes for all slots, so that the slots' loads and
+     * multiply-adds are one straight run (dragon segments 1.05-1.06x, bunny 1.02-1.03x,
+     * box 1.02-1.03x on one thread, bench/kernel_ab.py) */
     if (uniform) {
         UNROLL_K
         for (int k = 0; k < K; ++k)
@@ -455,7 +463,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     } else
 #endif
     {
-    UNROLL_K
+    UNROLL_GATHERED
     for (int k = 0; k < K; ++k) {
         /* segment slot k: dense, slot k is segment k; sparse, slot[k] names it per point */
 #ifdef SPARSE
@@ -634,7 +642,43 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     const intv o = LOADIV(1, ints);
     STORE_ROWSV(ox, oy, oz, out, o);
 #endif
-    }   /* f */
-    }   /* g */
+}
+
+__kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
+                         __global const float *len2,
+                         __global float *pose, __global float *derived,
+                         __global float *out_frames, __global float *handed, const int block,
+                         const int pose_stride, const int derived_stride,
+                         const int paper, const int npairs, __global const int *pairs,
+                         __global const uchar *fit,
+                         volatile __global int *jobs, const int role)
+{
+    /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
+     * host publishes ceil(chunks / block) blocks and the job's frames F, with a
+     * prologue that writes the frames' rotation data (pose_prologue) */
+    const int chunks = np / VW;
+    FOR_EACH_JOB(jobs, role) {
+    if (claim_prologue(jobs, job_tag_)) {
+        pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, len2, pose, derived, pose_stride,
+                      derived_stride, fit);
+        open_job(jobs, job_tag_);
+    }
+    FOR_EACH_BLOCK(b, jobs) {
+        const int g_end = min((b + 1) * block, chunks), F = jobs[JOB_FRAMES];
+        if (F == 1) {
+            /* a single pose: its frame's pointers found once per block, not per chunk (single
+             * poses 1.02-1.08x, kernel on one thread) */
+            const frame_t fr = frame_at(0, pose, derived, out_frames, handed, pose_stride, derived_stride, np);
+            for (int g = b * block; g < g_end; ++g)
+                pose_chunk(g, nsegs, frec, irec, fr);
+        } else {
+            /* frames innermost: a chunk's bound data is read from memory once and reused
+             * from L1 for every frame of the batch */
+            for (int g = b * block; g < g_end; ++g)
+                for (int f = 0; f < F; ++f)
+                    pose_chunk(g, nsegs, frec, irec,
+                               frame_at(f, pose, derived, out_frames, handed, pose_stride, derived_stride, np));
+        }
+    }
     }   /* job */
 }

@@ -57,6 +57,9 @@
  *         }
  *         FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, count) { ... }
  *     }
+ * or, to handle a block's items as a whole (kernels/nrmls.cl: its frames' pointers found
+ * once per block), FOR_EACH_BLOCK(b, jobs) { ... block b, items b * block .., of the job's
+ * jobs[JOB_FRAMES] frames (read after the block is taken) ... } in place of the last.
  */
 #define JOB_NEXT 0
 #define JOB_BLOCKS 1
