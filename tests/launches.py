@@ -1,6 +1,19 @@
 """Ways a shared launch may split its blocks (nrpose.device.launch_shared), for tests
-that check every split gives the same result."""
+that check every split gives the same result, and the skip of tests that need a
+standing worker."""
+import pytest
+
 from nrpose import device
+
+
+def standing_workers_or_skip() -> None:
+    """Skip the calling test where no worker can stand: no PoCL worker device with shared
+    memory (launches then run on one queue), or not an x86 host
+    (:func:`nrpose.device.standing_workers_possible`)."""
+    if device.worker_queue() is None or not device.fine_grain_svm():
+        pytest.skip("no PoCL worker device with shared memory here: launches run on one queue")
+    if not device.standing_workers_possible():
+        pytest.skip("standing workers only on x86 hosts")
 
 
 def splits() -> dict[str, dict]:

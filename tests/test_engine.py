@@ -6,7 +6,7 @@ import weakref
 
 import numpy as np
 import pytest
-from launches import relaunch, splits
+from launches import relaunch, splits, standing_workers_or_skip
 
 from nrpose import Deformer, HandleError, HandleSet, InputError, Pose
 from nrpose.blend import deform_reference, rest_terms
@@ -651,8 +651,7 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
     from nrpose import device
     from nrpose.engine import BLOCK_POINTS
 
-    if not device.fine_grain_svm() or device.worker_queue() is None:
-        pytest.skip("needs shared memory and PoCL's worker device (standing workers)")
+    standing_workers_or_skip()
     monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(0.5)
     rng = np.random.default_rng(37)

@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 import pytest
+from launches import standing_workers_or_skip
 
 from nrpose import device
 from nrpose.errors import DeviceError, InputError
@@ -30,13 +31,6 @@ __kernel void mark(__global int *who, const int work, volatile __global int *job
 }
 """
 STANDING, CALLER = 2_000_000, 1_000_000
-
-
-def _workers_or_skip():
-    if device.worker_queue() is None or not device.fine_grain_svm():
-        pytest.skip("no PoCL worker device with shared memory here: launches run on one queue")
-    if not device.standing_workers_possible():
-        pytest.skip("standing workers only on x86 hosts")
 
 
 class Marker:
@@ -74,7 +68,7 @@ def test_every_block_once_with_its_frames_across_many_jobs(standby):
     frames, one standing worker serving them in a loop: every block of every job taken
     once, with that job's frames, none beyond the job; the standing worker took some and
     the calling thread some."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(20_000)
     m = Marker()
     takers = {STANDING: 0, CALLER: 0}
@@ -92,7 +86,7 @@ def test_every_block_once_with_its_frames_across_many_jobs(standby):
 def test_idle_standing_worker_returns_and_a_later_launch_stands_again(standby):
     """With a 1 us standby the standing worker returns almost at once; the next job is
     then the calling thread's alone (none lost) and its launch stands a new worker."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(1)
     m = Marker()
     m.launch(8, workers=True)
@@ -112,7 +106,7 @@ def test_timed_launch_spans_from_the_jobs_publication(standby, monkeypatch):
     job's publication to the end of the calling thread's kernel: at least that kernel's
     own event time, at most the call's; an event older than the mailbox's last
     publication, or no clock to read, gives None."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(200_000)
     m = Marker(work=20_000)
     m.launch(16, workers=True)              # stands the worker
@@ -138,7 +132,7 @@ def test_a_standing_worker_serves_only_its_own_kernel(standby):
     """A mailbox's standing worker runs one kernel: a launch of another kernel on the same
     mailbox (a kernel variant) ends it before publishing, so every block is the new
     kernel's; so does a launch meant for the calling thread alone."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(10_000_000)
     a = Marker()
     b = Marker(jobs=a.jobs, by=1000)
@@ -156,7 +150,7 @@ def test_a_standing_worker_serves_only_its_own_kernel(standby):
 
 def test_stop_ends_a_polling_worker_at_once(standby):
     """A standing worker that would poll for 10 s returns as soon as stop() asks."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(10_000_000)
     m = Marker()
     m.launch(4, workers=True)
@@ -171,7 +165,7 @@ def test_standing_workers_give_way(standby):
     """One standing worker holds PoCL's worker device: another mailbox's shared launch
     ends it first; a launch on the calling thread alone leaves it standing; a launch on
     the workers' own queue (no calling thread) ends it too."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(10_000_000)
     a, b = Marker(), Marker()
     a.launch(16, workers=True)
@@ -189,7 +183,7 @@ def test_alternating_mailboxes_do_not_hand_the_worker_back_and_forth(standby):
     standing worker ended by the other's launch, for device.STANDING_YIELD_S neither stands
     one (each would end the other's), and every block of every job is still taken once.
     Lowering the standby ends a worker standing longer."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(10_000_000)
     a, b = Marker(), Marker(by=1000)
     stood = []
@@ -216,7 +210,7 @@ def test_mailboxes_launched_in_blocks_in_turn_each_stand_again(standby):
     stands a worker again once it has launched device.STANDING_RUN times in a row, so each
     block's later launches have one (before, the first mailbox never stood again); every
     block of every job is still taken once."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(10_000_000)
     a, b = Marker(), Marker(by=1000)
     run = device.STANDING_RUN
@@ -236,7 +230,7 @@ def test_standby_setting(standby, monkeypatch):
     NRPOSE_STANDBY_US is read at the first launch (or set_standby_s(None)): a value that is
     not a number of microseconds from 0 to 10 s is a DeviceError naming the variable;
     set_standby_s takes seconds (InputError outside 0-10 s)."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     standby(0)
     m = Marker()
     who = m.launch(64, 3, workers=True)
@@ -260,7 +254,7 @@ def test_standby_setting(standby, monkeypatch):
 def test_forked_child_forgets_the_standing_worker(standby):
     """A process forked while a worker stands has no such thread: stopping there (at exit,
     or a deformer's deletion) forgets it instead of waiting for ever."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     import os
     if not hasattr(os, "fork"):
         pytest.skip("no os.fork here")
@@ -299,7 +293,7 @@ def test_too_many_blocks_for_the_mailbox():
 def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
     """A deformer's standing worker reads its arrays: deleting the deformer ends it
     (Jobs(owner=...)), for the NR-MLS and the skinning deformers."""
-    _workers_or_skip()
+    standing_workers_or_skip()
     from nrpose.engine import Deformer
     from nrpose.handles import HandleSet
     from nrpose.skinning import LbsDeformer
@@ -424,7 +418,7 @@ def test_a_jobs_prologue_runs_once_before_any_of_its_blocks(standby, split):
     import pyopencl as cl
 
     if split != "alone":
-        _workers_or_skip()
+        standing_workers_or_skip()
     standby(20_000 if split == "standing" else 0)
     ctx, _ = device.context()
     kernel = cl.Kernel(cl.Program(ctx, device.with_headers(PROLOGUE)).build(), "staged")

@@ -6,7 +6,7 @@ import weakref
 
 import numpy as np
 import pytest
-from launches import relaunch, splits
+from launches import relaunch, splits, standing_workers_or_skip
 from scipy.spatial.transform import Rotation
 
 from nrpose.errors import InputError
@@ -190,8 +190,7 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
     from nrpose import device
     from nrpose.skinning import BLOCK, LANES
 
-    if not device.fine_grain_svm() or device.worker_queue() is None:
-        pytest.skip("needs shared memory and PoCL's worker device (standing workers)")
+    standing_workers_or_skip()
     monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(0.5)
     rng = np.random.default_rng(5)
@@ -320,10 +319,7 @@ def test_joint_count_change_under_a_standing_worker(method, monkeypatch):
     from nrpose import device
     from nrpose.skinning import BLOCK, LANES
 
-    if device.worker_queue() is None or not device.fine_grain_svm():
-        pytest.skip("no PoCL worker device with shared memory: no standing workers")
-    if not device.standing_workers_possible():
-        pytest.skip("standing workers only on x86 hosts")
+    standing_workers_or_skip()
     monkeypatch.setattr(device, "_STANDBY", [10.0])
     rng = np.random.default_rng(33)
     n = 8 * BLOCK * LANES
