@@ -4,8 +4,8 @@
 Each ablation is the shipped ``kernels/nrmls.cl`` with one edit, built with the bound
 deformer's options (:meth:`nrpose.engine.Deformer.pose_kernel_variant`) and launched in
 turn with the shipped kernel on the calling thread alone
-(:func:`kernel_ab.paired_launches`; both built as variants, so that both pay the same
-argument binding), so that both see the same machine. Its ``share`` is
+(:func:`kernel_ab.paired_launches`; both built as variants, by the same path), so that
+both see the same machine. Its ``share`` is
 1 - (its time / the shipped kernel's), the median over side-by-side launch pairs: the
 fraction of the kernel's time that the removed cost takes.
 
@@ -55,8 +55,8 @@ def measure(deformer, launches: int = LAUNCHES) -> dict:
     {name: {"share": ..., "paired_ratio": {median, p10, p90} of variant/shipped time,
     "shipped_ms", "variant_ms" (medians)}}."""
     names = [n for n in ABLATIONS if n != "stores" or len(deformer.rest.segments)]
-    # the shipped source built as a variant too, so that each launch pays the same argument
-    # binding (relaunch sets a variant's arguments: ~10-20 us, a box pose's third)
+    # the shipped source built as a variant too, so that both sides come from the same build
+    # path (a variant's arguments are bound once, Deformer._args_version)
     kernels = {"shipped": deformer.pose_kernel_variant(device.kernel_source("nrmls.cl")),
                **{n: deformer.pose_kernel_variant(variant_source(n)) for n in names}}
     times = kernel_ab.paired_launches(deformer, kernels, launches)

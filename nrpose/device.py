@@ -630,11 +630,10 @@ def profiling_queues() -> tuple:
     devices of the shared queues: :func:`launch_shared`'s ``queues`` for timing launches
     with events (:func:`events_span_s`)."""
     cl = _cl()
-    ctx, q = context()
     wq = worker_queue()
-    prof = cl.command_queue_properties.PROFILING_ENABLE
-    return (None if wq is None else cl.CommandQueue(ctx, wq.device, properties=prof),
-            cl.CommandQueue(ctx, q.device, properties=prof))
+    return (None if wq is None else cl.CommandQueue(context()[0], wq.device,
+                                                    properties=cl.command_queue_properties.PROFILING_ENABLE),
+            timing_queue())
 
 
 #: the clock of PoCL's profiling timestamps on Linux (its pocl_gettimemono_ns), which

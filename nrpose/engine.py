@@ -383,11 +383,13 @@ class Deformer:
             self._bind_handed(self._handoff.array)
 
     def _bind_handed(self, memory) -> None:
-        """Bind ``memory`` (a HostArray) as the kernel's ``handed`` argument, if it is not."""
+        """Bind ``memory`` (a HostArray, or None where there are no handoff slots: the
+        deformer's own output, as :meth:`_pose_args` binds it) as the kernel's ``handed``
+        argument, if it is not."""
         if memory is not self._handed:
             self._handed = memory
             self._args_version += 1
-            self._jobs.set_argument(self._kernel, 8, memory.arg)
+            self._jobs.set_argument(self._kernel, 8, (self._out if memory is None else memory).arg)
             self._jobs.keep = (self._pose, self._derived, self._out, memory)
 
     def _run(self, poses: list, owned: bool, direct: tuple | None = None) -> np.ndarray | None:

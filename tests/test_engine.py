@@ -874,6 +874,33 @@ def test_no_handoff_where_reference_counts_are_not_exact(monkeypatch):
         assert np.array_equal(got, w) and not np.shares_memory(got, dev._out.host)
 
 
+
+def test_frames_array_released_without_handoff_slots(monkeypatch):
+    """Without handoff slots (a Python without the GIL), a batch posed straight into a
+    frames_array and then release_frames() (as CharacterPoser does after each clip) bind the
+    deformer's own output back: single poses and batches after it are right."""
+    import sys
+
+    from nrpose import device
+
+    if not device.fine_grain_svm():
+        pytest.skip("frames_array is plain memory without shared memory: nothing is bound")
+    rng = np.random.default_rng(46)
+    rest = random_rest(rng, 2, 2)
+    points = rng.uniform(-1, 1, (500, 3))
+    poses = [random_pose(rng, rest) for _ in range(3)]
+    want = Deformer(points, rest).pose_frames(poses).copy()
+    monkeypatch.setattr(sys, "_is_gil_enabled", lambda: False, raising=False)
+    dev = Deformer(points, rest)
+    assert dev._handoff.array is None
+    frames = dev.frames_array(3)
+    assert np.array_equal(dev.pose_frames(poses, out=frames), want)
+    dev.release_frames()
+    assert dev._handed is None
+    kept = frames.copy()
+    assert np.array_equal(dev.pose(poses[1]), want[1]) and np.array_equal(dev.pose_frames(poses), want)
+    assert np.array_equal(frames, kept)
+
 def test_a_handed_off_result_changed_by_its_caller_changes_no_later_one():
     """pose_frames([p]) hands its frame over too: as a view, so that what the caller does
     to that array object (its shape, its writeable flag) stays with it."""
