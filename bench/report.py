@@ -110,11 +110,14 @@ def suites_block(doc: dict) -> str:
                     + (f"{standing['wall_ms'] * 1e3:.0f} µs enqueue+wait" if standing else "")
                     + ".", "", f"Pose kernels timed {ro['method'].get('pose_timing', ro['method']['timing'])}.", "",
                 _table(["row", "flop/pt", "B/pt", "pose ms", "kernel ms", "GFLOP/s", "% arith",
+                        "% arith net of an empty job",
                         "best round: kernel ms, % arith", "worker woken: kernel ms, % arith",
                         "batched kernel ms/frame", "batched % arith", "bound"],
                        [[f"{r['model']}/{r['kind']}", r["work"]["flops_per_point"], r["work"]["bytes_per_point"],
                          _ms(r["pose_ms"]["median"]), _ms(r["kernel_ms"]["median"]), f"{r['gflops']:.1f}",
                          f"{100 * r['fraction_arithmetic']:.1f}",
+                         f"{100 * r['fraction_arithmetic_net_of_launch']:.1f}"
+                         if "fraction_arithmetic_net_of_launch" in r else "—",
                          f"{_ms(r['kernel_ms_best_round'])}, {100 * r['fraction_arithmetic_best_round']:.1f}"
                          if "kernel_ms_best_round" in r else "—",
                          f"{_ms(r['kernel_woken_ms']['median'])}, {100 * r['fraction_arithmetic_woken']:.1f}"

@@ -124,12 +124,13 @@ FLOP_COUNT = {
     "point handle: lever coef*|phat|^2, *k (3 mul + 2 add + 1 mul + 1 mul)": (7, 0, 0, 0),
     "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0, 0),
     "normalise r: times the bound 1/lever sum (3 mul)": (0, 0, 3, 0),
-    "Rodrigues: x = |r|^2/4 (3 mul + 2 add + 1 mul)": (0, 0, 6, 0),
-    "Rodrigues: sinc Horner degree 4 in x (4 mul + 4 add)": (0, 0, 8, 0),
-    "Rodrigues: cos Horner degree 5 in x (5 mul + 5 add)": (0, 0, 10, 0),
-    "Rodrigues: a = sinc*cos, b = 0.5*sinc*sinc (3 mul)": (0, 0, 3, 0),
-    "Rodrigues: k = r x u, j = r x k (2 x 3 x (2 mul + 1 sub))": (0, 0, 18, 0),
-    "Rodrigues: w = u + a k + b j (3 x (2 mul + 2 add))": (0, 0, 12, 0),
+    "Rodrigues: x = |h|^2, h = r/2 (the levers bound halved) (3 mul + 2 add)": (0, 0, 5, 0),
+    "Rodrigues: x^2, x^4 for Estrin's scheme (2 mul)": (0, 0, 2, 0),
+    "Rodrigues: sqrt2 sinc, degree 4 in x by Estrin's scheme (4 mul + 4 add)": (0, 0, 8, 0),
+    "Rodrigues: sqrt2 cos, degree 5 in x by Estrin's scheme (5 mul + 5 add)": (0, 0, 10, 0),
+    "Rodrigues: A = S*C, B = S*S (2 mul)": (0, 0, 2, 0),
+    "Rodrigues: k = h x u, j = h x k (2 x 3 x (2 mul + 1 sub))": (0, 0, 18, 0),
+    "Rodrigues: w = u + A k + B j (3 x (2 mul + 2 add))": (0, 0, 12, 0),
     "output: R_ref w + q* (3 x (3 mul + 3 add); segments only: e = R_ref u, e + q* before the rotation, as many)": (0, 0, 18, 0),
 }
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
@@ -389,6 +390,9 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
     # the roofline ceiling at this arithmetic intensity (against the relevant bandwidth)
     ceiling = min(peak, work["arithmetic_intensity"] * bw_roof)
     outside = max(pose_ms - kernel_ms, 0.0) / pose_ms if pose_ms > 0 else 0.0
+    # the arithmetic rate over the kernel time less an empty job's (0 when no time is left)
+    net_s = t - launch["event_ms"] * 1e-3
+    f_net = work["flops_per_pose"] / net_s * 1e-9 / peak if net_s > 0 else 0.0
     reasons = []
     if outside >= 0.5:
         floors = (f"an empty job's enqueue + wait {launch['wall_ms']:.3f} ms with workers woken"
@@ -408,6 +412,13 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
         reasons.append(f"kernel time {kernel_ms:.3f} ms is within {LAUNCH_BOUND_RATIO:g}x of "
                        f"{launch.get('what', 'an empty kernel')}, {launch['event_ms']:.3f} ms "
                        f"(publishing the job, thread start, work distribution)")
+    elif f_net >= 0.3:
+        kernel_bound = "launch"
+        reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof, {100 * f_net:.0f} % net of "
+                       f"{launch.get('what', 'an empty kernel')} ({launch['event_ms']:.3f} ms, "
+                       f"{100 * launch['event_ms'] / kernel_ms:.0f} % of it): the launch's fixed cost (publishing "
+                       f"the job, the calling thread entering its kernel, the wait for the last block) holds "
+                       f"it under 30 %")
     else:
         kernel_bound = "instructions"
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof and {100 * f_bw:.0f} % of the "
@@ -426,6 +437,7 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
         reasons.append(f"{100 * work['lanes']['gathered_slot_fraction']:.0f} % of (chunk, slot) visits on the "
                        f"gathered path")
     return {"gflops": gflops, "gbs": gbs, "fraction_arithmetic": f_arith,
+            "fraction_arithmetic_net_of_launch": f_net, "launch_floor_ms": launch["event_ms"],
             "fraction_bandwidth": f_bw, "bandwidth_roof": "l3" if fits_l3 else "dram",
             "fraction_bandwidth_dram": gbs / dram, "fraction_bandwidth_l3": gbs / l3,
             "roofline_ceiling_gflops": ceiling, "fraction_of_ceiling": gflops / ceiling,

@@ -410,9 +410,9 @@ static inline __attribute__((always_inline)) void pose_chunk(const int g, const 
 #endif
     floatv m00, m01, m02, m10, m11, m12, m20, m21, m22;
 
-    /* q* (weighted posed centroid, linear in the posed handle positions) and r: the
-     * blended rotation vector relative to the reference, or (QUAT_BLEND) the
-     * lever-weighted quaternion sum */
+    /* q* (weighted posed centroid, linear in the posed handle positions) and r: half the
+     * blended rotation vector relative to the reference (the levers are bound halved), or
+     * (QUAT_BLEND) the lever-weighted quaternion sum */
     floatv qx = 0.0f, qy = 0.0f, qz = 0.0f, rx = 0.0f, ry = 0.0f, rz = 0.0f;
 #ifdef QUAT_BLEND
     floatv rw = 0.0f;                    /* r: the lever-weighted quaternion sum */
@@ -589,22 +589,27 @@ static inline __attribute__((always_inline)) void pose_chunk(const int g, const 
     const floatv oy = uy + s2 * (rw * ky + jy) + qy;
     const floatv oz = uz + s2 * (rw * kz + jz) + qz;
 #else
-    /* w = exp(r) u, Rodrigues with a = sin(th)/th, b = (1-cos th)/th^2 written
-     * through the half angle h = th/2: a = sinc(h) cos(h), b = sinc(h)^2 / 2.
-     * sinc and cos are polynomials in x = h^2 on [0, (pi/2)^2] (|r| <= pi), degrees
-     * 4 and 5, least-squares fitted in a Chebyshev basis: evaluated in float32 their
-     * error is 8e-8 and 1.3e-7, as low as the degree-6/8 Taylor polynomials' (float
-     * rounding); no sqrt, no division, no transcendental call. Evaluated by Estrin's
-     * scheme (x, x^2, x^4: 4 dependent steps instead of Horner's 5): segment rows
-     * 1.02-1.03x (kernel on one thread), where the pose waits on this chain. */
-    const floatv x = 0.25f * (rx * rx + ry * ry + rz * rz);
+    /* w = exp(r) u for r = 2 h, h the summed half rotation vector (the levers are bound
+     * halved: nrpose/engine.py device_layout), by Rodrigues through the half angle
+     * t = |h| = th/2: w = u + A (h x u) + B h x (h x u) with A = 2 sin(th)/th = 2 sinc(t) cos(t)
+     * and B = 4 (1 - cos th)/th^2 = 2 sinc(t)^2, so A = S C and B = S S for S = sqrt2 sinc(t),
+     * C = sqrt2 cos(t). S and C are polynomials in x = t^2 = |h|^2 on [0, (pi/2)^2]
+     * (|r| <= pi), degrees 4 and 5: sinc and cos least-squares fitted in a Chebyshev basis,
+     * their coefficients times sqrt2; evaluated in float32 their error is 8e-8 and 1.3e-7
+     * (relative), as low as the degree-6/8 Taylor polynomials' (float rounding); no sqrt,
+     * no division, no transcendental call. The halved vector spares the multiplies of |r|^2
+     * by 1/4 and of sinc^2 by 1/2 (box segments 1.04x, box points and bunny segments 1.03x,
+     * kernel on one thread). Evaluated by Estrin's scheme (x, x^2, x^4: 4 dependent steps
+     * instead of Horner's 5): segment rows 1.02-1.03x (kernel on one thread), where the
+     * pose waits on this chain. */
+    const floatv x = rx * rx + ry * ry + rz * rz;
     const floatv x2 = x * x, x4 = x2 * x2;
-    const floatv sinc = (0.9999999913f - 0.16666656063f * x) + (8.3330316883e-3f - 1.9808525988e-4f * x) * x2
-                      + 2.6051343228e-6f * x4;
-    const floatv ch = (0.9999999995f - 0.49999999169f * x) + (4.1666632908e-2f - 1.3888340166e-3f * x) * x2
-                    + (2.4759708851e-5f - 2.6050851041e-7f * x) * x4;
+    const floatv sinc = (1.4142135501f - 2.3570211044e-1f * x) + (1.1784686429e-2f - 2.8013486103e-4f * x) * x2
+                      + 3.6842162911e-6f * x4;
+    const floatv ch = (1.4142135617f - 7.0710676943e-1f * x) + (5.8925517357e-2f - 1.9641079022e-3f * x) * x2
+                    + (3.5015516057e-5f - 3.6841466854e-7f * x) * x4;
     const floatv a = sinc * ch;
-    const floatv b = 0.5f * sinc * sinc;
+    const floatv b = sinc * sinc;
 #if P == 0
     /* segments only, r in the world frame (the table's entries turned by R_ref): v' =
      * exp(r) e + q* with e = R_ref u, which (with e + q*) is computed while r is summed,
@@ -660,12 +665,12 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
     const int chunks = np / VW;
     FOR_EACH_JOB(jobs, role) {
     if (claim_prologue(jobs, job_tag_)) {
-        pose_prologue(jobs[JOB_FRAMES], nsegs, paper, npairs, pairs, len2, pose, derived, pose_stride,
+        pose_prologue(JOB_FRAMES_OF(jobs, job_tag_), nsegs, paper, npairs, pairs, len2, pose, derived, pose_stride,
                       derived_stride, fit);
         open_job(jobs, job_tag_);
     }
     FOR_EACH_BLOCK(b, jobs) {
-        const int g_end = min((b + 1) * block, chunks), F = jobs[JOB_FRAMES];
+        const int g_end = min((b + 1) * block, chunks), F = JOB_FRAMES_OF(jobs, job_tag_);
         if (F == 1) {
             /* a single pose: its frame's pointers found once per block, not per chunk (kernel
              * on one thread: segment rows 1.04-1.12x, point rows 1.01-1.04x) */

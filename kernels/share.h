@@ -13,24 +13,29 @@
  *                     block of the next one (not guarded: a work-item held up between
  *                     reading the counter and its compare-and-swap for exactly a
  *                     multiple of 2047 jobs, which then see the same counter value)
+ *   JOB_BLOCKS_OF(jobs, tag), JOB_FRAMES_OF(jobs, tag)
+ *                     the job's blocks and frames (frames read again after each block
+ *                     is taken: a standing work-item serves jobs of different batch
+ *                     sizes), in one of two descriptors (JOB_DESC), by the tag's parity
  *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
  *                     blocks' writes (a cache line of its own: the block counter's
  *                     line already moves between the cores at every block taken)
- *   jobs[JOB_BLOCKS]  blocks in the job
- *   jobs[JOB_FRAMES]  frames in the job (read again after each block is taken: a
- *                     standing work-item serves jobs of different batch sizes)
  *   jobs[JOB_QUIT]    set by the host: a standing work-item returns
  *   jobs[JOB_STANDING] set by the host when it enqueues a standing work-item, cleared
  *                     by the work-item when it returns
- * The host publishes a job in three steps: JOB_NEXT = the new tag with block index
- * JOB_BLOCK_MASK (closed: no job has that many blocks, and a work-item holding the
- * last job's tag no longer matches), then JOB_DONE, JOB_BLOCKS and JOB_FRAMES, then
- * JOB_NEXT = the new tag with block 0 (open), or with JOB_PROLOGUE: the job has a
- * prologue (per-job work that every block needs, e.g. the pose kernel's rotation
- * tables), which the first work-item to arrive claims (JOB_IN_PROLOGUE), runs and
- * then opens the job at block 0; the others wait to take blocks until it is open.
- * Whoever runs it, a standing worker usually does, while the calling thread is still
- * entering its kernel.
+ * The host publishes a job with one write: it first fills the descriptor of the new
+ * tag's parity and zeroes JOB_DONE (the last job is done: the host waited for it, and
+ * its work-items have counted; a work-item still holding the last tag reads the other
+ * descriptor, whose blocks are all taken, and one holding an older tag fails its
+ * compare-and-swap), then writes JOB_NEXT = the new tag with block 0 (open), or with
+ * JOB_PROLOGUE: the job has a prologue (per-job work that every block needs, e.g. the
+ * pose kernel's rotation tables), which the first work-item to arrive claims
+ * (JOB_IN_PROLOGUE), runs and then opens the job at block 0; the others wait to take
+ * blocks until it is open. Whoever runs it, a standing worker usually does, while the
+ * calling thread is still entering its kernel. (Closing the counter first, then writing
+ * the counts and opening it, had put four writes to the line a standing worker polls
+ * between the publication and the open: the box's segment pose, standing spans
+ * 1.03-1.06x, per round.)
  *
  * `role`, the kernel's last argument, says what a work-item does:
  *   ROLE_CALLER (0)  takes blocks of the published job, then waits until every block
@@ -52,20 +57,21 @@
  * (FOR_EACH_JOB and FOR_EACH_ITEM_OF_JOB, below, are its parts.) With a prologue:
  *     FOR_EACH_JOB(jobs, role) {
  *         if (claim_prologue(jobs, job_tag_)) {
- *             ... the job's prologue, for its jobs[JOB_FRAMES] frames ...
+ *             ... the job's prologue, for its JOB_FRAMES_OF(jobs, job_tag_) frames ...
  *             open_job(jobs, job_tag_);
  *         }
  *         FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, count) { ... }
  *     }
  * or, to handle a block's items as a whole (kernels/nrmls.cl: its frames' pointers found
  * once per block), FOR_EACH_BLOCK(b, jobs) { ... block b, items b * block .., of the job's
- * jobs[JOB_FRAMES] frames (read after the block is taken) ... } in place of the last.
+ * JOB_FRAMES_OF(jobs, job_tag_) frames (read after the block is taken) ... } in place of the last.
  */
 #define JOB_NEXT 0
-#define JOB_BLOCKS 1
-#define JOB_FRAMES 2
 #define JOB_QUIT 3
 #define JOB_STANDING 4
+#define JOB_DESC 8        /* two descriptors (blocks, frames), by the tag's parity */
+#define JOB_BLOCKS_OF(jobs, tag) (jobs)[JOB_DESC + 2 * ((tag) & 1)]
+#define JOB_FRAMES_OF(jobs, tag) (jobs)[JOB_DESC + 2 * ((tag) & 1) + 1]
 #define JOB_DONE 16       /* 64 bytes on (the mailbox is 128-byte aligned, 32 ints) */
 #define JOB_TAG_SHIFT 20
 #define JOB_BLOCK_MASK ((1 << JOB_TAG_SHIFT) - 1)
@@ -105,7 +111,7 @@ static inline int take_block(volatile __global int *jobs, const int tag)
             SPIN_PAUSE();
             continue;
         }
-        if ((v & JOB_BLOCK_MASK) >= jobs[JOB_BLOCKS])
+        if ((v & JOB_BLOCK_MASK) >= JOB_BLOCKS_OF(jobs, tag))
             return -1;
         if (atomic_cmpxchg(jobs + JOB_NEXT, v, v + 1) == v) {
             JOB_ACQUIRE();
@@ -123,7 +129,7 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
 {
     if (role == ROLE_CALLER) {
         if (*served) {
-            while (jobs[JOB_DONE] < jobs[JOB_BLOCKS])
+            while (jobs[JOB_DONE] < JOB_BLOCKS_OF(jobs, *tag))
                 SPIN_PAUSE();
             JOB_ACQUIRE();      /* the others' blocks are written */
             return 0;
@@ -134,7 +140,7 @@ static inline int next_job(volatile __global int *jobs, const int role, int *tag
     }
     for (int idle = 0; idle < role && !jobs[JOB_QUIT]; ++idle) {
         const int v = jobs[JOB_NEXT], b = v & JOB_BLOCK_MASK;
-        if ((v >> JOB_TAG_SHIFT) != *tag && (b < jobs[JOB_BLOCKS] || b == JOB_PROLOGUE || b == JOB_IN_PROLOGUE)) {
+        if ((v >> JOB_TAG_SHIFT) != *tag && (b < JOB_BLOCKS_OF(jobs, v >> JOB_TAG_SHIFT) || b == JOB_PROLOGUE || b == JOB_IN_PROLOGUE)) {
             *tag = v >> JOB_TAG_SHIFT;
             return 1;
         }
@@ -151,7 +157,7 @@ static inline int claim_prologue(volatile __global int *jobs, const int tag)
     const int v = tag << JOB_TAG_SHIFT | JOB_PROLOGUE;
     if (jobs[JOB_NEXT] != v || atomic_cmpxchg(jobs + JOB_NEXT, v, tag << JOB_TAG_SHIFT | JOB_IN_PROLOGUE) != v)
         return 0;
-    JOB_ACQUIRE();      /* the prologue's reads (e.g. JOB_FRAMES) after the claim */
+    JOB_ACQUIRE();      /* the prologue's reads (e.g. the job's frames) after the claim */
     return 1;
 }
 
@@ -187,7 +193,7 @@ static inline int count_done(volatile __global int *jobs, const int taken)
 #define FOR_EACH_ITEM_OF_JOB(g, F, jobs, block, count)                                    \
     FOR_EACH_BLOCK(b_, jobs)                                                              \
     for (int g = b_ * (block), g_end_ = (b_ + 1) * (block) < (count) ? (b_ + 1) * (block) : (count), \
-         F = (jobs)[JOB_FRAMES]; g < g_end_; ++g)
+         F = JOB_FRAMES_OF(jobs, job_tag_); g < g_end_; ++g)
 
 /* Item g of every block of every job the work-item serves (jobs without a prologue). */
 #define FOR_EACH_ITEM(g, F, jobs, role, block, count)                                     \

@@ -257,11 +257,12 @@ STANDING_YIELD_S = 0.1
 STANDING_RUN = 8
 
 # the job mailbox's fields and roles (kernels/share.h)
-JOB_NEXT, JOB_BLOCKS, JOB_FRAMES, JOB_QUIT, JOB_STANDING = range(5)
+JOB_NEXT, JOB_QUIT, JOB_STANDING = 0, 3, 4
+JOB_DESC = 8                        # (blocks, frames) of jobs with even tags, then odd ones
 JOB_DONE = 16                       # on a cache line of its own
 JOB_INTS = 32
 JOB_TAG_SHIFT = 20
-JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index of a job being published
+JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index past every job's last: none to take
 JOB_PROLOGUE = JOB_CLOSED - 1              # of a published job whose prologue comes first
 JOB_IN_PROLOGUE = JOB_CLOSED - 2           # of a job whose prologue a work-item runs
 ROLE_CALLER = 0
@@ -388,25 +389,26 @@ class Jobs:
 
     def publish(self, blocks: int, frames: int, prologue: bool = False, timed: bool = False) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
-        blocks of (share.h: closed, then its counts, then opened at block 0, or, with a
+        blocks of (share.h: the descriptor of the new tag's parity filled and the done
+        count zeroed, then the counter opened at block 0 in one write, or, with a
         ``prologue``, at the prologue, which the first work-item to arrive runs before
         opening the blocks); timed: record when (``published_ns``, :func:`published_span_s`;
-        0 otherwise). The mailbox is uploaded (no-op with shared memory) on the
-        context's queue."""
+        0 otherwise), just before that write. The mailbox is uploaded (no-op with shared
+        memory) on the context's queue."""
         if not 0 <= blocks < JOB_IN_PROLOGUE:
             raise DeviceError(f"a launch of {blocks} blocks exceeds the job mailbox's "
                               f"{JOB_IN_PROLOGUE - 1}; pose fewer points per deformer")
-        self._tag = self._tag % 2047 + 1
+        self._tag = tag = self._tag % 2047 + 1
         b = self.box.host
-        self.published_ns = event_clock_ns() if timed else 0   # only timed launches read the clock
-        # closed first: from here no block can be taken, neither by a work-item still
-        # holding the last job's tag (it would read this job's counts) nor of this job
-        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | JOB_CLOSED
+        # the last job is done (its launch waited for it) and its work-items have counted;
+        # one still holding its tag reads the other descriptor
+        desc = JOB_DESC + 2 * (tag & 1)
+        b[desc] = blocks
+        b[desc + 1] = frames
         b[JOB_DONE] = 0
-        b[JOB_BLOCKS] = blocks
-        b[JOB_FRAMES] = frames
+        self.published_ns = event_clock_ns() if timed else 0   # only timed launches read the clock
         # open: block 0 is next, or first the prologue, which its runner opens
-        b[JOB_NEXT] = self._tag << JOB_TAG_SHIFT | (JOB_PROLOGUE if prologue else 0)
+        b[JOB_NEXT] = tag << JOB_TAG_SHIFT | (JOB_PROLOGUE if prologue else 0)
         self.box.upload()
 
     def time_kernel(self, kernel, blocks: int, prologue: bool = False) -> None:

@@ -139,7 +139,8 @@ class Deformer:
         blend = self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
         refs_global = bool((kept["ref"] == S).any())
-        arrays, K = device_layout(kept, self.rest, self.lever, self.lanes)
+        quat = blend == "quaternion"
+        arrays, K = device_layout(kept, self.rest, self.lever, self.lanes, quat)
         del kept
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
@@ -153,7 +154,6 @@ class Deformer:
         self._npos = 3 * (P + 2 * S)
         # floats per frame: positions, rotations, then the frame's output slot (int32 bits)
         self._pose_stride = self._npos + 9 * (S + 1) + 1
-        quat = blend == "quaternion"
         self._derived_at = derived_layout(P, S, quat)
         # R_g per pose on the device (the pose kernel's prologue), when some point takes the
         # global rotation as its reference
@@ -525,7 +525,7 @@ def levers_stored(lever: str, segments: int) -> bool:
     return lever == "paper" or segments == 0
 
 
-def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[dict, int]:
+def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int, quat: bool = False) -> tuple[dict, int]:
     """The per-point arrays that kernels/nrmls.cl binds, as rows of all points
     (:func:`chunk_records` packs them into its chunk-major records; its header
     states the rows), and the number K of segment slots per point (S when
@@ -533,7 +533,11 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
 
     Points are stored sorted by reference rotation, then by their slots, so
     that a work-item's ``lanes`` lanes (:func:`lanes_for`) share them; ``row`` sends each
-    back to the caller's row. Returns float32/int32 arrays padded to a multiple of ``lanes`` points.
+    back to the caller's row. The levers (stored, or 1 / their sum) are bound halved, so
+    that the kernel sums half the blended rotation vector (its Rodrigues step then saves
+    two multiplies), except for the quaternion blend (``quat``), whose quaternion sum is
+    normalised and held against a floor relative to the levers. Returns float32/int32
+    arrays padded to a multiple of ``lanes`` points.
     """
     n, P, S = len(kept["u"]), len(rest.points), len(rest.segments)
     refs = kept["ref"]
@@ -592,12 +596,13 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int) -> tuple[
             lsum += w[:, P::2] @ factor if K == S else np.einsum("nk,nk->n", w[:, P::2], factor[slots])
         inv = np.divide(1.0, lsum, out=np.zeros(n), where=lsum > 0)
         inv = np.minimum(inv, np.finfo(np.float32).max)
+    half = 1.0 if quat else 0.5         # exact: the blend sums r / 2 (kernels/nrmls.cl, Rodrigues)
     arrays = {
         "u": soa(kept["u"][order].T), "ref": ref, "row": row, "slot": slot,
         "coef": soa(kept["coef"][order].T),
         # the rows after phat: the stored normalised levers (P + K rows), or 1 / the lever sum
         # of levers derived in the kernel from coef, phat and len2 (1 row)
-        "lever": soa(kept["lever"][order].T) if stored else soa(inv[order][None]),
+        "lever": soa(half * kept["lever"][order].T) if stored else soa(half * inv[order][None]),
         "len2": len2_bound if S else none,
         "phat": soa(phat32[order].transpose(1, 2, 0).reshape(3 * P, n)) if P else none,
         "pairs": (np.stack([used // (S + 1), used % (S + 1)], 1).astype(np.int32).ravel() if S

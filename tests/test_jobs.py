@@ -21,7 +21,7 @@ __kernel void mark(__global int *who, const int work, volatile __global int *job
 {
     FOR_EACH_JOB(jobs, role) {
         FOR_EACH_BLOCK(b, jobs) {
-            const int F = jobs[JOB_FRAMES];
+            const int F = JOB_FRAMES_OF(jobs, job_tag_);
             float acc = 0.0f;
             for (int i = 0; i < work; ++i)
                 acc = acc * 0.5f + (float)i;
@@ -323,15 +323,19 @@ __kernel void claim(__global int *out, const int tag, volatile __global int *job
 """
 
 
-@pytest.mark.parametrize("next_tag,next_block,blocks,tag,taken", [
-    (5, 3, 10, 5, 3),                       # the job's own tag: block 3 taken
-    (5, 3, 10, 4, -1),                      # the last job's tag: nothing, whatever the counts
-    (5, 10, 10, 5, -1),                     # no block left
-    (6, device.JOB_CLOSED, device.JOB_CLOSED - 1, 6, -1),   # being published
+@pytest.mark.parametrize("next_tag,next_block,blocks,other,tag,taken", [
+    (5, 3, 10, 0, 5, 3),                    # the job's own tag: block 3 taken
+    (5, 3, 10, 0, 4, -1),                   # the last job's tag: nothing, whatever the counts
+    (5, 10, 10, 0, 5, -1),                  # no block left
+    (6, device.JOB_CLOSED, device.JOB_CLOSED - 1, 0, 6, -1),   # none to take
+    # the last job (tag 4) all taken while the next one's descriptor is filled, not yet
+    # opened: a work-item holding tag 4 reads its own job's count, not the new one's
+    (4, 7, 7, 1000, 4, -1),
 ])
-def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, tag, taken):
+def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, other, tag, taken):
     """share.h take_block: a block is taken (the counter advanced) only when the job's tag
-    matches the taker's and a block is left; a closed job has none."""
+    matches the taker's and a block is left in the descriptor of that tag's parity (the
+    other one, ``other`` blocks, may hold the next job's)."""
     import pyopencl as cl
 
     ctx, queue = device.context()
@@ -339,7 +343,8 @@ def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, 
     jobs, out = device.HostArray(device.JOB_INTS, dtype=np.int32, atomics=True), device.HostArray(1, dtype=np.int32)
     jobs.host[:] = 0
     jobs.host[device.JOB_NEXT] = next_tag << device.JOB_TAG_SHIFT | next_block
-    jobs.host[device.JOB_BLOCKS] = blocks
+    jobs.host[device.JOB_DESC + 2 * (next_tag & 1)] = blocks
+    jobs.host[device.JOB_DESC + 2 * (1 - (next_tag & 1))] = other
     jobs.upload()
     kernel.set_args(out.arg, np.int32(tag), jobs.arg)
     cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
@@ -349,9 +354,11 @@ def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, 
     assert jobs.host[device.JOB_NEXT] & ((1 << device.JOB_TAG_SHIFT) - 1) == next_block + (taken >= 0)
 
 
-def test_publish_closes_the_job_before_it_opens_it():
-    """Jobs.publish writes the block counter first with the new tag and the closed index,
-    then the counts, then opens it at block 0; each job gets a new tag (1..2047, cycling)."""
+def test_publish_opens_the_job_in_one_write_after_its_descriptor(monkeypatch):
+    """Jobs.publish fills the descriptor of the new tag's parity (blocks, frames) and zeroes
+    the done count, reads the clock (timed), then opens the job with its one write to the
+    block counter: at block 0, or at the prologue; each job gets a new tag (1..2047,
+    cycling), so that consecutive jobs use the two descriptors in turn."""
     jobs = device.Jobs()
     writes = []
 
@@ -360,22 +367,22 @@ def test_publish_closes_the_job_before_it_opens_it():
             writes.append((i, int(v)))
             super().__setitem__(i, v)
 
+    monkeypatch.setattr(device, "event_clock_ns", lambda: writes.append("clock") or 1)
     jobs.box.host = jobs.box.host.view(Recorder)
     tags = []
     for blocks in (7, 3000):
         writes.clear()
-        jobs.publish(blocks, 4)
-        tag = writes[0][1] >> device.JOB_TAG_SHIFT
+        jobs.publish(blocks, 4, timed=True)
+        tag = writes[-1][1] >> device.JOB_TAG_SHIFT
         tags.append(tag)
-        assert writes[0] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT | device.JOB_CLOSED)
-        assert sorted(writes[1:-1]) == sorted([(device.JOB_DONE, 0), (device.JOB_BLOCKS, blocks),
-                                               (device.JOB_FRAMES, 4)])
-        assert writes[-1] == (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)
-    assert tags[0] != tags[1] and all(1 <= t <= 2047 for t in tags)
+        desc = device.JOB_DESC + 2 * (tag & 1)
+        assert sorted(writes[:3]) == sorted([(desc, blocks), (desc + 1, 4), (device.JOB_DONE, 0)])
+        assert writes[3:] == ["clock", (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)]
+    assert tags[1] == tags[0] + 1 and all(1 <= t <= 2047 for t in tags)
     writes.clear()
-    jobs.publish(5, 2, prologue=True)           # opened at the prologue, not at block 0
-    assert writes[0][1] & device.JOB_CLOSED == device.JOB_CLOSED
-    assert writes[-1] == (device.JOB_NEXT, (writes[0][1] & ~device.JOB_CLOSED) | device.JOB_PROLOGUE)
+    jobs.publish(5, 2, prologue=True)           # opened at the prologue, not at block 0; no clock
+    assert "clock" not in writes and [w for w in writes if w[0] == device.JOB_NEXT] == [writes[-1]]
+    assert writes[-1] == (device.JOB_NEXT, (tags[1] + 1) << device.JOB_TAG_SHIFT | device.JOB_PROLOGUE)
     jobs._tag = 2047
     jobs.publish(1, 1)
     assert jobs.box.host[device.JOB_NEXT] >> device.JOB_TAG_SHIFT == 1
@@ -396,7 +403,7 @@ __kernel void staged(__global int *who, __global int *state, const int work, vol
                 acc = acc * 0.5f + (float)i;
             state[1] += 1;
             state[2] += role > 0;
-            state[0] = jobs[JOB_FRAMES] + (acc < 0.0f);
+            state[0] = JOB_FRAMES_OF(jobs, job_tag_) + (acc < 0.0f);
             open_job(jobs, job_tag_);
         }
         FOR_EACH_BLOCK(b, jobs) {
@@ -474,7 +481,7 @@ def test_a_prologue_is_claimed_once_under_its_jobs_tag(state, tag, claimed):
     jobs, out = device.HostArray(device.JOB_INTS, dtype=np.int32, atomics=True), device.HostArray(2, dtype=np.int32)
     jobs.host[:] = 0
     jobs.host[device.JOB_NEXT] = 5 << device.JOB_TAG_SHIFT | state
-    jobs.host[device.JOB_BLOCKS] = 10
+    jobs.host[device.JOB_DESC + 2 * (5 & 1)] = 10
     jobs.upload()
     kernel.set_args(out.arg, np.int32(tag), jobs.arg)
     cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
