@@ -99,12 +99,14 @@ def test_roofline(quick):
         assert 0 <= r["work"]["lanes"]["gathered_slot_fraction"] <= 1
         assert r["kernel_bound"] in ("arithmetic", "memory", "launch", "instructions") and r["bound_by"]
         # net of an empty job's time the rate is higher (or 0 where nothing is left); a row under
-        # 30 % of the roof that reaches it net of the empty job is launch bound
+        # 30 % of the roof that reaches it net of the empty job is launch bound (by that rule, or,
+        # at --quick's sizes, within LAUNCH_BOUND_RATIO of the empty job)
         net = r["fraction_arithmetic_net_of_launch"]
         assert _finite_positive(r["launch_floor_ms"])
         assert net == 0.0 if r["kernel_ms"]["median"] <= r["launch_floor_ms"] else net > r["fraction_arithmetic"]
         if r["fraction_arithmetic"] < 0.3 <= net:
-            assert r["kernel_bound"] == "launch" and "holds it under 30 %" in r["bound_by"]
+            assert r["kernel_bound"] == "launch"
+            assert "holds it under 30 %" in r["bound_by"] or "is within" in r["bound_by"]
         # ablations: stores only where points are stored sorted (rigs with segments)
         assert set(r["ablation"]) == ({"memory", "stores"} if K else {"memory"})
         for a in r["ablation"].values():
