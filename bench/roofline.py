@@ -390,6 +390,7 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
     # the roofline ceiling at this arithmetic intensity (against the relevant bandwidth)
     ceiling = min(peak, work["arithmetic_intensity"] * bw_roof)
     outside = max(pose_ms - kernel_ms, 0.0) / pose_ms if pose_ms > 0 else 0.0
+    what = launch.get("what", "an empty kernel")
     # the arithmetic rate over the kernel time less an empty job's (0 when no time is left)
     net_s = t - launch["event_ms"] * 1e-3
     f_net = work["flops_per_pose"] / net_s * 1e-9 / peak if net_s > 0 else 0.0
@@ -410,12 +411,12 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
     elif kernel_ms < LAUNCH_BOUND_RATIO * launch["event_ms"]:
         kernel_bound = "launch"
         reasons.append(f"kernel time {kernel_ms:.3f} ms is within {LAUNCH_BOUND_RATIO:g}x of "
-                       f"{launch.get('what', 'an empty kernel')}, {launch['event_ms']:.3f} ms "
+                       f"{what}, {launch['event_ms']:.3f} ms "
                        f"(publishing the job, thread start, work distribution)")
     elif f_net >= 0.3:
         kernel_bound = "launch"
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof, {100 * f_net:.0f} % net of "
-                       f"{launch.get('what', 'an empty kernel')} ({launch['event_ms']:.3f} ms, "
+                       f"{what} ({launch['event_ms']:.3f} ms, "
                        f"{100 * launch['event_ms'] / kernel_ms:.0f} % of it): the launch's fixed cost (publishing "
                        f"the job, the calling thread entering its kernel, the wait for the last block) holds "
                        f"it under 30 %")
@@ -424,7 +425,7 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
         reasons.append(f"kernel at {100 * f_arith:.0f} % of the arithmetic roof and {100 * f_bw:.0f} % of the "
                        f"{'L3' if fits_l3 else 'DRAM'} copy bandwidth, bound by neither: its instructions "
                        f"(dependency chains of the slot and handle loops and the rotation, loads of "
-                       f"per-pose rows) on the two cores; {launch.get('what', 'an empty kernel')} is "
+                       f"per-pose rows) on the two cores; {what} is "
                        f"{100 * launch['event_ms'] / kernel_ms:.0f} % of it")
     if shares is not None:
         measured = [f"{100 * shares['memory']['share']:.0f} % of the kernel's time waiting for memory"]

@@ -259,6 +259,7 @@ STANDING_RUN = 8
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_QUIT, JOB_STANDING = 0, 3, 4
 JOB_DESC = 8                        # (blocks, frames) of jobs with even tags, then odd ones
+JOB_DESCS = (JOB_DESC, JOB_DESC + 2)  # the descriptor of tag t: JOB_DESCS[t & 1] (JOB_BLOCKS_OF)
 JOB_DONE = 16                       # on a cache line of its own
 JOB_INTS = 32
 JOB_TAG_SHIFT = 20
@@ -402,7 +403,7 @@ class Jobs:
         b = self.box.host
         # the last job is done (its launch waited for it) and its work-items have counted;
         # one still holding its tag reads the other descriptor
-        desc = JOB_DESC + 2 * (tag & 1)
+        desc = JOB_DESCS[tag & 1]
         b[desc] = blocks
         b[desc + 1] = frames
         b[JOB_DONE] = 0

@@ -343,8 +343,8 @@ def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, 
     jobs, out = device.HostArray(device.JOB_INTS, dtype=np.int32, atomics=True), device.HostArray(1, dtype=np.int32)
     jobs.host[:] = 0
     jobs.host[device.JOB_NEXT] = next_tag << device.JOB_TAG_SHIFT | next_block
-    jobs.host[device.JOB_DESC + 2 * (next_tag & 1)] = blocks
-    jobs.host[device.JOB_DESC + 2 * (1 - (next_tag & 1))] = other
+    jobs.host[device.JOB_DESCS[next_tag & 1]] = blocks
+    jobs.host[device.JOB_DESCS[1 - (next_tag & 1)]] = other
     jobs.upload()
     kernel.set_args(out.arg, np.int32(tag), jobs.arg)
     cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
@@ -375,7 +375,7 @@ def test_publish_opens_the_job_in_one_write_after_its_descriptor(monkeypatch):
         jobs.publish(blocks, 4, timed=True)
         tag = writes[-1][1] >> device.JOB_TAG_SHIFT
         tags.append(tag)
-        desc = device.JOB_DESC + 2 * (tag & 1)
+        desc = device.JOB_DESCS[tag & 1]
         assert sorted(writes[:3]) == sorted([(desc, blocks), (desc + 1, 4), (device.JOB_DONE, 0)])
         assert writes[3:] == ["clock", (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)]
     assert tags[1] == tags[0] + 1 and all(1 <= t <= 2047 for t in tags)
@@ -481,7 +481,7 @@ def test_a_prologue_is_claimed_once_under_its_jobs_tag(state, tag, claimed):
     jobs, out = device.HostArray(device.JOB_INTS, dtype=np.int32, atomics=True), device.HostArray(2, dtype=np.int32)
     jobs.host[:] = 0
     jobs.host[device.JOB_NEXT] = 5 << device.JOB_TAG_SHIFT | state
-    jobs.host[device.JOB_DESC + 2 * (5 & 1)] = 10
+    jobs.host[device.JOB_DESCS[5 & 1]] = 10
     jobs.upload()
     kernel.set_args(out.arg, np.int32(tag), jobs.arg)
     cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
