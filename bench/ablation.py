@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+import common
 import kernel_ab
 from nrpose import device
 from nrpose.errors import NrposeError
@@ -64,8 +65,7 @@ def measure(deformer, launches: int = LAUNCHES) -> dict:
     for n in names:
         ratio = np.divide(times[n], times["shipped"])
         out[n] = {"share": float(1 - np.median(ratio)),
-                  "paired_ratio": {q: float(np.percentile(ratio, pc)) for q, pc in
-                                   (("median", 50), ("p10", 10), ("p90", 90))},
+                  "paired_ratio": common.quantiles(ratio),
                   "shipped_ms": float(np.median(times["shipped"]) * 1e3),
                   "variant_ms": float(np.median(times[n]) * 1e3)}
     deformer.relaunch()       # the shipped kernel's output back in place

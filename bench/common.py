@@ -25,6 +25,14 @@ stats = table1._stats           # seconds -> {"median", "p10", "p90", "min", "ma
 git = table1._git
 
 
+def quantiles(x) -> dict[str, float]:
+    """{"median", "p10", "p90"}: the 50th, 10th and 90th percentiles (NumPy's linear
+    interpolation) of the samples ``x`` (array-like of float, any shape, taken whole), in
+    ``x``'s own units. For unitless samples such as paired time ratios; timings in seconds
+    take :data:`stats`, which also converts to ms and adds min, max and n."""
+    return {q: float(np.percentile(x, pc)) for q, pc in (("median", 50), ("p10", 10), ("p90", 90))}
+
+
 def load() -> list[float]:
     """os.getloadavg() (1, 5, 15 min) as a list."""
     try:

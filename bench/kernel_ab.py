@@ -106,8 +106,7 @@ def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box",
                   "alternated; ms per launch (pose kernel with its prologue + enqueue/wait)",
         "base_ms": ms["base"], "variant_ms": ms["variant"],
         "base_over_variant": ms["base"]["median"] / ms["variant"]["median"],
-        "paired_base_over_variant": {q: float(np.percentile(paired, pc)) for q, pc in
-                                     (("median", 50), ("p10", 10), ("p90", 90))},
+        "paired_base_over_variant": common.quantiles(paired),
         "max_diff_rel_bbox": max_diff,
     }
 

@@ -47,6 +47,22 @@
 
 /* lanes.h's 8-lane helpers; SAMEV at its default VW of 8 lanes (no -DVW here) */
 
+/* Parameter c of each lane's joint, the float8 (p[j.s0 + c], ..., p[j.s7 + c]) (p: the
+ * per-joint records, j: int8 of record offsets into p): JOINT_BCAST8 when the 8 lanes
+ * share the joint (one load, broadcast), JOINT_GATHER8 for any lanes (8 loads). The outer
+ * parentheses of JOINT_BCAST8's operand matter: `(float8)(x)[c]` is a vector literal
+ * indexed by c. */
+#define JOINT_BCAST8(p, j, c) ((float8)(((p) + (j).s0)[c]))
+#define JOINT_GATHER8(p, j, c) GATHER8(p, (j) + (c))
+
+/* USE(JOINT_BCAST8) when the 8 lanes of j share the joint (the usual case, vertices being
+ * sorted by joint), else USE(JOINT_GATHER8); USE is a macro of statements that read the
+ * joint's parameters with the reader it is given. A macro rather than an inline function
+ * returning the parameters: expanded in each branch, USE consumes every value where it
+ * is read, whereas reading lbs's 12 into an array and accumulating after the branch kept
+ * them live across the join, spilled to the stack at every influence. */
+#define WITH_JOINT8(j, USE) do { if (SAMEV(j)) { USE(JOINT_BCAST8) } else { USE(JOINT_GATHER8) } } while (0)
+
 __kernel void lbs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
@@ -69,25 +85,12 @@ __kernel void lbs(__global const float *restrict rest,
         const float8 w = LOAD8(0, weights + o);
         if (!ANY_NONZERO8(w)) break;
         const int8 j = LOADI8(0, joints + o) * 12;
-        if (SAMEV(j)) {          /* the 8 vertices share the joint */
-            __global const float *m = M + j.s0;
-            a0 += w * m[0]; a1 += w * m[1]; a2  += w * m[2];  a3  += w * m[3];
-            a4 += w * m[4]; a5 += w * m[5]; a6  += w * m[6];  a7  += w * m[7];
-            a8 += w * m[8]; a9 += w * m[9]; a10 += w * m[10]; a11 += w * m[11];
-        } else {
-            a0  += w * GATHER8(M, j);
-            a1  += w * GATHER8(M, j + 1);
-            a2  += w * GATHER8(M, j + 2);
-            a3  += w * GATHER8(M, j + 3);
-            a4  += w * GATHER8(M, j + 4);
-            a5  += w * GATHER8(M, j + 5);
-            a6  += w * GATHER8(M, j + 6);
-            a7  += w * GATHER8(M, j + 7);
-            a8  += w * GATHER8(M, j + 8);
-            a9  += w * GATHER8(M, j + 9);
-            a10 += w * GATHER8(M, j + 10);
-            a11 += w * GATHER8(M, j + 11);
-        }
+#define ACCUMULATE(PARAM)                                                            \
+        a0 += w * PARAM(M, j, 0); a1 += w * PARAM(M, j, 1); a2  += w * PARAM(M, j, 2);  a3  += w * PARAM(M, j, 3);  \
+        a4 += w * PARAM(M, j, 4); a5 += w * PARAM(M, j, 5); a6  += w * PARAM(M, j, 6);  a7  += w * PARAM(M, j, 7);  \
+        a8 += w * PARAM(M, j, 8); a9 += w * PARAM(M, j, 9); a10 += w * PARAM(M, j, 10); a11 += w * PARAM(M, j, 11);
+        WITH_JOINT8(j, ACCUMULATE);
+#undef ACCUMULATE
     }
 
     __global const float *p = rest + (size_t)g * 24;
@@ -118,11 +121,9 @@ __kernel void dqs(__global const float *restrict rest,
 
     /* Dominant joint's rotation quaternion for the hemisphere test. */
     float8 px, py, pz, pw;
-    if (SAMEV(j0)) {
-        px = D[j0.s0]; py = D[j0.s0 + 1]; pz = D[j0.s0 + 2]; pw = D[j0.s0 + 3];
-    } else {
-        px = GATHER8(D, j0); py = GATHER8(D, j0 + 1); pz = GATHER8(D, j0 + 2); pw = GATHER8(D, j0 + 3);
-    }
+#define READ_ROTATION(PARAM) px = PARAM(D, j0, 0); py = PARAM(D, j0, 1); pz = PARAM(D, j0, 2); pw = PARAM(D, j0, 3);
+    WITH_JOINT8(j0, READ_ROTATION);
+#undef READ_ROTATION
 
     float8 rx = 0.0f, ry = 0.0f, rz = 0.0f, rw = 0.0f;
     float8 dx = 0.0f, dy = 0.0f, dz = 0.0f, dw = 0.0f;
@@ -133,13 +134,11 @@ __kernel void dqs(__global const float *restrict rest,
         if (!ANY_NONZERO8(w)) break;
         const int8 j = LOADI8(0, joints + o) * 8;
         float8 qx, qy, qz, qw, ex, ey, ez, ew;
-        if (SAMEV(j)) {          /* the 8 vertices share the joint */
-            __global const float *e = D + j.s0;
-            qx = e[0]; qy = e[1]; qz = e[2]; qw = e[3]; ex = e[4]; ey = e[5]; ez = e[6]; ew = e[7];
-        } else {
-            qx = GATHER8(D, j); qy = GATHER8(D, j + 1); qz = GATHER8(D, j + 2); qw = GATHER8(D, j + 3);
-            ex = GATHER8(D, j + 4); ey = GATHER8(D, j + 5); ez = GATHER8(D, j + 6); ew = GATHER8(D, j + 7);
-        }
+#define READ_DQ(PARAM)                                                                           \
+        qx = PARAM(D, j, 0); qy = PARAM(D, j, 1); qz = PARAM(D, j, 2); qw = PARAM(D, j, 3); \
+        ex = PARAM(D, j, 4); ey = PARAM(D, j, 5); ez = PARAM(D, j, 6); ew = PARAM(D, j, 7);
+        WITH_JOINT8(j, READ_DQ);
+#undef READ_DQ
         const float8 dot = qx * px + qy * py + qz * pz + qw * pw;
         const float8 s = dot < 0.0f ? -w : w;   /* antipodality */
         rx += s * qx; ry += s * qy; rz += s * qz; rw += s * qw;

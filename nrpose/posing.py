@@ -158,8 +158,10 @@ class CharacterPoser:
         out = (self._deformer.frames_array(F) if whole and self._backend == "opencl"
                else np.empty((F, self.n, 3), np.float32))
         frame_ms = np.empty(F)
-        # (F, J, 4, 4): skinning matrices, for LBS/DQS and for rigidly attached meshes
-        skin_rest = G @ self._rest_inv if self.method != "nrmls" or self._rigid_idx.size else None
+        # (F, J, 4, 4): skinning matrices, for rigidly attached meshes and for LBS/DQS of rest-space
+        # vertices (bind-space vertices take their skins' own inverse binds instead)
+        skin_rest = (G @ self._rest_inv
+                     if self._rigid_idx.size or (self.method != "nrmls" and not self._bind_space) else None)
         # per-frame handle data for all frames at once (vectorised host work)
         if self.method == "nrmls":
             segs, rots = self.bones.pose(G)
