@@ -52,11 +52,13 @@
  *                         rest length ("length"), see nrpose/blend.py; times 2^-2e, e as
  *                         for phat (without point handles, the longest lever's exponent;
  *                         at most 2^50 / the longest lever: nrpose/engine.py device_layout)
+ * Per-pose data, F frames of a launch in `frames`, frame f at f frame_stride floats: its
+ * pose block (pose_stride floats, written by the host), then its derived block:
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9] | slot [1]: posed handle positions, the
  *          rotations of the segments and the global rotation R_g, row-major, and
  *          the output slot of the frame (int bits): slot s >= 0 is written at out + s Np*3,
  *          slot code s < 0 at handed + (-1 - s) Np*3
- *   derived (written by the job's prologue from `pose`, once per pose: pose_prologue)
+ *   derived (written by the job's prologue from the pose block, once per pose: pose_prologue)
  *          refs [(S+1)*9] row-major | quats [(S+1)*4] | ploc [(S+1)*P*3] | segv [S*6]
  *          | table [(S+1)*S*TW]:
  *          refs[j], the matrix of reference j (segment j, or R_g for j = S; identity for
@@ -79,10 +81,16 @@
  *   handed [2][Np*3]      the same, slots whose frames are handed to the caller without
  *                         a copy (nrpose.device.Handoff)
  *
- * A launch poses F frames: `pose` holds F per-pose blocks (pose_stride floats
- * apart) and `derived` F blocks (derived_stride apart). The launch is one job
- * (share.h) whose prologue, run by the first work-item to arrive, fits R_g
- * (-DGLOBAL_FIT) and fills `derived` for every frame; then the blocks of points.
+ * The rest-only arrays (the records above, len2, the prologue's pairs and the R_g fit's
+ * data) and the deformer's constants are one `bound` block (BOUND_*, below), and each
+ * frame's pose and derived blocks are one, so that the kernel takes six arguments: PoCL's
+ * enqueue costs ~0.1 us per argument (~0.15 a buffer), paid by the calling thread before
+ * it joins a standing worker (eighteen arguments, ten of them arrays, had cost ~1-1.5 us
+ * more than six, five of them arrays).
+ *
+ * A launch poses F frames. It is one job (share.h) whose prologue, run by the first
+ * work-item to arrive, fits R_g (-DGLOBAL_FIT) and fills the derived block of every
+ * frame; then the blocks of points.
  * (As kernels of their own, enqueued before this one, the R_g fit and the
  * tables cost a box's point pose 14 us of its 84 (1.21x), its segment pose 5 of
  * 47 us; a standing worker now runs them while the calling thread enters.)
@@ -185,6 +193,32 @@
 #else
 #define IREC(K) (2 * VW)
 #endif
+
+/* The bound block (nrpose/engine.py bound_block): a header of ints, the deformer's constants
+ * and the byte offsets of its arrays, each at a multiple of 128 bytes from the block's start:
+ *   BOUND_NP          Np, points padded to a multiple of VW
+ *   BOUND_NSEGS       S, segments
+ *   BOUND_BLOCK       chunks per block of work (share.h)
+ *   BOUND_POSE_STRIDE floats of a frame's pose block
+ *   BOUND_FRAME_STRIDE floats from one frame's pose block to the next
+ *   BOUND_PAPER       1: the paper's blend (no reference rotation), 0: relative
+ *   BOUND_NPAIRS      (j, i) pairs of the rotation table (table_block)
+ *   BOUND_FREC, BOUND_IREC  the float and int chunk records (the header's records)
+ *   BOUND_LEN2        len2 [S] float; BOUND_PAIRS [npairs][2] int
+ *   BOUND_FIT         the R_g fit's data (double, global_fit.h; GLOBAL_FIT builds) */
+#define BOUND_NP 0
+#define BOUND_NSEGS 1
+#define BOUND_BLOCK 2
+#define BOUND_POSE_STRIDE 3
+#define BOUND_FRAME_STRIDE 4
+#define BOUND_PAPER 5
+#define BOUND_NPAIRS 6
+#define BOUND_FREC 7
+#define BOUND_IREC 8
+#define BOUND_LEN2 9
+#define BOUND_PAIRS 10
+#define BOUND_FIT 11
+#define BOUND_AT(bound, i, type) ((__global const type *)((bound) + ((__global const int *)(bound))[i]))
 
 /* Unit quaternion (x, y, z, w) of a row-major rotation matrix (Shepperd). */
 static float4 quat_of(__global const float *m)
@@ -338,20 +372,21 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
             table[dst[l] + c] = out[c][l];
 }
 
-/* The pose kernel's prologue (share.h), once per job, for its F frames: R_g, where
- * some point takes it as its reference (built with -DGLOBAL_FIT: global_fit.h, from
- * the posed handle positions and `fit`, written into the frame's pose block), then
- * the frame's rotation data (rotation_items, table_block). */
+/* The pose kernel's prologue (share.h), once per job, for its F frames (`frames`): R_g,
+ * where some point takes it as its reference (built with -DGLOBAL_FIT: global_fit.h, from
+ * the posed handle positions and the bound fit data, written into the frame's pose block),
+ * then the frame's rotation data into its derived block (rotation_items, table_block). */
 static void pose_prologue(const int F, const int nsegs, const int paper, const int npairs,
-                          __global const int *pairs, __global const float *len2, __global float *pose,
-                          __global float *derived, const int pose_stride, const int derived_stride,
-                          __global const uchar *fit)
+                          __global const uchar *bound, __global float *frames, const int pose_stride,
+                          const int frame_stride)
 {
+    __global const int *pairs = BOUND_AT(bound, BOUND_PAIRS, int);
+    __global const float *len2 = BOUND_AT(bound, BOUND_LEN2, float);
     for (int f = 0; f < F; ++f) {
-        __global float *frame = pose + f * pose_stride;
-        __global float *refs = derived + f * derived_stride;
+        __global float *frame = frames + f * frame_stride;
+        __global float *refs = frame + pose_stride;
 #ifdef GLOBAL_FIT
-        global_rotation_of(frame, (__global const double *)fit, P + 2 * S, 3 * (P + 2 * S) + 9 * S);
+        global_rotation_of(frame, BOUND_AT(bound, BOUND_FIT, double), P + 2 * S, 3 * (P + 2 * S) + 9 * S);
 #endif
         rotation_items(nsegs, paper, frame, refs);
         for (int g0 = 0; g0 < npairs; g0 += VW)
@@ -366,13 +401,13 @@ typedef struct {
     __global float *out;
 } frame_t;
 
-static inline frame_t frame_at(const int f, __global const float *pose, __global const float *derived,
-                               __global float *out_frames, __global float *handed, const int pose_stride,
-                               const int derived_stride, const int np)
+static inline frame_t frame_at(const int f, __global const float *frames, __global float *out_frames,
+                               __global float *handed, const int pose_stride, const int frame_stride,
+                               const int np)
 {
     frame_t fr;
-    fr.qpos = pose + f * pose_stride;
-    fr.refs = derived + f * derived_stride;
+    fr.qpos = frames + f * frame_stride;
+    fr.refs = fr.qpos + pose_stride;
     const int slot = as_int(fr.qpos[pose_stride - 1]);
     fr.out = slot >= 0 ? out_frames + (size_t)slot * 3 * np : handed + (size_t)(-1 - slot) * 3 * np;
     return fr;
@@ -650,23 +685,22 @@ static inline __attribute__((always_inline)) void pose_chunk(const int g, const 
 #endif
 }
 
-__kernel void nrmls_pose(const int np, const int nsegs, __global const float *frec, __global const int *irec,
-                         __global const float *len2,
-                         __global float *pose, __global float *derived,
-                         __global float *out_frames, __global float *handed, const int block,
-                         const int pose_stride, const int derived_stride,
-                         const int paper, const int npairs, __global const int *pairs,
-                         __global const uchar *fit,
-                         volatile __global int *jobs, const int role)
+__kernel void nrmls_pose(__global const uchar *bound, __global float *frames, __global float *out_frames,
+                         __global float *handed, volatile __global int *jobs, const int role)
 {
     /* blocks of `block` chunks, shared by the devices of the launch (share.h); the
      * host publishes ceil(chunks / block) blocks and the job's frames F, with a
      * prologue that writes the frames' rotation data (pose_prologue) */
+    __global const int *head = (__global const int *)bound;
+    const int np = head[BOUND_NP], nsegs = head[BOUND_NSEGS], block = head[BOUND_BLOCK];
+    const int pose_stride = head[BOUND_POSE_STRIDE], frame_stride = head[BOUND_FRAME_STRIDE];
+    __global const float *frec = BOUND_AT(bound, BOUND_FREC, float);
+    __global const int *irec = BOUND_AT(bound, BOUND_IREC, int);
     const int chunks = np / VW;
     FOR_EACH_JOB(jobs, role) {
     if (claim_prologue(jobs, job_tag_)) {
-        pose_prologue(JOB_FRAMES_OF(jobs, job_tag_), nsegs, paper, npairs, pairs, len2, pose, derived, pose_stride,
-                      derived_stride, fit);
+        pose_prologue(JOB_FRAMES_OF(jobs, job_tag_), nsegs, head[BOUND_PAPER], head[BOUND_NPAIRS], bound, frames,
+                      pose_stride, frame_stride);
         open_job(jobs, job_tag_);
     }
     FOR_EACH_BLOCK(b, jobs) {
@@ -674,7 +708,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
         if (F == 1) {
             /* a single pose: its frame's pointers found once per block, not per chunk (kernel
              * on one thread: segment rows 1.04-1.12x, point rows 1.01-1.04x) */
-            const frame_t fr = frame_at(0, pose, derived, out_frames, handed, pose_stride, derived_stride, np);
+            const frame_t fr = frame_at(0, frames, out_frames, handed, pose_stride, frame_stride, np);
             for (int g = b * block; g < g_end; ++g)
                 pose_chunk(g, nsegs, frec, irec, fr);
         } else {
@@ -683,7 +717,7 @@ __kernel void nrmls_pose(const int np, const int nsegs, __global const float *fr
             for (int g = b * block; g < g_end; ++g)
                 for (int f = 0; f < F; ++f)
                     pose_chunk(g, nsegs, frec, irec,
-                               frame_at(f, pose, derived, out_frames, handed, pose_stride, derived_stride, np));
+                               frame_at(f, frames, out_frames, handed, pose_stride, frame_stride, np));
         }
     }
     }   /* job */

@@ -38,6 +38,13 @@ BACKENDS = ("opencl", "numpy")
 BLOCK_POINTS = 256
 BLOCKS_PER_LAUNCH = 32
 MAX_BLOCK_POINTS = 4096
+#: the pose kernel's bound block (kernels/nrmls.cl BOUND_*, :func:`bound_block`): its header's
+#: ints, the deformer's constants, then the byte offsets of the rest-only arrays, in this order
+BOUND_CONSTANTS = ("np", "nsegs", "block", "pose_stride", "frame_stride", "paper", "npairs")
+BOUND_ARRAYS = ("frec", "irec", "len2", "pairs", "fit")
+BOUND_ALIGN = 128       # bytes: each array's offset a multiple (float8 rows are read 32-byte aligned)
+#: index of ``nrmls_pose``'s ``handed`` argument (Deformer._pose_args)
+ARG_HANDED = 3
 
 
 def lanes_for(segments: int) -> int:
@@ -145,19 +152,26 @@ class Deformer:
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
-        mf = cl.mem_flags
-        frec, irec = chunk_records(arrays, P, S, K, self.lanes)
-        self._bufs = {k: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(a))
-                      for k, a in (("frec", frec), ("irec", irec), ("len2", arrays["len2"]),
-                                   ("pairs", arrays["pairs"]))}
-        del frec, irec, arrays
         self._npos = 3 * (P + 2 * S)
         # floats per frame: positions, rotations, then the frame's output slot (int32 bits)
         self._pose_stride = self._npos + 9 * (S + 1) + 1
         self._derived_at = derived_layout(P, S, quat)
+        # a frame's pose block, then its derived block, on cache lines of their own
+        self._frame_stride = -(-(self._pose_stride + self._derived_at["stride"]) // 32) * 32
         # R_g per pose on the device (the pose kernel's prologue), when some point takes the
         # global rotation as its reference
         self._global = GlobalFit(self.rest) if blend != "paper" and refs_global else None
+        self._block = block_points(npad, self.lanes)
+        self._blocks = -(-npad // self._block)
+        frec, irec = chunk_records(arrays, P, S, K, self.lanes)
+        block, self._bound_at = bound_block(
+            {"np": npad, "nsegs": S, "block": self._block // self.lanes, "pose_stride": self._pose_stride,
+             "frame_stride": self._frame_stride, "paper": int(blend == "paper"), "npairs": self._npairs},
+            {"frec": frec, "irec": irec, "len2": arrays["len2"], "pairs": arrays["pairs"],
+             "fit": self._global.values if self._global is not None else np.zeros(0)})
+        del frec, irec, arrays
+        self._bound = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=block)
+        del block
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
@@ -167,12 +181,10 @@ class Deformer:
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         self._jobs = device.Jobs(owner=self)   # the pose kernel's job mailbox (kernels/share.h)
-        self._block = block_points(npad, self.lanes)
-        self._blocks = -(-npad // self._block)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # the pose kernel's arguments change with _reserve and _bind_handed: a variant
-        # (pose_kernel_variant) is bound again only after such a change (set_args of the 18
-        # arguments takes ~24 us, which diluted bench/kernel_ab.py's paired ratios)
+        # (pose_kernel_variant) is bound again only after such a change (set_args of its
+        # arguments took ~24 us when they were 18, which diluted bench/kernel_ab.py's paired ratios)
         self._args_version = 0
         self._variants: dict = {}   # variant -> the _args_version it is bound at
         # which parts of a frame's pose block a pose fills (empty views cost ~0.3 us each)
@@ -196,14 +208,12 @@ class Deformer:
         self._jobs.time_kernel(self._kernel, self._blocks, prologue=True)
 
     def _pose_args(self) -> list:
-        """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl)."""
-        b = self._bufs
-        return [np.int32(self._npad), np.int32(len(self.rest.segments)), b["frec"], b["irec"], b["len2"],
-                self._pose.arg, self._derived.arg, self._out.arg,
-                (self._out if self._handed is None else self._handed).arg, np.int32(self._block // self.lanes),
-                np.int32(self._pose_stride), np.int32(self._derived_at["stride"]), np.int32(self.blend == "paper"),
-                np.int32(self._npairs), b["pairs"], b["pairs"] if self._global is None else self._global.data,
-                self._jobs.box.arg, np.int32(device.ROLE_CALLER)]
+        """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl): the bound
+        block, the frame blocks, the output slots, the handed slots (:data:`ARG_HANDED`),
+        the job mailbox and the role."""
+        return [self._bound, self._frame_blocks.arg, self._out.arg,
+                (self._out if self._handed is None else self._handed).arg, self._jobs.box.arg,
+                np.int32(device.ROLE_CALLER)]
 
     def pose_kernel_variant(self, source: str):
         """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl,
@@ -235,23 +245,25 @@ class Deformer:
     def _reserve(self, frames: int) -> None:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames.
 
-        The output array holds ``frames`` slots of 3 Npad floats; each frame's pose block
-        names the slot it is written into: one of these (codes 0..frames-1) or one of the
-        bind's :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller."""
+        The frame blocks hold each frame's pose block (written here) and then its derived
+        block (written by the kernel's prologue), ``_frame_stride`` floats apart. The output
+        array holds ``frames`` slots of 3 Npad floats; each frame's pose block names the
+        slot it is written into: one of these (codes 0..frames-1) or one of the bind's
+        :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller."""
         if frames <= self._frames:
             return
         self._jobs.arguments_changed()      # a standing worker reads the arrays replaced here
-        self._pose = device.HostArray(frames * self._pose_stride)
-        blocks = self._pose.host.reshape(frames, self._pose_stride)
+        self._frame_blocks = device.HostArray(frames * self._frame_stride)
+        blocks = self._frame_blocks.host.reshape(frames, self._frame_stride)[:, : self._pose_stride]
         S = len(self.rest.segments)
         blocks[:, self._npos + 9 * S: self._npos + 9 * S + 9] = np.eye(3).ravel()   # R_g, unless GlobalFit writes it
-        self._slots = self._pose.host.view(np.int32).reshape(frames, self._pose_stride)[:, -1]
+        self._slots = self._frame_blocks.host.view(np.int32).reshape(frames, self._frame_stride)[
+            :, self._pose_stride - 1]
         self._own_slots = np.arange(frames, dtype=np.int32)
-        self._derived = device.HostArray(frames * self._derived_at["stride"])   # written and read by kernels
         self._out = device.HostArray(frames * 3 * self._npad)
         self._kernel.set_args(*self._pose_args())
         self._args_version += 1
-        self._jobs.keep = (self._pose, self._derived, self._out, self._handed)
+        self._jobs.keep = (self._frame_blocks, self._out, self._handed)
         self._frames = frames
         # each frame's posed point handles (P, 3), segments (S, 2, 3) and rotations (S, 3, 3)
         # as views into the pose array: filling shaped views costs ~0.6 us a pose, slicing
@@ -322,6 +334,17 @@ class Deformer:
         out[...] = result
         return out
 
+    def bound_array(self, name: str, dtype) -> np.ndarray:
+        """Array ``name`` of :data:`BOUND_ARRAYS` read back from the device's bound block, as
+        a flat array of ``dtype`` (OpenCL deformers; diagnostics and tests)."""
+        import pyopencl as cl
+
+        offset, nbytes = self._bound_at[name]
+        out = np.empty(nbytes // np.dtype(dtype).itemsize, dtype)
+        if out.size:
+            cl.enqueue_copy(self._queue, out, self._bound, src_offset=offset)
+        return out
+
     def bound_indices(self) -> tuple[np.ndarray, np.ndarray | None]:
         """The kernel's per-point indices in stored order (points sorted by reference, padded
         to a multiple of :attr:`lanes`): ref (Npad,) int32, each point's reference rotation (segment s,
@@ -332,12 +355,7 @@ class Deformer:
             kept = slot_terms(self._terms, self.k, self.lever)
             arrays, K = device_layout(kept, self.rest, self.lever, self.lanes)
             return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
-        import pyopencl as cl
-
-        buf = self._bufs["irec"]
-        ints = np.empty(buf.size // 4, np.int32)
-        cl.enqueue_copy(self._queue, ints, buf)
-        rec = ints.reshape(self._npad // self.lanes, -1, self.lanes)   # chunk records: ref, row, then any slots
+        rec = self.bound_array("irec", np.int32).reshape(self._npad // self.lanes, -1, self.lanes)   # chunk records: ref, row, then any slots
         slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
         return rec[:, 0].ravel(), slots
 
@@ -389,8 +407,8 @@ class Deformer:
         if memory is not self._handed:
             self._handed = memory
             self._args_version += 1
-            self._jobs.set_argument(self._kernel, 8, (self._out if memory is None else memory).arg)
-            self._jobs.keep = (self._pose, self._derived, self._out, memory)
+            self._jobs.set_argument(self._kernel, ARG_HANDED, (self._out if memory is None else memory).arg)
+            self._jobs.keep = (self._frame_blocks, self._out, memory)
 
     def _run(self, poses: list, owned: bool, direct: tuple | None = None) -> np.ndarray | None:
         """Launch the pose kernel for the poses: the posed points (F, N, 3),
@@ -415,7 +433,7 @@ class Deformer:
         else:
             self._bind_handed(self._handoff.array)
             self._slots[0] = slot
-        self._pose.upload()           # after the slots: they are part of the pose blocks
+        self._frame_blocks.upload()   # after the slots: they are part of the pose blocks
         self._batch = F
         self._launch()
         if direct is not None:        # shared memory: launch_shared has waited for the frames
@@ -435,22 +453,19 @@ class GlobalFit:
     of poses by the pose kernel's prologue, where the points read it: no host work per
     pose (on the host the fit took 60-130 µs of a point-handle pose).
 
-    rest: the rest handles. ``data``: the device buffer the fit reads (float64: the
+    rest: the rest handles. ``values``: what the fit reads (float64 (1 + 3M,): the
     tie tolerance's scale, then the M = P + 2S centred rest positions (M, 3), point
-    handles, then segment ends), bound once.
+    handles, then segment ends), bound once (the deformer's bound block).
     """
 
     def __init__(self, rest: HandleSet):
-        import pyopencl as cl
-
         fit = GlobalRotation(rest)
         ctx, _ = device.context()
         if not all("cl_khr_fp64" in d.extensions for d in ctx.devices):
             raise DeviceError("point-handle rigs fit their global rotation in double precision: the "
                               "OpenCL device needs cl_khr_fp64 (PoCL's CPU devices have it); choose "
                               "another device with PYOPENCL_CTX or use backend='numpy'")
-        self.data = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                              hostbuf=np.concatenate([[fit.scale2], np.ravel(fit.centred)]).astype(np.float64))
+        self.values = np.concatenate([[fit.scale2], np.ravel(fit.centred)]).astype(np.float64)
 
     @classmethod
     def fit(cls, rest: HandleSet, poses) -> np.ndarray:
@@ -465,11 +480,11 @@ class GlobalFit:
         for f, p in enumerate(poses):
             rest.same_layout(p.handles, "posed handles")
             rows[f, : 3 * M] = np.concatenate([p.handles.points.ravel(), p.handles.segments.ravel()])
-        fit = cls(rest)
+        ctx, queue = device.context()
+        data = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=cls(rest).values)
         kernel = cl.Kernel(device.program("global_fit.cl"), "global_rotation")
-        kernel.set_args(block.arg, fit.data, np.int32(M), np.int32(3 * M + 9), np.int32(3 * M))
+        kernel.set_args(block.arg, data, np.int32(M), np.int32(3 * M + 9), np.int32(3 * M))
         block.upload()
-        _, queue = device.context()
         if poses:
             cl.enqueue_nd_range_kernel(queue, kernel, (len(poses),), None)
         block.download()
@@ -609,6 +624,33 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int, quat: boo
                   else np.zeros(2, np.int32)),
     }
     return arrays, K
+
+
+def bound_block(constants: dict, arrays: dict) -> tuple[np.ndarray, dict]:
+    """The pose kernel's bound block (kernels/nrmls.cl BOUND_*): one read-only argument for
+    the deformer's constants and rest-only arrays, since PoCL's enqueue costs the calling
+    thread ~0.1 us per argument.
+
+    constants: {name: int} for each of :data:`BOUND_CONSTANTS`; arrays: {name: numpy array}
+    for each of :data:`BOUND_ARRAYS` (any dtype, copied as its C-order bytes). Returns (the
+    block, uint8 (nbytes,): the header's int32s, then each array at a multiple of
+    :data:`BOUND_ALIGN` bytes; {name: (byte offset, nbytes)} of the arrays). DeviceError
+    when the block outgrows the header's int32 offsets (2 GiB)."""
+    header = 4 * (len(BOUND_CONSTANTS) + len(BOUND_ARRAYS))
+    at, where = -(-header // BOUND_ALIGN) * BOUND_ALIGN, {}
+    for name in BOUND_ARRAYS:
+        where[name] = (at, arrays[name].nbytes)
+        at += -(-arrays[name].nbytes // BOUND_ALIGN) * BOUND_ALIGN
+    if at > np.iinfo(np.int32).max:
+        raise DeviceError(f"the deformer's bound data takes {at / 2**30:.1f} GiB, more than the pose "
+                          f"kernel's 2 GiB; bind fewer points per deformer (or use sparse weights, k)")
+    block = np.zeros(at, np.uint8)
+    block[:header].view(np.int32)[:] = ([int(constants[n]) for n in BOUND_CONSTANTS]
+                                        + [where[n][0] for n in BOUND_ARRAYS])
+    for name in BOUND_ARRAYS:
+        offset, nbytes = where[name]
+        block[offset: offset + nbytes] = np.ascontiguousarray(arrays[name]).reshape(-1).view(np.uint8)
+    return block, where
 
 
 def derived_layout(P: int, S: int, quat: bool) -> dict:

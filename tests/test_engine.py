@@ -245,8 +245,6 @@ def test_rotation_table_against_float64(blend, lever, point):
     of exactly pi and of 1e-4 rad; 10 x 10 pairs, so that the last block of 8 is part
     filled with pairs that are not trivial; the relative logs exactly antisymmetric
     (bitwise, where the lever factors are equal), so that blends seen from either handle agree."""
-    import pyopencl as cl
-
     rng = np.random.default_rng(11)
     S = 10
     a = np.stack([np.arange(S) * 2.0, np.zeros(S), np.zeros(S)], 1)
@@ -266,13 +264,13 @@ def test_rotation_table_against_float64(blend, lever, point):
     dev.pose(pose)
     refs = np.unique(dev.bound_indices()[0])
     assert list(refs) == list(range(S))       # every segment is some point's reference
-    dev._derived.download()
+    dev._frame_blocks.download()
     tw = 4 if blend == "quaternion" else 3
-    block = dev._derived.host[: dev._derived_at["stride"]].astype(np.float64)
-    at = dev._derived_at
+    at = dev._derived_at                      # frame 0's derived block follows its pose block
+    block = dev._frame_blocks.host[dev._pose_stride: dev._pose_stride + at["stride"]].astype(np.float64)
     table = block[at["table"]: at["stride"]].reshape(S + 1, S, tw)[:S]     # j = S, R_g: unused here
-    len2 = np.empty(S, np.float32)
-    cl.enqueue_copy(dev._queue, len2, dev._bufs["len2"])
+    len2 = dev.bound_array("len2", np.float32)
+    assert len2.shape == (S,)
     assert (len2 > 0).all() and (lever == "weight") == (np.ptp(len2) == 0)
     got = table / len2[None, :, None]
     if blend == "quaternion":
@@ -715,6 +713,47 @@ def test_block_points_sizes():
     assert block_points(35_824, 8) == 1_120 and block_points(6_016, 8) == BLOCK_POINTS
 
 
+def test_bound_block_layout_is_the_kernels():
+    """engine.bound_block, the pose kernel's one read-only argument: its header names the
+    kernel's BOUND_* indices in kernels/nrmls.cl's order; each array at a multiple of
+    BOUND_ALIGN bytes, its bytes as given (an empty one too), the header's ints the
+    constants and offsets; a block past the int32 offsets (2 GiB) is a DeviceError naming
+    the fix, raised before anything is allocated; a bound deformer's arrays read back
+    (Deformer.bound_array) are the ones it laid out."""
+    import re
+
+    from nrpose import device
+    from nrpose.engine import BOUND_ALIGN, BOUND_ARRAYS, BOUND_CONSTANTS, GlobalFit, bound_block
+    from nrpose.errors import DeviceError
+
+    names = re.findall(r"^#define BOUND_([A-Z0-9_]+) (\d+)$", device.kernel_source("nrmls.cl"), re.M)
+    assert [(n.lower(), int(i)) for n, i in names] == [(n, i) for i, n in enumerate(BOUND_CONSTANTS + BOUND_ARRAYS)]
+    rng = np.random.default_rng(5)
+    arrays = {"frec": rng.normal(size=77).astype(np.float32), "irec": np.arange(-5, 40, dtype=np.int32),
+              "len2": np.float32([2.5]), "pairs": np.zeros(0, np.int32), "fit": rng.normal(size=(4, 3))}
+    constants = {n: 1000 + i for i, n in enumerate(BOUND_CONSTANTS)}
+    block, where = bound_block(constants, arrays)
+    assert block.dtype == np.uint8 and block.size % BOUND_ALIGN == 0
+    head = block[: 4 * (len(BOUND_CONSTANTS) + len(BOUND_ARRAYS))].view(np.int32)
+    assert list(head[: len(BOUND_CONSTANTS)]) == [constants[n] for n in BOUND_CONSTANTS]
+    ends = [head.nbytes]
+    for name, offset in zip(BOUND_ARRAYS, head[len(BOUND_CONSTANTS):]):
+        a = arrays[name]
+        assert where[name] == (offset, a.nbytes) and offset % BOUND_ALIGN == 0 and offset >= ends[-1]
+        assert np.array_equal(block[offset: offset + a.nbytes].view(a.dtype).reshape(a.shape), a)
+        ends.append(offset + a.nbytes)
+    huge = dict(arrays, frec=np.broadcast_to(np.float32(0), (600_000_000,)))     # 2.4 GB, not allocated
+    with pytest.raises(DeviceError, match="2 GiB.*fewer points"):
+        bound_block(constants, huge)
+    rest = HandleSet.make(points=[[0.0, 0.0, 3.0], [0.0, 3.0, 0.0]], segments=[[[0, 0, 0], [1, 0, 0]]])
+    dev = Deformer(rng.uniform(-0.5, 0.5, (50, 3)) + [[0.0, 0.0, 3.0], [0.5, 0.0, 0.0]] * 25, rest, lever="length")
+    assert dev._global is not None               # the points take R_g: the fit's data is bound
+    assert np.array_equal(dev.bound_array("fit", np.float64), GlobalFit(rest).values)   # 1 + 3 (P + 2S)
+    ref, _ = dev.bound_indices()
+    assert ref.shape == (dev._npad,) and set(ref) <= {0, 1}
+    assert dev.bound_array("len2", np.float32).shape == (1,)
+
+
 @pytest.mark.parametrize("n_pts,n_segs", [(0, 3), (2, 0)])     # 8 and 16 lanes
 def test_large_blocks_same_points(n_pts, n_segs, monkeypatch):
     """A deformer of 20,000 points takes its points in 32 blocks of 632 or 640 (engine.block_points,
@@ -795,7 +834,7 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     fits = GlobalFit.fit(rest, poses)
     monkeypatch.setattr(device, "fine_grain_svm", lambda: False)
     dev = Deformer(points, rest, blend=blend)
-    assert dev._global is not None and not dev._pose.svm and not dev._jobs.box.svm
+    assert dev._global is not None and not dev._frame_blocks.svm and not dev._jobs.box.svm
     for pose, want in zip(poses, singles):
         got = dev.pose(pose)
         assert np.array_equal(got, want)
