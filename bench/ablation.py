@@ -13,9 +13,10 @@ fraction of the kernel's time that the removed cost takes.
   within a window of ``WINDOW`` chunks, which stays in the L1 cache: the time spent
   waiting for memory (bound data streamed from L2/L3, output lines written back).
 * ``stores``: each chunk's output written with three vector stores at the chunk's
-  position instead of a scalar store per coordinate and row: the points of rigs with
-  segments are stored sorted by reference rotation, so their rows are scattered. Not run
-  on rigs without segments, which already store so.
+  position instead of, for chunks whose rows are not one run (lanes.h STORE_CHUNKV), 8-byte
+  (x, y) and 4-byte z stores per row: the points of rigs with segments are stored sorted
+  by reference rotation, so their rows are scattered. Not run on rigs without segments,
+  which already store so.
 
 Their outputs are wrong by design and not checked. The time neither takes is the
 kernel's instructions: arithmetic, the loads of the rows it needs, dependency chains.
@@ -35,7 +36,7 @@ LAUNCHES = 60     # launch pairs per ablation (quick: 5)
 ABLATIONS = {
     "memory": [("frec + (size_t)g * FREC(P, K)", f"frec + (size_t)(g % {WINDOW}) * FREC(P, K)"),
                ("irec + (size_t)g * IREC(K)", f"irec + (size_t)(g % {WINDOW}) * IREC(K)")],
-    "stores": [("STORE_ROWSV(ox, oy, oz, out, o);", "STORE_XYZV(ox, oy, oz, out + 3 * VW * (size_t)g);")],
+    "stores": [("STORE_CHUNKV(ox, oy, oz, out, ints + VW);", "STORE_XYZV(ox, oy, oz, out + 3 * VW * (size_t)g);")],
 }
 
 

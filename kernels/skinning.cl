@@ -17,6 +17,8 @@
  *                             parameters are read once for the 8 (broadcast loads)
  *                             instead of gathered lane by lane (12 or 8 gathers
  *                             per influence were most of the kernel's time).
+ *                             Run-coded (lanes.h STORE_CHUNKV): a group of
+ *                             consecutive rows has its first bound as ~row.
  *   out     (F, 8G, 3) float: posed vertices as rows (array of structures) in the
  *           caller's order, one slab per frame, padding vertices last.
  *
@@ -99,7 +101,7 @@ __kernel void lbs(__global const float *restrict rest,
     const float8 ox = a0 * x + a1 * y + a2  * z + a3;
     const float8 oy = a4 * x + a5 * y + a6  * z + a7;
     const float8 oz = a8 * x + a9 * y + a10 * z + a11;
-    STORE_ROWS(ox, oy, oz, q, LOADI8(0, rows + (size_t)g * 8));
+    STORE_CHUNKV(ox, oy, oz, q, rows + (size_t)g * 8);
     }   /* f */
     }   /* g */
 }
@@ -165,7 +167,7 @@ __kernel void dqs(__global const float *restrict rest,
     const float8 ox = x + 2.0f * ((ry * cz - rz * cy) + tx);
     const float8 oy = y + 2.0f * ((rz * cx - rx * cz) + ty);
     const float8 oz = z + 2.0f * ((rx * cy - ry * cx) + tz);
-    STORE_ROWS(ox, oy, oz, q, LOADI8(0, rows + (size_t)g * 8));
+    STORE_CHUNKV(ox, oy, oz, q, rows + (size_t)g * 8);
     }   /* f */
     }   /* g */
 }

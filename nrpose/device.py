@@ -819,6 +819,18 @@ def check_out_writable(out) -> None:
                          "(e.g. deformer.frames_array(F))")
 
 
+def run_coded_rows(rows: np.ndarray, lanes: int) -> np.ndarray:
+    """Output rows (Npad,) int32 of points stored in chunks of ``lanes``, as kernels read
+    them (lanes.h STORE_CHUNKV): the first row of each chunk whose rows are consecutive
+    (a run of the caller's points that stays together in the stored order) as ~row, so that
+    the chunk is stored by vector stores; every other row as it is. A new array."""
+    coded = np.array(rows, np.int32)
+    first = coded[::lanes]
+    runs = (np.diff(coded.reshape(-1, lanes), axis=1) == 1).all(axis=1)
+    first[runs] = ~first[runs]
+    return coded
+
+
 def frame_array(frames: int, stride: int, n: int, shared: bool = True) -> np.ndarray:
     """An uninitialised float32 array of shape (frames, n, 3): with ``shared`` and
     fine-grained shared memory, in memory a deformer's kernel writes into directly

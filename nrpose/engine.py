@@ -669,10 +669,12 @@ def derived_layout(P: int, S: int, quat: bool) -> dict:
 def chunk_records(arrays: dict, P: int, S: int, K: int, lanes: int) -> tuple[np.ndarray, np.ndarray]:
     """The per-point arrays of :func:`device_layout` packed chunk-major, as
     kernels/nrmls.cl reads them: (float32 records, int32 records), one record
-    of rows of ``lanes`` lanes per chunk of ``lanes`` stored points (rows in the kernel's order).
-    P point handles, S segments, K segment slots (K < S: sparse, slots stored)."""
+    of rows of ``lanes`` lanes per chunk of ``lanes`` stored points (rows in the kernel's order;
+    the output rows run-coded, :func:`nrpose.device.run_coded_rows`). P point handles, S
+    segments, K segment slots (K < S: sparse, slots stored)."""
     floats = [arrays["u"], arrays["coef"]] + ([arrays["phat"]] if P else []) + [arrays["lever"]]
-    ints = [arrays["ref"][None], arrays["row"][None]] + ([arrays["slot"]] if K < S else [])
+    row = device.run_coded_rows(arrays["row"], lanes)
+    ints = [arrays["ref"][None], row[None]] + ([arrays["slot"]] if K < S else [])
 
     def pack(rows: list[np.ndarray]) -> np.ndarray:  # (R, Npad) blocks -> (Npad/lanes, R, lanes)
         a = np.concatenate(rows)

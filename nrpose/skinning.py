@@ -305,7 +305,7 @@ class Deformer:
         self._rest = cl.Buffer(ctx, ro, hostbuf=soa(r))
         self._joints = cl.Buffer(ctx, ro, hostbuf=soa(jj))
         self._weights = cl.Buffer(ctx, ro, hostbuf=soa(ww))
-        self._rows = cl.Buffer(ctx, ro, hostbuf=rows)
+        self._rows = cl.Buffer(ctx, ro, hostbuf=device.run_coded_rows(rows, LANES))
         self._kernel = cl.Kernel(device.program("skinning.cl"), method)
         for arg, value in ((ARG_REST, self._rest), (ARG_JOINTS, self._joints), (ARG_WEIGHTS, self._weights),
                            (ARG_ROWS, self._rows), (ARG_K, np.int32(k)), (ARG_G, np.int32(g)),

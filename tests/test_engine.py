@@ -160,6 +160,40 @@ def test_sparse_slots_are_the_heaviest_segments():
     assert seen == {-1, 0, 1}                                # fewer, exactly and more than K
 
 
+@pytest.mark.parametrize("k", [None, 2])
+def test_chunks_of_consecutive_rows_are_stored_whole(k):
+    """chunk_records binds the first row of a chunk whose lanes' rows are consecutive as
+    ~row (the kernel then stores the chunk with three vector stores, anywhere in the
+    output, not only at multiples of 8 rows) and every other row as it is; the kernel's
+    output equals the reference whether a chunk is a run or not: points given in runs of
+    one dominant segment (runs of 8 to 13, so that runs start at every offset), then in
+    shuffled order, dense and sparse."""
+    from nrpose.engine import chunk_records, device_layout, lanes_for, slot_terms
+
+    rng = np.random.default_rng(12)
+    rest = random_rest(rng, 0, 4)
+    a, b = rest.segments[:, 0], rest.segments[:, 1]
+    runs = []
+    while sum(len(r) for r in runs) < 700:
+        s, m = rng.integers(0, 4), rng.integers(8, 14)
+        runs.append(a[s] + rng.uniform(0.2, 0.8, (m, 1)) * (b[s] - a[s]) + rng.normal(0, 0.02, (m, 3)))
+    ordered = np.concatenate(runs)
+    for points, want_runs in ((ordered, True), (ordered[rng.permutation(len(ordered))], False)):
+        lanes = lanes_for(4)
+        arrays, K = device_layout(slot_terms(rest_terms(points, rest, k=k), k, "weight"), rest, "weight", lanes)
+        _, ints = chunk_records(arrays, 0, 4, K, lanes)
+        rows = ints.reshape(len(arrays["row"]) // lanes, -1, lanes)[:, 1]
+        plain = arrays["row"].reshape(-1, lanes)
+        run = (np.diff(plain, axis=1) == 1).all(axis=1)
+        assert np.array_equal(rows[:, 0], np.where(run, ~plain[:, 0], plain[:, 0]))
+        assert np.array_equal(rows[:, 1:], plain[:, 1:])
+        assert (run.mean() > 0.25) == want_runs and (plain[run, 0] % lanes != 0).any() == want_runs
+        dev, ref = both(points, rest, k=k)
+        for _ in range(2):
+            pose = random_pose(rng, rest)
+            assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
+
+
 @pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
 def test_kernel_matches_reference_large_point_handle_angles(angle):
     """Point-handle minimal rotations of every size up to nearly pi, where the kernel's

@@ -238,6 +238,38 @@ def test_shared_and_mixed_joint_groups(method):
 
 
 @pytest.mark.parametrize("method", ["lbs", "dqs"])
+def test_groups_of_consecutive_rows_are_stored_whole(method):
+    """Vertices given in runs of one joint (as exporters leave them) are stored in groups of
+    consecutive rows, bound run-coded (the first row as ~row: device.run_coded_rows, read
+    back here), which the kernel stores with vector stores from any row on; mixed with
+    scattered groups, against the reference, in the caller's order."""
+    import pyopencl as cl
+
+    rng = np.random.default_rng(22)
+    j, k = 12, 2
+    sizes = rng.integers(8, 14, 40)
+    joints = np.repeat(np.stack([rng.permutation(j)[:k] for _ in sizes]), sizes, axis=0)
+    n = len(joints)
+    joints[rng.random(n) < 0.1, 1] = j - 1        # some runs broken up
+    rest = rng.normal(size=(n, 3))
+    weights = np.stack([rng.uniform(0.6, 1.0, n), rng.uniform(0.0, 0.4, n)], 1)   # influence 0 dominant
+    d = Deformer(rest, joints, weights, method=method)
+    rows = np.empty(d.n_groups * 8, np.int32)
+    cl.enqueue_copy(d._queue, rows, d._rows)
+    first = rows[::8]
+    assert (first < 0).sum() >= d.n_groups // 8 and (first >= 0).any()
+    runs = first < 0
+    assert (~first[runs] % 8 != 0).any()                   # runs that start anywhere
+    decoded = rows.reshape(-1, 8).copy()
+    decoded[runs, 0] = ~first[runs]
+    assert (np.diff(decoded[runs], axis=1) == 1).all()
+    assert np.array_equal(np.sort(decoded.ravel()), np.arange(d.n_groups * 8))
+    mats = rigid(rng, j) if method == "dqs" else affine(rng, j)
+    ref = lbs_reference if method == "lbs" else dqs_reference
+    assert_close(d.pose(mats), ref(rest, joints, weights, mats))
+
+
+@pytest.mark.parametrize("method", ["lbs", "dqs"])
 def test_padded_influences_and_buffer_fallback(method):
     """K = 8 with only 2 real influences (the kernel stops early), and the
     plain-buffer path used on devices without fine-grained SVM."""
