@@ -795,6 +795,14 @@ class _Owner:
     __slots__ = ("__array_interface__", "memory")
 
 
+def _owned_array(owner: _Owner, address: int, shape: tuple, strides: tuple | None = None) -> np.ndarray:
+    """A float32 array of ``shape`` (byte ``strides``; None: C order) on the memory at
+    ``address``, with ``owner`` (whose ``memory`` keeps that memory alive) as its base."""
+    owner.__array_interface__ = {"data": (address, False), "shape": shape, "strides": strides,
+                                 "typestr": "<f4", "version": 3}
+    return np.asarray(owner)
+
+
 class _FrameOwner(_Owner):
     """The base of a :func:`frame_array`: ``memory`` is its :class:`HostArray`, ``stride``
     the floats from one frame to the next, ``n`` the points of a frame."""
@@ -842,9 +850,7 @@ def frame_array(frames: int, stride: int, n: int, shared: bool = True) -> np.nda
         return np.empty((frames, n, 3), np.float32)
     owner = _FrameOwner()
     owner.memory, owner.stride, owner.n = HostArray(max(frames, 1) * stride), stride, n
-    owner.__array_interface__ = {"data": (owner.memory.host.ctypes.data, False), "shape": (frames, n, 3),
-                                 "strides": (4 * stride, 12, 4), "typestr": "<f4", "version": 3}
-    return np.asarray(owner)
+    return _owned_array(owner, owner.memory.host.ctypes.data, (frames, n, 3), (4 * stride, 12, 4))
 
 
 def frames_in(out: np.ndarray, stride: int) -> tuple[HostArray, int] | None:
@@ -894,9 +900,7 @@ class Handoff:
     def _array_at(self, offset: int, shape: tuple) -> np.ndarray:
         owner = _Owner()
         owner.memory = self.array.host
-        owner.__array_interface__ = {"data": (self.array.host.ctypes.data + offset, False), "shape": shape,
-                                     "typestr": "<f4", "version": 3}
-        return np.asarray(owner)
+        return _owned_array(owner, self.array.host.ctypes.data + offset, shape)
 
     def free(self) -> int | None:
         """The slot code (-1 - i) of a slot i whose array nobody holds; None when every
