@@ -258,8 +258,10 @@ STANDING_RUN = 8
 
 # the job mailbox's fields and roles (kernels/share.h)
 JOB_NEXT, JOB_QUIT, JOB_STANDING = 0, 3, 4
-JOB_DESC = 8                        # (blocks, frames) of jobs with even tags, then odd ones
-JOB_DESCS = (JOB_DESC, JOB_DESC + 2)  # the descriptor of tag t: JOB_DESCS[t & 1] (JOB_BLOCKS_OF)
+JOB_DESC = 8                        # (blocks, frames, ends, -) of jobs with even tags, then odd ones
+JOB_DESCS = (JOB_DESC, JOB_DESC + 4)  # the descriptor of tag t: JOB_DESCS[t & 1] (JOB_BLOCKS_OF)
+JOB_END_BITS = 10                   # a job taken from both ends: blocks taken from its start, then its end
+JOB_ENDS_MAX_BLOCKS = 1000
 JOB_DONE = 16                       # on a cache line of its own
 JOB_INTS = 32
 JOB_TAG_SHIFT = 20
@@ -367,7 +369,9 @@ class Jobs:
     :meth:`arguments_changed` before they set any argument again (or free an array
     the kernel reads), :meth:`stop` to end the standing worker; ``owner``: the
     deformer whose arrays the kernel reads, when it is collected the standing worker
-    is ended (:meth:`stop`).
+    is ended (:meth:`stop`). ``ends``: publish jobs of at most :data:`JOB_ENDS_MAX_BLOCKS`
+    blocks to be taken from both ends, standing workers from the start and the calling
+    thread from the end (share.h; set by the owner, default False).
     Not thread-safe: launch a deformer's kernels from one thread at a time.
     """
 
@@ -377,6 +381,7 @@ class Jobs:
         self.box.upload()
         self.alone_s = float("inf")
         self.keep: tuple = ()
+        self.ends = False
         self._tag = 0
         self._last = float("-inf")      # perf_counter() at the end of the last launch
         self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker
@@ -390,8 +395,9 @@ class Jobs:
 
     def publish(self, blocks: int, frames: int, prologue: bool = False, timed: bool = False) -> None:
         """Make a job of ``blocks`` blocks and ``frames`` frames the one kernels take
-        blocks of (share.h: the descriptor of the new tag's parity filled and the done
-        count zeroed, then the counter opened at block 0 in one write, or, with a
+        blocks of (share.h: the descriptor of the new tag's parity filled, taken from both
+        ends where :attr:`ends` and it has at most :data:`JOB_ENDS_MAX_BLOCKS` blocks, and the
+        done count zeroed, then the counter opened at block 0 in one write, or, with a
         ``prologue``, at the prologue, which the first work-item to arrive runs before
         opening the blocks); timed: record when (``published_ns``, :func:`published_span_s`;
         0 otherwise), just before that write. The mailbox is uploaded (no-op with shared
@@ -406,6 +412,7 @@ class Jobs:
         desc = JOB_DESCS[tag & 1]
         b[desc] = blocks
         b[desc + 1] = frames
+        b[desc + 2] = self.ends and blocks <= JOB_ENDS_MAX_BLOCKS
         b[JOB_DONE] = 0
         self.published_ns = event_clock_ns() if timed else 0   # only timed launches read the clock
         # open: block 0 is next, or first the prologue, which its runner opens

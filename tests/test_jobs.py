@@ -63,14 +63,17 @@ def standby(monkeypatch):
     device.stop_standing()
 
 
-def test_every_block_once_with_its_frames_across_many_jobs(standby):
+@pytest.mark.parametrize("ends", [False, True])
+def test_every_block_once_with_its_frames_across_many_jobs(standby, ends):
     """2,100 shared launches (the 11-bit job tag wraps past 2,047) of 1-64 blocks and 1-5
     frames, one standing worker serving them in a loop: every block of every job taken
     once, with that job's frames, none beyond the job; the standing worker took some and
-    the calling thread some."""
+    the calling thread some. Taken from both ends (Jobs.ends), the standing worker's
+    blocks of a job precede the calling thread's."""
     standing_workers_or_skip()
     standby(20_000)
     m = Marker()
+    m.jobs.ends = ends
     takers = {STANDING: 0, CALLER: 0}
     for j in range(2100):
         blocks, frames = 1 + (j * 37) % 64, 1 + j % 5
@@ -78,6 +81,9 @@ def test_every_block_once_with_its_frames_across_many_jobs(standby):
         assert np.all(who[:blocks] % 1000 == frames), j
         assert np.all(np.isin(who[:blocks] - frames, (STANDING, CALLER))), j
         assert not who[blocks:].any(), j
+        if ends:
+            by = who[:blocks] - frames
+            assert not (np.flatnonzero(by == STANDING)[:, None] > np.flatnonzero(by == CALLER)).any(), (j, by)
         for k in takers:
             takers[k] += int(np.count_nonzero(who[:blocks] - frames == k))
     assert takers[STANDING] > 0 and takers[CALLER] > 0, takers
@@ -316,26 +322,37 @@ def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
 
 
 CLAIM = """#include "share.h"
-__kernel void claim(__global int *out, const int tag, volatile __global int *jobs)
+__kernel void claim(__global int *out, const int tag, volatile __global int *jobs, const int role)
 {
-    out[0] = take_block(jobs, tag);
+    out[0] = take_block(jobs, tag, role);
 }
 """
+END = 1 << device.JOB_END_BITS      # a block taken from a job's end, in its counter
 
 
-@pytest.mark.parametrize("next_tag,next_block,blocks,other,tag,taken", [
-    (5, 3, 10, 0, 5, 3),                    # the job's own tag: block 3 taken
-    (5, 3, 10, 0, 4, -1),                   # the last job's tag: nothing, whatever the counts
-    (5, 10, 10, 0, 5, -1),                  # no block left
-    (6, device.JOB_CLOSED, device.JOB_CLOSED - 1, 0, 6, -1),   # none to take
+@pytest.mark.parametrize("next_tag,next_block,blocks,other,tag,taken,ends,role", [
+    (5, 3, 10, 0, 5, 3, 0, 0),              # the job's own tag: block 3 taken
+    (5, 3, 10, 0, 4, -1, 0, 0),             # the last job's tag: nothing, whatever the counts
+    (5, 10, 10, 0, 5, -1, 0, 0),            # no block left
+    (6, device.JOB_CLOSED, device.JOB_CLOSED - 1, 0, 6, -1, 0, 0),   # none to take
     # the last job (tag 4) all taken while the next one's descriptor is filled, not yet
     # opened: a work-item holding tag 4 reads its own job's count, not the new one's
-    (4, 7, 7, 1000, 4, -1),
+    (4, 7, 7, 1000, 4, -1, 0, 0),
+    # from both ends: 2 taken from the start, 3 from the end; a standing worker takes the
+    # start's next (2), the calling thread the end's (10 - 1 - 3 = 6)
+    (5, 2 + 3 * END, 10, 0, 5, 2, 1, 7),
+    (5, 2 + 3 * END, 10, 0, 5, 6, 1, 0),
+    (5, 4 + 6 * END, 10, 0, 5, -1, 1, 0),   # the ends met: nothing left for either
+    (5, 4 + 6 * END, 10, 0, 5, -1, 1, 7),
+    (5, 4 + 5 * END, 10, 0, 5, 4, 1, 0),    # the last block, from the end
+    (5, 9, 10, 0, 5, 9, 0, 0),              # not from both ends: the calling thread takes the next
 ])
-def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, other, tag, taken):
+def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, other, tag, taken, ends, role):
     """share.h take_block: a block is taken (the counter advanced) only when the job's tag
     matches the taker's and a block is left in the descriptor of that tag's parity (the
-    other one, ``other`` blocks, may hold the next job's)."""
+    other one, ``other`` blocks, may hold the next job's); in a job taken from both ends
+    (its descriptor's third int), a standing worker (role > 0) takes the next block from
+    its start, the calling thread (role 0) from its end, each counted in its own field."""
     import pyopencl as cl
 
     ctx, queue = device.context()
@@ -344,14 +361,16 @@ def test_a_block_is_taken_only_under_its_jobs_tag(next_tag, next_block, blocks, 
     jobs.host[:] = 0
     jobs.host[device.JOB_NEXT] = next_tag << device.JOB_TAG_SHIFT | next_block
     jobs.host[device.JOB_DESCS[next_tag & 1]] = blocks
+    jobs.host[device.JOB_DESCS[next_tag & 1] + 2] = ends
     jobs.host[device.JOB_DESCS[1 - (next_tag & 1)]] = other
     jobs.upload()
-    kernel.set_args(out.arg, np.int32(tag), jobs.arg)
+    kernel.set_args(out.arg, np.int32(tag), jobs.arg, np.int32(role))
     cl.enqueue_nd_range_kernel(queue, kernel, (1,), (1,))
     out.download()
     jobs.download()
     assert out.host[0] == taken
-    assert jobs.host[device.JOB_NEXT] & ((1 << device.JOB_TAG_SHIFT) - 1) == next_block + (taken >= 0)
+    step = (END if ends and role == 0 else 1) if taken >= 0 else 0
+    assert jobs.host[device.JOB_NEXT] & ((1 << device.JOB_TAG_SHIFT) - 1) == next_block + step
 
 
 def test_publish_opens_the_job_in_one_write_after_its_descriptor(monkeypatch):
@@ -376,8 +395,8 @@ def test_publish_opens_the_job_in_one_write_after_its_descriptor(monkeypatch):
         tag = writes[-1][1] >> device.JOB_TAG_SHIFT
         tags.append(tag)
         desc = device.JOB_DESCS[tag & 1]
-        assert sorted(writes[:3]) == sorted([(desc, blocks), (desc + 1, 4), (device.JOB_DONE, 0)])
-        assert writes[3:] == ["clock", (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)]
+        assert sorted(writes[:4]) == sorted([(desc, blocks), (desc + 1, 4), (desc + 2, 0), (device.JOB_DONE, 0)])
+        assert writes[4:] == ["clock", (device.JOB_NEXT, tag << device.JOB_TAG_SHIFT)]
     assert tags[1] == tags[0] + 1 and all(1 <= t <= 2047 for t in tags)
     writes.clear()
     jobs.publish(5, 2, prologue=True)           # opened at the prologue, not at block 0; no clock
@@ -386,6 +405,11 @@ def test_publish_opens_the_job_in_one_write_after_its_descriptor(monkeypatch):
     jobs._tag = 2047
     jobs.publish(1, 1)
     assert jobs.box.host[device.JOB_NEXT] >> device.JOB_TAG_SHIFT == 1
+    jobs.ends = True                            # from both ends, up to JOB_ENDS_MAX_BLOCKS blocks
+    for blocks in (device.JOB_ENDS_MAX_BLOCKS, device.JOB_ENDS_MAX_BLOCKS + 1):
+        jobs.publish(blocks, 1)
+        tag = jobs.box.host[device.JOB_NEXT] >> device.JOB_TAG_SHIFT
+        assert jobs.box.host[device.JOB_DESCS[tag & 1] + 2] == (blocks <= device.JOB_ENDS_MAX_BLOCKS)
 
 
 PROLOGUE = """#include "share.h"
