@@ -24,7 +24,7 @@
  *   takes: the two cores then pose about the same points in every launch, and the bound
  *   data of a job that fits in their two L2 caches, not in one, stays where it is read
  *   (the box's point rig, 480 KB: standing spans 1.07-1.25x; on rigs of 2 MB and more
- *   0.92-0.99x, so the host asks for it by size: nrpose/engine.py).
+ *   0.92-0.99x, so owners ask for it by size: nrpose/device.py ENDS_MAX_BOUND_BYTES).
  *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
  *                     blocks' writes (a cache line of its own: the block counter's
  *                     line already moves between the cores at every block taken)

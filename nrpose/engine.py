@@ -45,12 +45,6 @@ BOUND_ARRAYS = ("frec", "irec", "len2", "pairs", "fit")
 BOUND_ALIGN = 128       # bytes: each array's offset a multiple (float8 rows are read 32-byte aligned)
 #: index of ``nrmls_pose``'s ``handed`` argument (Deformer._pose_args)
 ARG_HANDED = 3
-#: a deformer's jobs are taken from both ends (``device.Jobs.ends``, kernels/share.h) when its
-#: bound block is at most this: the two cores' L2 caches (512 KB each here) then hold it between
-#: them, each core the half it poses every launch. Standing spans, rounds paired in one process:
-#: box points (480 KB) 1.07-1.25x, box segments (336 KB) 1.02x; rigs of 1.7-4.5 MB, from
-#: 0.92-0.99x (dragon and bunny segments) to 1.01x (armadillo points)
-ENDS_MAX_BOUND_BYTES = 1 << 20
 
 
 def lanes_for(segments: int) -> int:
@@ -187,7 +181,7 @@ class Deformer:
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         self._jobs = device.Jobs(owner=self)   # the pose kernel's job mailbox (kernels/share.h)
-        self._jobs.ends = self._bound.size <= ENDS_MAX_BOUND_BYTES
+        self._jobs.ends = self._bound.size <= device.ENDS_MAX_BOUND_BYTES
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # the pose kernel's arguments change with _reserve and _bind_handed: a variant
         # (pose_kernel_variant) is bound again only after such a change (set_args of its

@@ -306,6 +306,7 @@ class Deformer:
         self._joints = cl.Buffer(ctx, ro, hostbuf=soa(jj))
         self._weights = cl.Buffer(ctx, ro, hostbuf=soa(ww))
         self._rows = cl.Buffer(ctx, ro, hostbuf=device.run_coded_rows(rows, LANES))
+        self._bound_bytes = sum(b.size for b in (self._rest, self._joints, self._weights, self._rows))
         self._kernel = cl.Kernel(device.program("skinning.cl"), method)
         for arg, value in ((ARG_REST, self._rest), (ARG_JOINTS, self._joints), (ARG_WEIGHTS, self._weights),
                            (ARG_ROWS, self._rows), (ARG_K, np.int32(k)), (ARG_G, np.int32(g)),
@@ -403,6 +404,7 @@ class Deformer:
                 self._jobs.retire()
             self._jobs = device.Jobs(svm=self._svm, owner=self)
             self._jobs.alone_s = alone_s
+            self._jobs.ends = self._bound_bytes <= device.ENDS_MAX_BOUND_BYTES
             self._kernel.set_arg(ARG_JOBS, self._jobs.box.arg)
         self._bind_out(*(direct or (arr_out, 0)))
         if j != self._joints_bound:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from launches import relaunch, splits, standing_workers_or_skip
 
-from nrpose import Deformer, HandleError, HandleSet, InputError, Pose
+from nrpose import Deformer, HandleError, HandleSet, InputError, Pose, device
 from nrpose.blend import deform_reference, rest_terms
 from nrpose.rigs import cylinder
 from nrpose.rotation import Rotation
@@ -672,6 +672,29 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
         with pytest.raises(InputError, match="frames must be a whole number"):
             dev.frames_array(bad)
     assert ref.frames_array(2).dtype == np.float64
+
+
+@pytest.mark.parametrize("limit,ends", [(None, True), (0, False)])
+def test_jobs_from_both_ends_where_the_bound_data_fits(monkeypatch, limit, ends):
+    """A deformer whose bound block is at most device.ENDS_MAX_BOUND_BYTES has its jobs taken
+    from both ends (Jobs.ends), a larger one not; either way, and with a standing worker
+    taking blocks from the start while the calling thread takes them from the end, the
+    poses equal the reference."""
+    if limit is not None:
+        monkeypatch.setattr(device, "ENDS_MAX_BOUND_BYTES", limit)
+    rng = np.random.default_rng(14)
+    rest = random_rest(rng, 1, 3)
+    points = rng.uniform(-1, 1, (3000, 3))
+    dev, ref = both(points, rest)
+    assert dev._bound.size <= 1 << 20 and dev._jobs.ends == ends
+    for pose in [random_pose(rng, rest) for _ in range(4)]:
+        want = ref.pose(pose)
+        for workers in (True, None, None):            # the second finds the worker standing
+            dev.pose(pose)
+            dev.relaunch(workers=workers)
+            dev._out.download()
+            got = dev._out.host[: 3 * dev._npad].reshape(-1, 3)[: dev.n]
+            assert np.abs(got - want).max() <= TOL * diag(points)
 
 
 def test_standing_worker_follows_the_rebound_output(monkeypatch):

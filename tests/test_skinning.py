@@ -186,7 +186,8 @@ def test_pose_frames_into_frames_array_directly(method):
 def test_standing_worker_follows_the_rebound_output(monkeypatch):
     """A standing worker runs a clone of the skinning kernel; when the output argument is
     rebound (runs of a frames_array, then single poses into the deformer's own output:
-    Jobs.set_argument), the clone takes it too: every frame lands where it should."""
+    Jobs.set_argument), the clone takes it too: every frame lands where it should (the
+    jobs taken from both ends, device.ENDS_MAX_BOUND_BYTES)."""
     from nrpose import device
     from nrpose.skinning import BLOCK, LANES
 
@@ -198,6 +199,7 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
     d = LbsDeformer(*make_rig(rng, n, 9, 4))
     mats = np.stack([rigid(rng, 9) for _ in range(4)])
     want = np.stack([d.pose(m) for m in mats]).astype(np.float32)
+    assert d._jobs.ends               # its bound data fits two cores' L2: taken from both ends
     stood = []
     for _ in range(3):
         for m in mats:
