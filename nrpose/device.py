@@ -265,9 +265,10 @@ JOB_ENDS_MAX_BLOCKS = 1000
 #: owners take their jobs from both ends (Jobs.ends) when the data their kernel binds is at
 #: most this: the two cores' L2 caches (512 KB each here) then hold it between them, each core
 #: the half it works on in every launch. Paired rounds of standing launches in one process,
-#: ends off / on: box points (588 KB bound) 1.36x, box segments (329 KB) 1.06x, skinning's
-#: bench rig (745 KB) LBS 1.33x and DQS 1.69x pose wall; dragon and bunny segments (2.0-2.2 MB)
-#: 0.97-0.98x
+#: ends off / on, four processes: box points (588 KB bound) span 1.02-1.42x, the gain large in
+#: processes where it runs slow (48-51 us off, 36-37 on) and small in fast ones (31-32 us);
+#: box segments (329 KB) 1.06x; skinning's bench rig (745 KB) pose wall LBS 1.02-1.33x, DQS
+#: 1.14-1.69x; dragon and bunny segments (2.0-2.2 MB) 0.97-0.98x
 ENDS_MAX_BOUND_BYTES = 1 << 20
 JOB_DONE = 16                       # on a cache line of its own
 JOB_INTS = 32
