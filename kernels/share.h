@@ -18,12 +18,13 @@
  *                     is taken: a standing work-item serves jobs of different batch
  *                     sizes) and whether it is taken from both ends, in one of two
  *                     descriptors (JOB_DESC), by the tag's parity
- *   A job taken from both ends (at most JOB_ENDS_MAX_BLOCKS blocks) counts in the block
+ *   A job taken from both ends (at most 1,000 blocks, nrpose/device.py JOB_ENDS_MAX_BLOCKS,
+ *   so that no count of both ends reads as JOB_PROLOGUE or JOB_IN_PROLOGUE) counts in the block
  *   field the blocks taken from its start (the low JOB_END_BITS bits), which standing
  *   workers take, and from its end (the next JOB_END_BITS), which the calling thread
  *   takes: the two cores then pose about the same points in every launch, and the bound
  *   data of a job that fits in their two L2 caches, not in one, stays where it is read
- *   (the box's point rig, 480 KB: standing spans 1.07-1.25x; on rigs of 2 MB and more
+ *   (the box's point rig, 588 KB: standing spans 1.02-1.42x; on rigs of 2 MB and more
  *   0.92-0.99x, so owners ask for it by size: nrpose/device.py ENDS_MAX_BOUND_BYTES).
  *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
  *                     blocks' writes (a cache line of its own: the block counter's
@@ -84,7 +85,6 @@
 #define JOB_ENDS_OF(jobs, tag) (jobs)[JOB_DESC + JOB_DESC_INTS * ((tag) & 1) + 2]
 #define JOB_END_BITS 10
 #define JOB_END_MASK ((1 << JOB_END_BITS) - 1)
-#define JOB_ENDS_MAX_BLOCKS 1000   /* so that no count of both ends reads as a state below */
 #define JOB_DONE 16       /* 64 bytes on (the mailbox is 128-byte aligned, 32 ints) */
 #define JOB_TAG_SHIFT 20
 #define JOB_BLOCK_MASK ((1 << JOB_TAG_SHIFT) - 1)

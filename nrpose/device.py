@@ -261,7 +261,7 @@ JOB_NEXT, JOB_QUIT, JOB_STANDING = 0, 3, 4
 JOB_DESC = 8                        # (blocks, frames, ends, -) of jobs with even tags, then odd ones
 JOB_DESCS = (JOB_DESC, JOB_DESC + 4)  # the descriptor of tag t: JOB_DESCS[t & 1] (JOB_BLOCKS_OF)
 JOB_END_BITS = 10                   # a job taken from both ends: blocks taken from its start, then its end
-JOB_ENDS_MAX_BLOCKS = 1000
+JOB_ENDS_MAX_BLOCKS = 1000          # its two counts then never read as JOB_PROLOGUE or JOB_IN_PROLOGUE
 #: owners take their jobs from both ends (Jobs.ends) when the data their kernel binds is at
 #: most this: the two cores' L2 caches (512 KB each here) then hold it between them, each core
 #: the half it works on in every launch. Paired rounds of standing launches in one process,
