@@ -21,8 +21,9 @@
  *   A job taken from both ends (at most 1,000 blocks, nrpose/device.py JOB_ENDS_MAX_BLOCKS,
  *   so that no count of both ends reads as JOB_PROLOGUE or JOB_IN_PROLOGUE) counts in the block
  *   field the blocks taken from its start (the low JOB_END_BITS bits), which standing
- *   workers take, and from its end (the next JOB_END_BITS), which the calling thread
- *   takes: the two cores then pose about the same points in every launch, and the bound
+ *   workers take, and from its end (the next JOB_END_BITS), which work-items of role
+ *   ROLE_CALLER take (the calling thread, and woken workers, which run with that role):
+ *   with a standing worker the two cores then pose about the same points in every launch, and the bound
  *   data of a job that fits in their two L2 caches, not in one, stays where it is read
  *   (the box's point rig, 588 KB: standing spans 1.02-1.42x; on rigs of 2 MB and more
  *   0.92-0.99x, so owners ask for it by size: nrpose/device.py ENDS_MAX_BOUND_BYTES).

@@ -379,7 +379,8 @@ class Jobs:
     deformer whose arrays the kernel reads, when it is collected the standing worker
     is ended (:meth:`stop`). ``ends``: publish jobs of at most :data:`JOB_ENDS_MAX_BLOCKS`
     blocks to be taken from both ends, standing workers from the start and the calling
-    thread from the end (share.h; set by the owner, default False).
+    thread (and woken workers, whose role is the caller's) from the end (share.h; set by
+    the owner, default False).
     Not thread-safe: launch a deformer's kernels from one thread at a time.
     """
 
@@ -775,18 +776,32 @@ class HostArray:
             flags = cl.svm_mem_flags.READ_WRITE | cl.svm_mem_flags.SVM_FINE_GRAIN_BUFFER
             if atomics:
                 flags |= cl.svm_mem_flags.SVM_ATOMICS
-            # 128-byte aligned (pyopencl asks only for the element size): kernels store
-            # float8 rows at multiples of 32 bytes from the start (lanes.h STORE_XYZ8)
+            # 128-byte aligned (pyopencl asks only for the element size): kernels read and
+            # write rows of 8 or 16 floats at multiples of 32 bytes from the start, each on
+            # as few cache lines as can be
             self.host = cl.svm_empty(ctx, flags, (size,), dtype, alignment=128)
             self.arg = cl.SVM(self.host)
         else:
             self.host = np.zeros(size, dtype)
             self.arg = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, self.host.nbytes)
 
-    def upload(self) -> None:
-        """Make host writes visible to kernels enqueued next (no-op with SVM)."""
-        if not self.svm:
-            _cl().enqueue_copy(self._queue, self.arg, self.host, is_blocking=False)
+    def upload(self, rows: tuple[int, int, int] | None = None) -> None:
+        """Make host writes visible to kernels enqueued next (no-op with SVM). rows:
+        (count, width, stride) in elements, to copy only the first ``width`` elements of
+        each of ``count`` rows ``stride`` apart (one rectangular copy; the rest of the
+        device's copy stays as it is), e.g. the pose blocks of a deformer's frame blocks
+        without the derived blocks that its kernel writes; None: the whole array."""
+        if self.svm:
+            return
+        cl = _cl()
+        if rows is None:
+            cl.enqueue_copy(self._queue, self.arg, self.host, is_blocking=False)
+            return
+        count, width, stride = rows
+        item = self.host.itemsize
+        cl.enqueue_copy(self._queue, self.arg, self.host, buffer_origin=(0, 0), host_origin=(0, 0),
+                        region=(width * item, count), buffer_pitches=(stride * item,),
+                        host_pitches=(stride * item,), is_blocking=False)
 
     def download(self) -> None:
         """Wait for the calling thread's queue and make kernel writes visible in ``host``

@@ -267,7 +267,7 @@ class Deformer:
         self._jobs.keep = (self._frame_blocks, self._out, self._handed)
         self._frames = frames
         # each frame's posed point handles (P, 3), segments (S, 2, 3) and rotations (S, 3, 3)
-        # as views into the pose array: filling shaped views costs ~0.6 us a pose, slicing
+        # as views into its pose block: filling shaped views costs ~0.6 us a pose, slicing
         # and ravelling ~2.6 us
         P, k = len(self.rest.points), 3 * len(self.rest.points)
         self._frame_rows = [(b[:k].reshape(P, 3), b[k:self._npos].reshape(S, 2, 3),
@@ -434,7 +434,9 @@ class Deformer:
         else:
             self._bind_handed(self._handoff.array)
             self._slots[0] = slot
-        self._frame_blocks.upload()   # after the slots: they are part of the pose blocks
+        # after the slots, which are part of the pose blocks; not the derived blocks (the
+        # kernel's prologue writes them)
+        self._frame_blocks.upload(rows=(F, self._pose_stride, self._frame_stride))
         self._batch = F
         self._launch()
         if direct is not None:        # shared memory: launch_shared has waited for the frames
