@@ -301,15 +301,16 @@ def test_rotation_table_against_float64(blend, lever, point):
     dev._frame_blocks.download()
     tw = 4 if blend == "quaternion" else 3
     at = dev._derived_at                      # frame 0's derived block follows its pose block
-    block = dev._frame_blocks.host[dev._pose_stride: dev._pose_stride + at["stride"]].astype(np.float64)
-    table = block[at["table"]: at["stride"]].reshape(S + 1, S, tw)[:S]     # j = S, R_g: unused here
+    block = dev._frame_blocks.host[dev._pose_stride: dev._pose_stride + at["stride"]]
+    # j = S, R_g: unused here, its entries never written (whatever the memory held: cast only what is read)
+    table = block[at["table"]: at["stride"]].reshape(S + 1, S, tw)[:S].astype(np.float64)
     len2 = dev.bound_array("len2", np.float32)
     assert len2.shape == (S,)
     assert (len2 > 0).all() and (lever == "weight") == (np.ptp(len2) == 0)
     got = table / len2[None, :, None]
     if blend == "quaternion":
         q = rots.as_quat()                    # (x, y, z, w), up to sign
-        qref = block[at["quats"]: at["quats"] + 4 * S].reshape(S, 4)      # the kernel's Q_j (quats)
+        qref = block[at["quats"]: at["quats"] + 4 * S].reshape(S, 4).astype(np.float64)   # the kernel's Q_j
         assert np.abs(np.abs(np.einsum("jc,jc->j", qref, q)) - 1).max() < 1e-6
         sign = np.sign(np.einsum("jic,ic->ji", got, q))
         assert np.abs(got - sign[..., None] * q[None]).max() < 1e-6
