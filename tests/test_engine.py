@@ -623,7 +623,6 @@ def test_pose_frames_into_frames_array_directly(n_pts, n_segs):
     argument bound back and forth) still hand over their frames; an out from another
     deformer's frames_array (other padding), a column slice or a plain array is copied
     into, as before. The numpy backend's frames_array is a plain float64 array."""
-    from nrpose import device
 
     rng = np.random.default_rng(31)
     rest = random_rest(rng, n_pts, n_segs)
@@ -704,7 +703,6 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
     over again: Jobs.set_argument), the clone takes the new argument too. Single poses
     served by a standing worker before and after such a batch land in their handed
     frames, and leave the batch's frames as they were."""
-    from nrpose import device
     from nrpose.engine import BLOCK_POINTS
 
     standing_workers_or_skip()
@@ -780,7 +778,6 @@ def test_bound_block_layout_is_the_kernels():
     (Deformer.bound_array) are the ones it laid out."""
     import re
 
-    from nrpose import device
     from nrpose.engine import BOUND_ALIGN, BOUND_ARRAYS, BOUND_CONSTANTS, GlobalFit, bound_block
     from nrpose.errors import DeviceError
 
@@ -844,7 +841,6 @@ def test_time_launch_reruns_the_pose_as_a_frame_loop(monkeypatch):
     standing worker serving it, after poses in a loop), its kernel time from the job's
     publication (finite, positive, at most the call's own time) and the same frames in
     the launch's slots, single poses and batches."""
-    from nrpose import device
 
     monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(0.2)
@@ -879,7 +875,6 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     only (its vector stores), single poses and batches that regrow the arrays, bitwise
     as with SVM (computed before SVM is switched off) and against the reference; R_g by
     GlobalFit.fit likewise."""
-    from nrpose import device
     from nrpose.engine import GlobalFit
 
     rng = np.random.default_rng(23)
@@ -914,7 +909,6 @@ def test_pose_hands_its_result_over_without_a_copy():
     held across later poses, relaunches, a batch that regrows the arrays and the
     deformer's end keep their values; a third result held at once is a copy; a dropped
     result's slot is used again; a result may be written to."""
-    from nrpose import device
 
     rng = np.random.default_rng(43)
     rest = random_rest(rng, 3, 2)
@@ -956,7 +950,6 @@ def test_no_handoff_where_reference_counts_are_not_exact(monkeypatch):
     pose() returns copies: equal results, none on deformer memory, all held at once."""
     import sys
 
-    from nrpose import device
 
     rng = np.random.default_rng(45)
     rest = random_rest(rng, 2, 1)
@@ -978,7 +971,6 @@ def test_frames_array_released_without_handoff_slots(monkeypatch):
     deformer's own output back: single poses and batches after it are right."""
     import sys
 
-    from nrpose import device
 
     if not device.fine_grain_svm():
         pytest.skip("frames_array is plain memory without shared memory: nothing is bound")
@@ -1001,7 +993,6 @@ def test_frames_array_released_without_handoff_slots(monkeypatch):
 def test_a_handed_off_result_changed_by_its_caller_changes_no_later_one():
     """pose_frames([p]) hands its frame over too: as a view, so that what the caller does
     to that array object (its shape, its writeable flag) stays with it."""
-    from nrpose import device
 
     rng = np.random.default_rng(44)
     rest = random_rest(rng, 2, 1)
@@ -1079,7 +1070,6 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     again: launch_shared's path for frames in a loop)."""
     import time
 
-    from nrpose import device
     from nrpose.engine import BLOCK_POINTS
 
     rng = np.random.default_rng(4)
