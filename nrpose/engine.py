@@ -250,9 +250,8 @@ class Deformer:
         block (written by the kernel's prologue), ``_frame_stride`` floats apart. The output
         array holds ``frames`` slots of 3 Npad floats; each frame's pose block names the
         slot it is written into: one of these (codes 0..frames-1) or one of the bind's
-        :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller."""
-        if frames <= self._frames:
-            return
+        :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller. Called
+        for more frames than reserved (``frames > _frames``) only."""
         self._jobs.arguments_changed()      # a standing worker reads the arrays replaced here
         self._frame_blocks = device.HostArray(frames * self._frame_stride)
         blocks = self._frame_blocks.host.reshape(frames, self._frame_stride)[:, : self._pose_stride]
@@ -387,6 +386,9 @@ class Deformer:
 
     def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
         """:meth:`relaunch`, into the output slots that the pose blocks name."""
+        if pose_kernel is None and queues is None and workers is None and not timed:
+            # a pose's launch, positional (keyword arguments cost a box pose ~0.5 us)
+            return device.launch_shared(self._kernel, self._jobs, self._blocks, self._batch, True)
         if pose_kernel is not None and self._variants.get(pose_kernel) != self._args_version:
             pose_kernel.set_args(*self._pose_args())   # the current arrays
             self._variants[pose_kernel] = self._args_version
@@ -418,7 +420,8 @@ class Deformer:
         direct: (memory, first frame) of a :func:`nrpose.device.frame_array` the frames
         are written into instead (:func:`nrpose.device.frames_in`; returns None)."""
         F = len(poses)
-        self._reserve(F)
+        if F > self._frames:
+            self._reserve(F)
         for (points, segments, rotations), pose in zip(self._frame_rows, poses):
             if self._fill_points:
                 points[...] = pose.handles.points
@@ -435,8 +438,10 @@ class Deformer:
             self._bind_handed(self._handoff.array)
             self._slots[0] = slot
         # after the slots, which are part of the pose blocks; not the derived blocks (the
-        # kernel's prologue writes them)
-        self._frame_blocks.upload(rows=(F, self._pose_stride, self._frame_stride))
+        # kernel's prologue writes them); with shared memory there is nothing to upload, and
+        # the call was a tenth of the host's work on a box pose (~3 us)
+        if not self._frame_blocks.svm:
+            self._frame_blocks.upload(rows=(F, self._pose_stride, self._frame_stride))
         self._batch = F
         self._launch()
         if direct is not None:        # shared memory: launch_shared has waited for the frames
