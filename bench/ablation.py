@@ -34,8 +34,8 @@ WINDOW = 16       # chunks whose records the memory ablation cycles through
 LAUNCHES = 60     # launch pairs per ablation (quick: 5)
 
 ABLATIONS = {
-    "memory": [("frec + (size_t)g * FREC(P, K)", f"frec + (size_t)(g % {WINDOW}) * FREC(P, K)"),
-               ("irec + (size_t)g * IREC(K)", f"irec + (size_t)(g % {WINDOW}) * IREC(K)")],
+    "memory": [("((frec) + (size_t)(g) * FREC(P, K))", f"((frec) + (size_t)((g) % {WINDOW}) * FREC(P, K))"),
+               ("((irec) + (size_t)(g) * IREC(K))", f"((irec) + (size_t)((g) % {WINDOW}) * IREC(K))")],
     "stores": [("STORE_CHUNKV(ox, oy, oz, out, ints + VW);", "STORE_XYZV(ox, oy, oz, out + 3 * VW * (size_t)g);")],
 }
 

@@ -195,6 +195,9 @@
 #else
 #define IREC(K) (2 * VW)
 #endif
+/* chunk g's float and int records (the header's) */
+#define FREC_AT(frec, g) ((frec) + (size_t)(g) * FREC(P, K))
+#define IREC_AT(irec, g) ((irec) + (size_t)(g) * IREC(K))
 
 /* The bound block (nrpose/engine.py bound_block): a header of ints, the deformer's constants
  * and the byte offsets of its arrays, each at a multiple of 128 bytes from the block's start:
@@ -415,24 +418,130 @@ static inline frame_t frame_at(const int f, __global const float *frames, __glob
     return fr;
 }
 
+/* Chunk g's posed points from its sums (pose_chunk, pose_pair): q* (qx, qy, qz) and r (rx, ry,
+ * rz; QUAT_BLEND rw, else unused), for the lanes' references rf (`uniform`: all rf.s0): the
+ * derived levers' normalisation, the rotation, and the output rows. */
+static inline __attribute__((always_inline)) void finish_chunk(const int g, const int nsegs,
+                                                               __global const float *frec,
+                                                               __global const int *irec, const frame_t fr,
+                                                               const intv rf, const int uniform,
+                                                               const floatv qx, const floatv qy, const floatv qz,
+                                                               floatv rx, floatv ry, floatv rz, floatv rw)
+{
+    __global const float *u = FREC_AT(frec, g);
+    __global const int *ints = IREC_AT(irec, g);
+    __global const float *refs = fr.refs;
+    __global float *out = fr.out;
+#ifdef QUAT_BLEND
+    floatv gx, gy, gz, gw;               /* Q_ref, where the quaternion sum is too short */
+#else
+    floatv m00, m01, m02, m10, m11, m12, m20, m21, m22;   /* R_ref */
+#endif
+#ifdef DERIVED_LEVER
+    /* derived levers are normalised per point here (stored ones already are) */
+    const floatv inv = LOADV(3 + 4 * P + 2 * K, u);   /* 1 / the point's lever sum (FREC's last row) */
+    rx *= inv;
+    ry *= inv;
+    rz *= inv;
+#ifdef QUAT_BLEND
+    rw *= inv;   /* so that the floor below is relative, as in the reference */
+#endif
+#endif
+
+    const floatv ux = LOADV(0, u), uy = LOADV(1, u), uz = LOADV(2, u);
+#ifdef QUAT_BLEND
+    /* v' = R(r) u + q*, R(r) the rotation of the quaternion sum r = (rx, ry, rz, rw)
+     * (normalised by n2 = |r|^2): u + (2 / n2) (rw (r x u) + r x (r x u)).
+     * Where the levers all vanish (|r| <= 1e-6 with levers summing to 1), R = R_ref. */
+    const floatv n2 = rx * rx + ry * ry + rz * rz + rw * rw;
+    const intv low = n2 <= 1e-12f;
+    if (orv(low)) {
+        LOAD_QREF();
+        rx = low ? gx : rx; ry = low ? gy : ry; rz = low ? gz : rz; rw = low ? gw : rw;
+    }
+    const floatv s2 = 2.0f / (low ? (floatv)1.0f : n2);
+    const floatv kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
+    const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
+    const floatv ox = ux + s2 * (rw * kx + jx) + qx;
+    const floatv oy = uy + s2 * (rw * ky + jy) + qy;
+    const floatv oz = uz + s2 * (rw * kz + jz) + qz;
+#else
+    /* w = exp(r) u for r = 2 h, h the summed half rotation vector (the levers are bound
+     * halved: nrpose/engine.py device_layout), by Rodrigues through the half angle
+     * t = |h| = th/2: w = u + A (h x u) + B h x (h x u) with A = 2 sin(th)/th = 2 sinc(t) cos(t)
+     * and B = 4 (1 - cos th)/th^2 = 2 sinc(t)^2, so A = S C and B = S S for S = sqrt2 sinc(t),
+     * C = sqrt2 cos(t). S and C are polynomials in x = t^2 = |h|^2 on [0, (pi/2)^2]
+     * (|r| <= pi), degrees 4 and 5: sinc and cos least-squares fitted in a Chebyshev basis,
+     * their coefficients times sqrt2; evaluated in float32 their error is 8e-8 and 1.3e-7
+     * (relative), as low as the degree-6/8 Taylor polynomials' (float rounding); no sqrt,
+     * no division, no transcendental call. The halved vector spares the multiplies of |r|^2
+     * by 1/4 and of sinc^2 by 1/2 (box segments 1.04x, box points and bunny segments 1.03x,
+     * kernel on one thread). Evaluated by Estrin's scheme (x, x^2, x^4: 4 dependent steps
+     * instead of Horner's 5): segment rows 1.02-1.03x (kernel on one thread), where the
+     * pose waits on this chain. */
+    const floatv x = rx * rx + ry * ry + rz * rz;
+    const floatv x2 = x * x, x4 = x2 * x2;
+    const floatv sinc = (1.4142135501f - 2.3570211044e-1f * x) + (1.1784686429e-2f - 2.8013486103e-4f * x) * x2
+                      + 3.6842162911e-6f * x4;
+    const floatv ch = (1.4142135617f - 7.0710676943e-1f * x) + (5.8925517357e-2f - 1.9641079022e-3f * x) * x2
+                    + (3.5015516057e-5f - 3.6841466854e-7f * x) * x4;
+    const floatv a = sinc * ch;
+    const floatv b = sinc * sinc;
+#if P == 0
+    /* segments only, r in the world frame (the table's entries turned by R_ref): v' =
+     * exp(r) e + q* with e = R_ref u, which (with e + q*) is computed while r is summed,
+     * rather than R_ref exp(r) u + q*, whose R_ref product waited for the rotation (segment
+     * rows 1.02-1.05x, kernel on one thread, bench/kernel_ab.py) */
+    LOAD_REF();
+    const floatv ex = m00 * ux + m01 * uy + m02 * uz;
+    const floatv ey = m10 * ux + m11 * uy + m12 * uz;
+    const floatv ez = m20 * ux + m21 * uy + m22 * uz;
+    const floatv cx = ex + qx, cy = ey + qy, cz = ez + qz;
+#else
+    const floatv ex = ux, ey = uy, ez = uz, cx = ux, cy = uy, cz = uz;
+#endif
+    const floatv kx = ry * ez - rz * ey, ky = rz * ex - rx * ez, kz = rx * ey - ry * ex;
+    const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
+    const floatv wx = cx + a * kx + b * jx;
+    const floatv wy = cy + a * ky + b * jy;
+    const floatv wz = cz + a * kz + b * jz;
+#if P == 0
+    const floatv ox = wx, oy = wy, oz = wz;
+#else
+    /* v' = R_ref w + q* */
+    LOAD_REF();
+    const floatv ox = m00 * wx + m01 * wy + m02 * wz + qx;
+    const floatv oy = m10 * wx + m11 * wy + m12 * wz + qy;
+    const floatv oz = m20 * wx + m21 * wy + m22 * wz + qz;
+#endif
+#endif
+#if K == 0 && !defined(SPARSE)
+    /* no segments: points are stored in their own order, chunk g holds rows VW g ..
+     * VW g + VW-1: three 8-float vector stores per 8 rows (point rows 3-5 % faster) */
+    STORE_XYZV(ox, oy, oz, out + 3 * VW * (size_t)g);
+#else
+    /* elsewhere the rows are scattered, except in runs of points of one reference in the
+     * caller's order (the box 95 % of its chunks, bunny 38 %, dragon 9 %, armadillo 0.2 %):
+     * the row record is run-coded */
+    STORE_CHUNKV(ox, oy, oz, out, ints + VW);
+#endif
+}
+
 /* Pose chunk g (points VW g .. VW g + VW-1 of the stored order) for frame `fr`. Inlined
  * into both of the kernel's loops (single pose, batch). */
 static inline __attribute__((always_inline)) void pose_chunk(const int g, const int nsegs, __global const float *frec,
                                                              __global const int *irec, const frame_t fr)
 {
     /* the chunk's records: row j of a record is at + VW j (LOADV(j, ...)) */
-    __global const float *u = frec + (size_t)g * FREC(P, K);
+    __global const float *u = FREC_AT(frec, g);
     __global const float *coef = u + VW * 3;
     __global const float *phat = coef + VW * (P + 2 * K);
-#ifdef DERIVED_LEVER
-    const floatv inv = LOADV(0, phat + VW * 3 * P);   /* 1 / the point's lever sum */
-#else
+#ifndef DERIVED_LEVER
     __global const float *lever = phat + VW * 3 * P;
 #endif
-    __global const int *ints = irec + (size_t)g * IREC(K);
+    __global const int *ints = IREC_AT(irec, g);
     __global const float *qpos = fr.qpos, *refs = fr.refs;
     __global const float *table = refs + TABLE_OFFSET(S), *segv = refs + SEGV_OFFSET(S);
-    __global float *out = fr.out;
 
     /* reference rotation: shared by the lanes (points are sorted by it) or gathered;
      * its matrix is loaded where it is used (LOAD_REF), not held in 9 registers
@@ -445,7 +554,7 @@ static inline __attribute__((always_inline)) void pose_chunk(const int g, const 
 #else
     const int uniform = SAMEV(rf);
 #endif
-    floatv m00, m01, m02, m10, m11, m12, m20, m21, m22;
+    floatv m00, m01, m02, m10, m11, m12, m20, m21, m22;   /* R_ref, for y below */
 
     /* q* (weighted posed centroid, linear in the posed handle positions) and r: half the
      * blended rotation vector relative to the reference (the levers are bound halved), or
@@ -598,94 +707,63 @@ static inline __attribute__((always_inline)) void pose_chunk(const int g, const 
         rz += l * cz;
 #endif
     }
-#ifdef DERIVED_LEVER
-    /* derived levers are normalised per point here (stored ones already are) */
-    rx *= inv;
-    ry *= inv;
-    rz *= inv;
 #ifdef QUAT_BLEND
-    rw *= inv;   /* so that the floor below is relative, as in the reference */
-#endif
-#endif
-
-    const floatv ux = LOADV(0, u), uy = LOADV(1, u), uz = LOADV(2, u);
-#ifdef QUAT_BLEND
-    /* v' = R(r) u + q*, R(r) the rotation of the quaternion sum r = (rx, ry, rz, rw)
-     * (normalised by n2 = |r|^2): u + (2 / n2) (rw (r x u) + r x (r x u)).
-     * Where the levers all vanish (|r| <= 1e-6 with levers summing to 1), R = R_ref. */
-    const floatv n2 = rx * rx + ry * ry + rz * rz + rw * rw;
-    const intv low = n2 <= 1e-12f;
-    if (orv(low)) {
-        LOAD_QREF();
-        rx = low ? gx : rx; ry = low ? gy : ry; rz = low ? gz : rz; rw = low ? gw : rw;
-    }
-    const floatv s2 = 2.0f / (low ? (floatv)1.0f : n2);
-    const floatv kx = ry * uz - rz * uy, ky = rz * ux - rx * uz, kz = rx * uy - ry * ux;
-    const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
-    const floatv ox = ux + s2 * (rw * kx + jx) + qx;
-    const floatv oy = uy + s2 * (rw * ky + jy) + qy;
-    const floatv oz = uz + s2 * (rw * kz + jz) + qz;
+    finish_chunk(g, nsegs, frec, irec, fr, rf, uniform, qx, qy, qz, rx, ry, rz, rw);
 #else
-    /* w = exp(r) u for r = 2 h, h the summed half rotation vector (the levers are bound
-     * halved: nrpose/engine.py device_layout), by Rodrigues through the half angle
-     * t = |h| = th/2: w = u + A (h x u) + B h x (h x u) with A = 2 sin(th)/th = 2 sinc(t) cos(t)
-     * and B = 4 (1 - cos th)/th^2 = 2 sinc(t)^2, so A = S C and B = S S for S = sqrt2 sinc(t),
-     * C = sqrt2 cos(t). S and C are polynomials in x = t^2 = |h|^2 on [0, (pi/2)^2]
-     * (|r| <= pi), degrees 4 and 5: sinc and cos least-squares fitted in a Chebyshev basis,
-     * their coefficients times sqrt2; evaluated in float32 their error is 8e-8 and 1.3e-7
-     * (relative), as low as the degree-6/8 Taylor polynomials' (float rounding); no sqrt,
-     * no division, no transcendental call. The halved vector spares the multiplies of |r|^2
-     * by 1/4 and of sinc^2 by 1/2 (box segments 1.04x, box points and bunny segments 1.03x,
-     * kernel on one thread). Evaluated by Estrin's scheme (x, x^2, x^4: 4 dependent steps
-     * instead of Horner's 5): segment rows 1.02-1.03x (kernel on one thread), where the
-     * pose waits on this chain. */
-    const floatv x = rx * rx + ry * ry + rz * rz;
-    const floatv x2 = x * x, x4 = x2 * x2;
-    const floatv sinc = (1.4142135501f - 2.3570211044e-1f * x) + (1.1784686429e-2f - 2.8013486103e-4f * x) * x2
-                      + 3.6842162911e-6f * x4;
-    const floatv ch = (1.4142135617f - 7.0710676943e-1f * x) + (5.8925517357e-2f - 1.9641079022e-3f * x) * x2
-                    + (3.5015516057e-5f - 3.6841466854e-7f * x) * x4;
-    const floatv a = sinc * ch;
-    const floatv b = sinc * sinc;
-#if P == 0
-    /* segments only, r in the world frame (the table's entries turned by R_ref): v' =
-     * exp(r) e + q* with e = R_ref u, which (with e + q*) is computed while r is summed,
-     * rather than R_ref exp(r) u + q*, whose R_ref product waited for the rotation (segment
-     * rows 1.02-1.05x, kernel on one thread, bench/kernel_ab.py) */
-    LOAD_REF();
-    const floatv ex = m00 * ux + m01 * uy + m02 * uz;
-    const floatv ey = m10 * ux + m11 * uy + m12 * uz;
-    const floatv ez = m20 * ux + m21 * uy + m22 * uz;
-    const floatv cx = ex + qx, cy = ey + qy, cz = ez + qz;
-#else
-    const floatv ex = ux, ey = uy, ez = uz, cx = ux, cy = uy, cz = uz;
-#endif
-    const floatv kx = ry * ez - rz * ey, ky = rz * ex - rx * ez, kz = rx * ey - ry * ex;
-    const floatv jx = ry * kz - rz * ky, jy = rz * kx - rx * kz, jz = rx * ky - ry * kx;
-    const floatv wx = cx + a * kx + b * jx;
-    const floatv wy = cy + a * ky + b * jy;
-    const floatv wz = cz + a * kz + b * jz;
-#if P == 0
-    const floatv ox = wx, oy = wy, oz = wz;
-#else
-    /* v' = R_ref w + q* */
-    LOAD_REF();
-    const floatv ox = m00 * wx + m01 * wy + m02 * wz + qx;
-    const floatv oy = m10 * wx + m11 * wy + m12 * wz + qy;
-    const floatv oz = m20 * wx + m21 * wy + m22 * wz + qz;
-#endif
-#endif
-#if K == 0 && !defined(SPARSE)
-    /* no segments: points are stored in their own order, chunk g holds rows VW g ..
-     * VW g + VW-1: three 8-float vector stores per 8 rows (point rows 3-5 % faster) */
-    STORE_XYZV(ox, oy, oz, out + 3 * VW * (size_t)g);
-#else
-    /* elsewhere the rows are scattered, except in runs of points of one reference in the
-     * caller's order (the box 95 % of its chunks, bunny 38 %, dragon 9 %, armadillo 0.2 %):
-     * the row record is run-coded */
-    STORE_CHUNKV(ox, oy, oz, out, ints + VW);
+    finish_chunk(g, nsegs, frec, irec, fr, rf, uniform, qx, qy, qz, rx, ry, rz, 0.0f);
 #endif
 }
+
+
+#if P == 0 && K > 0 && !defined(SPARSE) && !defined(QUAT_BLEND) && defined(DERIVED_LEVER)
+/* Rigs of segments only (dense, the relative or paper blend, derived levers): two consecutive
+ * chunks whose lanes all share one reference are posed together (pose_pair), so that each
+ * per-pose value of the slot loop (a segment's posed start and direction, a rotation-table
+ * entry) is loaded and broadcast once for both. The kernel's time here follows its count of
+ * loads about as closely as its count of arithmetic (one thread: 16 fewer broadcast loads a
+ * chunk, the arithmetic unchanged, made the box's segment row 1.13x faster); the pairs halve the
+ * slot loop's 9 K broadcasts a chunk. Kernel on one thread, paired in one process
+ * (bench/kernel_ab.py, 300-600 launches, three runs): box segments 1.09-1.15x, bunny
+ * 1.04-1.06x, dragon 1.06x, armadillo 1.085x; outputs bit-identical. Two chunks' slot loops
+ * in one (12 sums, 4 coefficient rows) were as fast as a loop for q* and then one for r. */
+#define CHUNK_PAIRS 1
+
+/* The reference shared by every lane of chunks g and g + 1 (both before g_end), else -1. */
+static inline int pair_ref(const int g, const int g_end, __global const int *irec)
+{
+    if (g + 1 >= g_end)
+        return -1;
+    const intv ra = LOADIV(0, IREC_AT(irec, g)), rb = LOADIV(0, IREC_AT(irec, g + 1));
+    return orv((ra ^ (intv)ra.s0) | (rb ^ (intv)ra.s0)) == 0 ? ra.s0 : -1;
+}
+
+/* Chunks g and g + 1 of reference r0 (pair_ref) for frame `fr`: pose_chunk's sums for both,
+ * in the same order per lane (the same results), then finish_chunk for each. */
+static inline __attribute__((always_inline)) void pose_pair(const int g, const int r0, const int nsegs,
+                                                            __global const float *frec,
+                                                            __global const int *irec, const frame_t fr)
+{
+    __global const float *ca = FREC_AT(frec, g) + VW * 3, *cb = FREC_AT(frec, g + 1) + VW * 3;
+    __global const float *segv = fr.refs + SEGV_OFFSET(S), *table = fr.refs + TABLE_OFFSET(S) + TW * S * r0;
+    floatv qxa = 0.0f, qya = 0.0f, qza = 0.0f, rxa = 0.0f, rya = 0.0f, rza = 0.0f;
+    floatv qxb = 0.0f, qyb = 0.0f, qzb = 0.0f, rxb = 0.0f, ryb = 0.0f, rzb = 0.0f;
+    UNROLL_K
+    for (int k = 0; k < K; ++k) {
+        const floatv wa = LOADV(2 * k, ca), wta = LOADV(2 * k + 1, ca);
+        const floatv wb = LOADV(2 * k, cb), wtb = LOADV(2 * k + 1, cb);
+        __global const float *a = segv + 6 * k, *t = table + TW * k;
+        qxa += wa * a[0]; qxb += wb * a[0]; qxa += wta * a[3]; qxb += wtb * a[3];
+        qya += wa * a[1]; qyb += wb * a[1]; qya += wta * a[4]; qyb += wtb * a[4];
+        qza += wa * a[2]; qzb += wb * a[2]; qza += wta * a[5]; qzb += wtb * a[5];
+        rxa += wa * t[0]; rxb += wb * t[0];
+        rya += wa * t[1]; ryb += wb * t[1];
+        rza += wa * t[2]; rzb += wb * t[2];
+    }
+    const intv rf = (intv)r0;
+    finish_chunk(g, nsegs, frec, irec, fr, rf, 1, qxa, qya, qza, rxa, rya, rza, 0.0f);
+    finish_chunk(g + 1, nsegs, frec, irec, fr, rf, 1, qxb, qyb, qzb, rxb, ryb, rzb, 0.0f);
+}
+#endif
 
 __kernel void nrmls_pose(__global const uchar *bound, __global float *frames, __global float *out_frames,
                          __global float *handed, volatile __global int *jobs, const int role)
@@ -711,15 +789,34 @@ __kernel void nrmls_pose(__global const uchar *bound, __global float *frames, __
             /* a single pose: its frame's pointers found once per block, not per chunk (kernel
              * on one thread: segment rows 1.04-1.12x, point rows 1.01-1.04x) */
             const frame_t fr = frame_at(0, frames, out_frames, handed, pose_stride, frame_stride, np);
-            for (int g = b * block; g < g_end; ++g)
+            for (int g = b * block; g < g_end; ++g) {
+#ifdef CHUNK_PAIRS
+                const int r0 = pair_ref(g, g_end, irec);
+                if (r0 >= 0) {
+                    pose_pair(g++, r0, nsegs, frec, irec, fr);
+                    continue;
+                }
+#endif
                 pose_chunk(g, nsegs, frec, irec, fr);
+            }
         } else {
             /* frames innermost: a chunk's bound data is read from memory once and reused
              * from L1 for every frame of the batch */
-            for (int g = b * block; g < g_end; ++g)
+            for (int g = b * block; g < g_end; ++g) {
+#ifdef CHUNK_PAIRS
+                const int r0 = pair_ref(g, g_end, irec);
+                if (r0 >= 0) {
+                    for (int f = 0; f < F; ++f)
+                        pose_pair(g, r0, nsegs, frec, irec,
+                                  frame_at(f, frames, out_frames, handed, pose_stride, frame_stride, np));
+                    ++g;
+                    continue;
+                }
+#endif
                 for (int f = 0; f < F; ++f)
                     pose_chunk(g, nsegs, frec, irec,
                                frame_at(f, frames, out_frames, handed, pose_stride, frame_stride, np));
+            }
         }
     }
     }   /* job */

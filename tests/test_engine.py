@@ -194,6 +194,52 @@ def test_chunks_of_consecutive_rows_are_stored_whole(k):
             assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
 
 
+def chunk_kinds(deformer) -> list[str]:
+    """How the pose kernel takes each chunk of ``deformer``'s stored points, block by block
+    (kernels/nrmls.cl pair_ref): "pair" for two consecutive chunks of one block whose lanes all
+    share one reference (counted once), else "single" (its lanes share it) or "mixed"."""
+    ref, _ = deformer.bound_indices()
+    chunks = ref.reshape(-1, deformer.lanes)
+    block = deformer._block // deformer.lanes
+    kinds = []
+    for start in range(0, len(chunks), block):
+        g, end = start, min(start + block, len(chunks))
+        while g < end:
+            if g + 1 < end and (chunks[g:g + 2] == chunks[g, 0]).all():
+                kinds.append("pair")
+                g += 2
+            else:
+                kinds.append("single" if (chunks[g] == chunks[g, 0]).all() else "mixed")
+                g += 1
+    return kinds
+
+
+@pytest.mark.parametrize("blend", ["relative", "paper"])
+def test_chunk_pairs_match_the_reference(blend):
+    """On rigs of segments only the kernel poses two consecutive chunks whose lanes share one
+    reference together (pose_pair: the slot loop's per-pose values broadcast once for both),
+    the others one by one. Groups of 3-40 points near one segment, so that a reference's
+    chunks come in runs of every length: odd runs and block ends leave uniform chunks
+    unpaired, and chunks straddle two references. Single poses and a batch of three (its
+    frames innermost, pairs too) against the reference; a batch equals its single poses."""
+    rng = np.random.default_rng(31)
+    rest = random_rest(rng, 0, 4)
+    a, b = rest.segments[:, 0], rest.segments[:, 1]
+    groups = []
+    while sum(len(g) for g in groups) < 1500:
+        s, m = rng.integers(0, 4), rng.integers(3, 41)
+        groups.append(a[s] + rng.uniform(0.1, 0.9, (m, 1)) * (b[s] - a[s]) + rng.normal(0, 0.05, (m, 3)))
+    points = np.concatenate(groups)
+    dev, ref = both(points, rest, blend=blend)
+    kinds = chunk_kinds(dev)
+    assert {"pair", "single", "mixed"} <= set(kinds) and kinds.count("pair") > len(kinds) / 2
+    poses = [random_pose(rng, rest) for _ in range(3)]
+    singles = [dev.pose(p).copy() for p in poses]
+    for got, p in zip(singles, poses):
+        assert np.abs(got - ref.pose(p)).max() <= TOL * diag(points)
+    assert np.array_equal(dev.pose_frames(poses), np.stack(singles))
+
+
 @pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
 def test_kernel_matches_reference_large_point_handle_angles(angle):
     """Point-handle minimal rotations of every size up to nearly pi, where the kernel's
