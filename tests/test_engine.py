@@ -56,6 +56,18 @@ def turned(pose: Pose, rest: HandleSet, rot: Rotation) -> Pose:
     return Pose.make(rest, rot.apply(h.points) if len(h.points) else (), segs, rotations=mats)
 
 
+def points_in_groups(rng, rest: HandleSet, total: int, sizes: tuple, span: tuple, noise: float) -> np.ndarray:
+    """Points (at least ``total``, (n, 3)) in consecutive groups, each of ``sizes`` = [low, high)
+    points near one segment of ``rest`` drawn at random: at parameters uniform in ``span`` along
+    it, plus Gaussian noise of scale ``noise``."""
+    a, b = rest.segments[:, 0], rest.segments[:, 1]
+    groups = []
+    while sum(len(g) for g in groups) < total:
+        s, m = rng.integers(0, len(a)), rng.integers(*sizes)
+        groups.append(a[s] + rng.uniform(*span, (m, 1)) * (b[s] - a[s]) + rng.normal(0, noise, (m, 3)))
+    return np.concatenate(groups)
+
+
 def both(points, rest, **kw):
     return Deformer(points, rest, **kw), Deformer(points, rest, backend="numpy", **kw)
 
@@ -172,12 +184,7 @@ def test_chunks_of_consecutive_rows_are_stored_whole(k):
 
     rng = np.random.default_rng(12)
     rest = random_rest(rng, 0, 4)
-    a, b = rest.segments[:, 0], rest.segments[:, 1]
-    runs = []
-    while sum(len(r) for r in runs) < 700:
-        s, m = rng.integers(0, 4), rng.integers(8, 14)
-        runs.append(a[s] + rng.uniform(0.2, 0.8, (m, 1)) * (b[s] - a[s]) + rng.normal(0, 0.02, (m, 3)))
-    ordered = np.concatenate(runs)
+    ordered = points_in_groups(rng, rest, 700, (8, 14), (0.2, 0.8), 0.02)
     for points, want_runs in ((ordered, True), (ordered[rng.permutation(len(ordered))], False)):
         lanes = lanes_for(4)
         arrays, K = device_layout(slot_terms(rest_terms(points, rest, k=k), k, "weight"), rest, "weight", lanes)
@@ -224,12 +231,7 @@ def test_chunk_pairs_match_the_reference(blend):
     frames innermost, pairs too) against the reference; a batch equals its single poses."""
     rng = np.random.default_rng(31)
     rest = random_rest(rng, 0, 4)
-    a, b = rest.segments[:, 0], rest.segments[:, 1]
-    groups = []
-    while sum(len(g) for g in groups) < 1500:
-        s, m = rng.integers(0, 4), rng.integers(3, 41)
-        groups.append(a[s] + rng.uniform(0.1, 0.9, (m, 1)) * (b[s] - a[s]) + rng.normal(0, 0.05, (m, 3)))
-    points = np.concatenate(groups)
+    points = points_in_groups(rng, rest, 1500, (3, 41), (0.1, 0.9), 0.05)
     dev, ref = both(points, rest, blend=blend)
     kinds = chunk_kinds(dev)
     assert {"pair", "single", "mixed"} <= set(kinds) and kinds.count("pair") > len(kinds) / 2
