@@ -11,6 +11,8 @@
  * work-items (shared/notes/pocl.md), and at 16 lanes each operation is two
  * independent 8-lane instructions, which keeps the FMA pipes busier through the
  * point-handle chains (the Table-1 point rows 1.00-1.17x in one process, two runs).
+ * On rigs of segments only, two consecutive chunks of one reference are posed together
+ * (pose_pair), so that the per-pose values of the slot loop are loaded once for both.
  * No fma()/mad() builtins: they are ~10x slower than a*b+c on PoCL.
  *
  * Bound data is stored chunk-major: chunk g (points VW g .. VW g + VW-1 of the
