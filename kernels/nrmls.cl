@@ -141,7 +141,8 @@
 #endif
 /* Dense rigs pose a chunk whose lanes do not share their reference (under 1 % of the
  * Table-1 chunks) by a second slot loop that gathers; above this many slots it is not
- * unrolled, which keeps the body small enough to inline twice (pose_chunk): the
+ * unrolled, which keeps the body small enough to inline twice (pose_chunk, in the single-pose
+ * and the batch loop; finish_chunk is inlined six times where chunks are also paired): the
  * armadillo's 13 slots unrolled there made its segment row 0.95-0.97x as fast, rolled
  * 1.035x; with 4-5 slots rolling it cost 1-2 % */
 #define GATHERED_UNROLL_MAX 8

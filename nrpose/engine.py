@@ -250,8 +250,10 @@ class Deformer:
         block (written by the kernel's prologue), ``_frame_stride`` floats apart. The output
         array holds ``frames`` slots of 3 Npad floats; each frame's pose block names the
         slot it is written into: one of these (codes 0..frames-1) or one of the bind's
-        :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller. Called
-        for more frames than reserved (``frames > _frames``) only."""
+        :class:`nrpose.device.Handoff` slots, whose frames are handed to the caller. Nothing
+        to do where ``frames`` are reserved already."""
+        if frames <= self._frames:
+            return
         self._jobs.arguments_changed()      # a standing worker reads the arrays replaced here
         self._frame_blocks = device.HostArray(frames * self._frame_stride)
         blocks = self._frame_blocks.host.reshape(frames, self._frame_stride)[:, : self._pose_stride]
@@ -420,7 +422,7 @@ class Deformer:
         direct: (memory, first frame) of a :func:`nrpose.device.frame_array` the frames
         are written into instead (:func:`nrpose.device.frames_in`; returns None)."""
         F = len(poses)
-        if F > self._frames:
+        if F > self._frames:            # (a pose's path: no call where they are reserved)
             self._reserve(F)
         for (points, segments, rotations), pose in zip(self._frame_rows, poses):
             if self._fill_points:

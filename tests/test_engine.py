@@ -221,25 +221,59 @@ def chunk_kinds(deformer) -> list[str]:
     return kinds
 
 
-@pytest.mark.parametrize("blend", ["relative", "paper"])
-def test_chunk_pairs_match_the_reference(blend):
+def variant_frames(dev, source: str, batch: list) -> np.ndarray:
+    """The frames (F, n, 3) that the pose kernel built from ``source`` (a variant of
+    kernels/nrmls.cl, Deformer.pose_kernel_variant) writes for ``batch``, relaunched into the
+    deformer's own output slots after ``dev.pose_frames(batch)``."""
+    dev.pose_frames(batch)
+    variant = dev.pose_kernel_variant(source)
+    dev._out.host[: len(batch) * 3 * dev._npad] = np.nan
+    dev.relaunch(pose_kernel=variant)
+    dev._out.download()
+    return dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, : dev.n].copy()
+
+
+@pytest.mark.parametrize("blend,lever", [("relative", "weight"), ("relative", "length"), ("paper", "weight")])
+def test_chunk_pairs_match_the_reference(blend, lever):
     """On rigs of segments only the kernel poses two consecutive chunks whose lanes share one
     reference together (pose_pair: the slot loop's per-pose values broadcast once for both),
-    the others one by one. Groups of 3-40 points near one segment, so that a reference's
-    chunks come in runs of every length: odd runs and block ends leave uniform chunks
-    unpaired, and chunks straddle two references. Single poses and a batch of three (its
-    frames innermost, pairs too) against the reference; a batch equals its single poses."""
+    the others one by one. Points are stored sorted by reference, so pairs form inside each
+    reference's run of chunks. Two layouts: points in groups near one segment each (each
+    reference's run starts and ends inside a chunk: chunks straddle two references, and
+    blocks' ends leave uniform chunks unpaired), and points picked so that every reference
+    has an odd number of whole chunks (each change of reference on a chunk boundary, after an
+    unpaired uniform chunk: a pair must not take the next reference's first chunk). Single
+    poses and a batch of three against the reference; the batch equals the single poses and
+    the kernel built without pairs, bitwise; a kernel whose pair path is broken differs (the
+    path is taken)."""
+    from nrpose.engine import lanes_for
+
     rng = np.random.default_rng(31)
     rest = random_rest(rng, 0, 4)
-    points = points_in_groups(rng, rest, 1500, (3, 41), (0.1, 0.9), 0.05)
-    dev, ref = both(points, rest, blend=blend)
-    kinds = chunk_kinds(dev)
-    assert {"pair", "single", "mixed"} <= set(kinds) and kinds.count("pair") > len(kinds) / 2
-    poses = [random_pose(rng, rest) for _ in range(3)]
-    singles = [dev.pose(p).copy() for p in poses]
-    for got, p in zip(singles, poses):
-        assert np.abs(got - ref.pose(p)).max() <= TOL * diag(points)
-    assert np.array_equal(dev.pose_frames(poses), np.stack(singles))
+    lanes = lanes_for(len(rest.segments))
+    grouped = points_in_groups(rng, rest, 1500, (3, 41), (0.1, 0.9), 0.05)
+    cand = rng.uniform(-1.5, 1.5, (3000, 3))
+    refs = Deformer(cand, rest, lever=lever, backend="numpy").terms.ref
+    runs = [np.flatnonzero(refs == j)[: lanes * ((n // lanes - 1) | 1)]
+            for j, n in enumerate(np.bincount(refs)) if n >= lanes]
+    aligned = cand[np.sort(np.concatenate(runs))]
+    source = device.kernel_source("nrmls.cl")
+    unpaired = source.replace("#define CHUNK_PAIRS 1", "")
+    broken = source.replace("rxb += wb * t[0];", "rxb += wa * t[0];")
+    assert unpaired != source and broken != source
+    for points in (grouped, aligned):
+        dev, ref = both(points, rest, blend=blend, lever=lever)
+        kinds = chunk_kinds(dev)
+        assert {"pair", "single"} <= set(kinds) and kinds.count("pair") > len(kinds) / 3
+        assert ("mixed" in kinds) == (points is grouped)
+        poses = [random_pose(rng, rest) for _ in range(3)]
+        singles = np.stack([dev.pose(p) for p in poses])
+        for got, p in zip(singles, poses):
+            assert np.abs(got - ref.pose(p)).max() <= TOL * diag(points)
+        assert np.array_equal(dev.pose_frames(poses), singles)
+        for batch in (poses[:1], poses):
+            assert np.array_equal(variant_frames(dev, unpaired, batch), singles[: len(batch)])
+            assert not np.array_equal(variant_frames(dev, broken, batch), singles[: len(batch)])
 
 
 @pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
