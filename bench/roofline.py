@@ -114,13 +114,12 @@ FLOP_COUNT = {
     "point handle: y = R_ref^T q_p - Y* (3 sub; R_ref^T q_p is per-pose table data)": (3, 0, 0, 0),
     "point handle: c = phat x y (3 x (2 mul + 1 sub))": (9, 0, 0, 0),
     "point handle: |c|^2 (3 mul + 2 add)": (5, 0, 0, 0),
-    "point handle: 1/|c| by rsqrt8_normal as built on x86 with AVX (the rsqrtps estimate 1, one "
-    "Newton step of 4 mul + 1 sub; the portable build's bit-trick seed + 3 Newton steps would be 15), "
-    "|c| = |c|^2 * that (1 mul)": (7, 0, 0, 0),
     "point handle: phat.y (3 mul + 2 add)": (5, 0, 0, 0),
-    "point handle: atan2pos8 (lo/hi 1 div, t = a*a, t^2 and t^4 2 mul, degree-7 polynomial in t by "
-    "Estrin's scheme 7 mul + 7 add, *a, 2 octant subs)": (21, 0, 0, 0),
-    "point handle: angle * (1/|c|) (1 mul)": (1, 0, 0, 0),
+    "point handle: angle / |c| = atan2(|c|, phat.y) / |c| by angle_per_sine: (phat.y)^2 (1 mul), 1/h "
+    "(1 div), t and B (2 mul), t^2 and t^4 (2 mul), degree-7 polynomial in t by Estrin's scheme (7 mul "
+    "+ 7 add), 1/|c| by rsqrt8_normal as built on x86 with AVX (the rsqrtps estimate 1, one Newton step "
+    "of 4 mul + 1 sub; the portable build's bit-trick seed + 3 Newton steps would be 15), A/|c| + B p "
+    "(2 mul + 1 add)": (29, 0, 0, 0),
     "point handle: lever coef*|phat|^2, *k (3 mul + 2 add + 1 mul + 1 mul)": (7, 0, 0, 0),
     "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0, 0),
     "normalise r: times the bound 1/lever sum (3 mul)": (0, 0, 3, 0),
@@ -134,7 +133,7 @@ FLOP_COUNT = {
     "output: R_ref w + q* (3 x (3 mul + 3 add); segments only: e = R_ref u, e + q* before the rotation, as many)": (0, 0, 18, 0),
 }
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
-DIVISIONS = {"lo / hi in atan2pos8": (1, 0, 0, 0)}
+DIVISIONS = {"1 / h in angle_per_sine": (1, 0, 0, 0)}
 #: what a build reading the levers from the bound record (not DERIVED_LEVER: the "paper"
 #: rule, and rigs without segments, nrpose.engine.levers_stored) does not count above
 STORED_LEVERS_SKIP = {"point handle: lever coef*|phat|^2 (3 mul + 2 add + 1 mul; the *k remains)": (6, 0, 0, 0),
@@ -155,7 +154,7 @@ def pose_flops(P: int, K: int, stored_levers: bool = False) -> dict:
                 *(sum(v[i] for v in FLOP_COUNT.values()) for i in range(4))),
             "divisions_per_point": _total(DIVISIONS, P, K),
             "rule": "mul/add/sub = 1 flop (an FMA is 2); divisions counted as 1 each (listed under "
-                    "divisions_per_point); sqrt and atan2 are inline code (rsqrt8, atan2pos8), counted by "
+                    "divisions_per_point); sqrt and atan2 are inline code (rsqrt8, angle_per_sine), counted by "
                     "their operations as the x86 AVX build runs them (the rsqrtps estimate counted 1); "
                     "folded constants, "
                     "integer index work, comparisons and select() not counted; counted per real "

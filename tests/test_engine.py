@@ -276,10 +276,10 @@ def test_chunk_pairs_match_the_reference(blend, lever):
             assert not np.array_equal(variant_frames(dev, broken, batch), singles[: len(batch)])
 
 
-@pytest.mark.parametrize("angle", [60.0, 135.0, 170.0, 179.5])
+@pytest.mark.parametrize("angle", [45.0, 60.0, 90.0, 135.0, 170.0, 179.5])
 def test_kernel_matches_reference_large_point_handle_angles(angle):
     """Point-handle minimal rotations of every size up to nearly pi, where the kernel's
-    inline sqrt/atan2 (kernels/nrmls.cl) unfold the octant: the paper blend has no
+    angle over sine (angle_per_sine, kernels/nrmls.cl) switches octant: the paper blend has no
     reference rotation, so a global turn reaches each handle's minimal rotation."""
     rng = np.random.default_rng(int(angle))
     rest = random_rest(rng, 6, 0)
@@ -1386,3 +1386,49 @@ def test_global_fit_needs_double_precision(monkeypatch):
     monkeypatch.setattr(device, "context", lambda: (type("Ctx", (), {"devices": [NoDoubles()]})(), None))
     with pytest.raises(DeviceError, match="cl_khr_fp64.*PYOPENCL_CTX"):
         GlobalFit(HandleSet.make(points=np.eye(3)))
+
+
+
+def kernel_angle_per_sine(s2: np.ndarray, c: np.ndarray, source: str | None = None) -> np.ndarray:
+    """kernels/nrmls.cl angle_per_sine on float32 arrays s2, c (any length): float32 result."""
+    import pyopencl as cl
+    from importlib import resources
+
+    ctx, queue = device.context()
+    src = (source or resources.files("nrpose.kernels").joinpath("nrmls.cl").read_text()) + (
+        "\n__kernel void aps(__global const float8 *s2, __global const float8 *c, __global float8 *y)\n"
+        "{ const int i = get_global_id(0); y[i] = angle_per_sine(s2[i], c[i]); }\n")
+    prg = cl.Program(ctx, device.with_headers(src)).build(options=["-DVW=8", "-DNPOINTS=1", "-DNSLOTS=0"])
+    n, pad = len(s2), -len(s2) % 8
+    args = [np.concatenate([a, np.ones(pad)]).astype(np.float32) for a in (s2, c)]
+    mf = cl.mem_flags
+    bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in args]
+    yb = cl.Buffer(ctx, mf.WRITE_ONLY, args[0].nbytes)
+    prg.aps(queue, (len(args[0]) // 8,), None, *bufs, yb)
+    y = np.empty_like(args[0])
+    cl.enqueue_copy(queue, y, yb)
+    return y[:n]
+
+
+def test_angle_per_sine_against_float64():
+    """kernels/nrmls.cl angle_per_sine(s2, c) = atan2(sqrt(s2), c) / sqrt(s2), the point
+    handles' and the rotation table's angle over sine, against float64: on random angles
+    in [0, pi] with magnitudes 1e-9 to 1e9, near 0, pi/2 and pi, and at its octant switch
+    (s2 = c^2: angles of exactly pi/4 and 3pi/4, and one float of s2 either side): within
+    1e-6 relative, finite everywhere (its domain: normal s2)."""
+    rng = np.random.default_rng(7)
+    theta = np.concatenate([rng.uniform(0, np.pi, 4000), [1e-7, 1e-3, np.pi / 2, np.pi - 1e-3, np.pi - 1e-6]])
+    size = 10.0 ** rng.uniform(-9, 9, len(theta))
+    cb = np.float32([1.0, -1.0, 3.5e-4, -2.0e5, 7.25, -7.25])
+    c2b = cb * cb
+    s2 = np.concatenate([(size * np.sin(theta)) ** 2, c2b, np.nextafter(c2b, np.float32(np.inf)),
+                         np.nextafter(c2b, np.float32(0))]).astype(np.float32)
+    c = np.concatenate([size * np.cos(theta), cb, cb, cb]).astype(np.float32)
+    assert (s2 >= np.float32(1.17549435e-38)).all()
+    y = kernel_angle_per_sine(s2, c)
+    s = np.sqrt(s2.astype(np.float64))
+    assert np.isfinite(y).all()
+    assert np.abs(y / (np.arctan2(s, c.astype(np.float64)) / s) - 1).max() < 1e-6
+    # exactly pi/4 and 3pi/4 (s2 == c^2)
+    exact = y[len(theta): len(theta) + len(cb)] * np.abs(cb)
+    assert np.allclose(exact, np.where(cb > 0, np.pi / 4, 3 * np.pi / 4), rtol=1e-6, atol=0)
