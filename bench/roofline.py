@@ -117,9 +117,9 @@ FLOP_COUNT = {
     "point handle: phat.y (3 mul + 2 add)": (5, 0, 0, 0),
     "point handle: angle / |c| = atan2(|c|, phat.y) / |c| by angle_per_sine: (phat.y)^2 (1 mul), 1/h "
     "(1 div), t and B (2 mul), t^2 and t^4 (2 mul), degree-7 polynomial in t by Estrin's scheme (7 mul "
-    "+ 7 add), 1/|c| by rsqrt8_normal as built on x86 with AVX (the rsqrtps estimate 1, one Newton step "
-    "of 4 mul + 1 sub; the portable build's bit-trick seed + 3 Newton steps would be 15), A/|c| + B p "
-    "(2 mul + 1 add)": (29, 0, 0, 0),
+    "+ 7 add), A/|c| by rsqrt8_normal_twice as built on x86 with AVX (the rsqrtps estimate 1, its "
+    "Newton step with A/2 taken in, (A/2) y (3 - |c|^2 y^2), 4 mul + 1 sub; the portable build's "
+    "bit-trick seed + 3 Newton steps would be 15), + B p (1 mul + 1 add)": (28, 0, 0, 0),
     "point handle: lever coef*|phat|^2, *k (3 mul + 2 add + 1 mul + 1 mul)": (7, 0, 0, 0),
     "point handle: r += l*c (3 x (1 mul + 1 add))": (6, 0, 0, 0),
     "normalise r: times the bound 1/lever sum (3 mul)": (0, 0, 3, 0),

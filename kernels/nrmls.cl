@@ -269,7 +269,8 @@ static inline floatv sqrtv(const floatv x)
  * cycles a handle were the point rows' bound; atan2 of s = s2 / sqrt(s2), then times
  * 1/s, put the inverse square root and s's multiply before the division). Point rows
  * 1.07-1.16x faster, kernel on one thread (box 1.09-1.12x, dragon 1.09-1.10x, armadillo
- * 1.16x), as many flops. */
+ * 1.16x), as many flops; A/s then takes A/2 into the inverse square root's Newton step
+ * (rsqrtv_normal_twice, lanes.h), a multiply fewer. */
 static inline floatv angle_per_sine(const floatv s2, const floatv c)
 {
     const floatv c2 = c * c;
@@ -277,11 +278,11 @@ static inline floatv angle_per_sine(const floatv s2, const floatv c)
     const floatv ih = 1.0f / (steep ? s2 : c2);
     const floatv t = (steep ? c2 : s2) * ih;
     const floatv b = (steep ? -c : c) * ih;
-    const floatv a = steep ? (floatv)1.57079633f : (c < 0.0f ? (floatv)3.14159265f : (floatv)0.0f);
+    const floatv ha = steep ? (floatv)0.785398163f : (c < 0.0f ? (floatv)1.57079633f : (floatv)0.0f);   /* A/2 */
     const floatv t2 = t * t, t4 = t2 * t2;
     const floatv p = ((0.99999934f - 0.33329859f * t) + (0.19946566f - 0.13908629f * t) * t2)
                    + ((0.09642197f - 0.05591232f * t) + (0.02186295f - 0.00405457f * t) * t2) * t4;
-    return a * rsqrtv_normal(s2) + b * p;
+    return rsqrtv_normal_twice(s2, ha) + b * p;
 }
 
 /* Per-pose data of rotation j in [0, S] (segment j, or R_g for j = S) of one frame

@@ -79,7 +79,7 @@ def test_roofline(quick):
         assert _finite_positive(res["roofs"][k]["median"])
     assert _finite_positive(res["roofs"]["launch"]["wall_ms"])
     assert res["method"]["timing"].endswith("; medians") and "pose kernels: " in res["method"]["timing"]
-    assert res["flop_count"]["formula"].startswith("70 P + 18 K + 78 (+ 15 when P > 0")
+    assert res["flop_count"]["formula"].startswith("69 P + 18 K + 78 (+ 15 when P > 0")
     assert len(res["rows"]) == 8
     for r in res["rows"]:
         assert _stats_ok(r["kernel_ms"]) and _stats_ok(r["pose_ms"])
@@ -95,7 +95,7 @@ def test_roofline(quick):
         assert r["fraction_arithmetic_best_round"] >= r["fraction_arithmetic"]
         P, K = r["work"]["P"], r["work"]["K"]
         stored = 6 * P + 3 if K == 0 else 0      # point rigs read their levers (levers_stored)
-        assert r["work"]["flops_per_point"] == 70 * P + 18 * K + 78 + (15 if P else 0) - stored
+        assert r["work"]["flops_per_point"] == 69 * P + 18 * K + 78 + (15 if P else 0) - stored
         assert 0 <= r["work"]["lanes"]["gathered_slot_fraction"] <= 1
         assert r["kernel_bound"] in ("arithmetic", "memory", "launch", "instructions") and r["bound_by"]
         # net of an empty job's time the rate is higher (or 0 where nothing is left); a row under

@@ -131,7 +131,8 @@ def test_rsqrt8_against_float64():
     """kernels/lanes.h rsqrt8, both ways (x86's estimate + one Newton step, and the
     portable bit trick + three, forced by -DPORTABLE_RSQRT), against float64 1/sqrt:
     within 3e-7 relative from denormals to 1e30, and 0 * rsqrt8(0) = 0 (finite); its
-    core rsqrt8_normal likewise on normal floats. On x86-64 the two builds differ in
+    core rsqrt8_normal likewise on normal floats, and rsqrt8_normal_twice(x, h) as
+    2h/sqrt(x) there (h of either sign, and 0). On x86-64 the two builds differ in
     some bits (the switch took effect)."""
     import platform
 
@@ -142,7 +143,10 @@ def test_rsqrt8_against_float64():
                               "__kernel void rs(__global const float8 *x, __global float8 *y)\n"
                               "{ y[get_global_id(0)] = rsqrt8(x[get_global_id(0)]); }\n"
                               "__kernel void rs_normal(__global const float8 *x, __global float8 *y)\n"
-                              "{ y[get_global_id(0)] = rsqrt8_normal(x[get_global_id(0)]); }\n")
+                              "{ y[get_global_id(0)] = rsqrt8_normal(x[get_global_id(0)]); }\n"
+                              "__kernel void rs_twice(__global const float8 *x, __global const float8 *h,\n"
+                              "                       __global float8 *y)\n"
+                              "{ const int i = get_global_id(0); y[i] = rsqrt8_normal_twice(x[i], h[i]); }\n")
     rng = np.random.default_rng(1)
     x = np.concatenate([[0.0, 1e-45, 3e-40, 1.1754942e-38, 1.2e-38, 1e-30, 1.0, 4.0, 1e30],
                         10.0 ** rng.uniform(-37, 30, 1000)]).astype(np.float32)
@@ -166,5 +170,13 @@ def test_rsqrt8_against_float64():
         yn = np.empty_like(x)
         cl.enqueue_copy(queue, yn, yb)
         assert np.abs(yn[normal] / (1.0 / np.sqrt(x[normal].astype(np.float64))) - 1).max() < 3e-7, options
+        # rsqrt8_normal_twice(x, h) = 2h / sqrt(x), likewise
+        h = rng.choice(np.float32([0.785398163, 1.57079633, -2.5, 0.0]), len(x)).astype(np.float32)
+        hb = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=h)
+        prg.rs_twice(queue, (len(x) // 8,), None, xb, hb, yb)
+        yt = np.empty_like(x)
+        cl.enqueue_copy(queue, yt, yb)
+        want = 2.0 * h[normal] / np.sqrt(x[normal].astype(np.float64))
+        assert (np.abs(yt[normal] - want) <= 3e-7 * np.abs(want)).all(), options
     if platform.machine() in ("x86_64", "AMD64"):
         assert not np.array_equal(*results)
