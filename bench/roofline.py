@@ -40,8 +40,9 @@ MEMORY_BOUND_SHARE = 0.3
 LAUNCH_BOUND_RATIO = 2
 #: ... and held under the target by the host's slow phases if its median is at least this
 #: factor over its best round's and that round reached the target (twentieth session: in a
-#: slow phase of the shared VM every part of a launch runs ~2x slower for hundreds of ms,
-#: the segment rows' kernels up to 2.1x, the point rows' 1.1-1.4x, the FMA-only ceiling not)
+#: slow phase of the shared VM every part of a launch runs ~2x slower for hundreds of ms:
+#: medians over best rounds, segment rows' kernels up to 2.1x, point rows' 1.1-1.4x, the
+#: FMA-only ceiling kernel's samples 1.04-1.19x)
 PHASE_RATIO = 1.25
 ITERS = 2048      # updates of each accumulator
 PEAK_ITEMS = 4096  # work-items of the arithmetic kernel (many work-groups for both cores)
@@ -421,7 +422,7 @@ def assess(work: dict, kernel_ms: float, pose_ms: float, roofs: dict, launch: di
                        f"{100 * f_arith * kernel_ms / best_round_ms:.0f} % in its best round "
                        f"({best_round_ms:.3f} ms); the median is {kernel_ms / best_round_ms:.2f}x that "
                        f"round's: the host's slow phases (a launch's every part ~2x slower for hundreds "
-                       f"of ms, not shown as steal; the FMA-only ceiling kernel not slowed) hold it "
+                       f"of ms, not shown as steal; the FMA-only ceiling kernel much less) hold it "
                        f"under 30 %")
     elif kernel_ms < LAUNCH_BOUND_RATIO * launch["event_ms"]:
         kernel_bound = "launch"
