@@ -257,9 +257,9 @@ static inline floatv sqrtv(const floatv x)
 
 /* atan2(s, c) / s for s = sqrt(s2), s2 a normal float (>= FLT_MIN), c finite: the angle
  * in [0, pi] between two vectors, divided by the sine part, from |a x b|^2 = s2 and a.b = c,
- * without computing s on the way. atan of a ratio in [0, 1] is a p(a^2), p an odd
- * degree-15 polynomial's a^-1 (coefficients fitted minimax on [0, 1], error 7e-8 rad; ~2e-7
- * evaluated in float32), by Estrin's scheme (pairs, then t^2, then t^4). With
+ * without computing s on the way. atan(a) for a ratio a in [0, 1] is a p(a^2), a p(a^2) an
+ * odd polynomial of degree 15 (coefficients fitted minimax on [0, 1], error 7e-8 rad; ~2e-7
+ * evaluated in float32), p evaluated by Estrin's scheme (pairs, then t^2, then t^4). With
  * h = max(s2, c^2) and t = min(s2, c^2) / h (the ratio squared):
  *   s2 <= c^2 (within pi/4 of 0 or pi): atan2(s, c) = [c < 0] pi + (s / c) p(t),
  *   s2 >  c^2:                         atan2(s, c) = pi/2 - (c / s) p(t),
