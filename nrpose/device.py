@@ -382,18 +382,19 @@ class Jobs:
     deformer whose arrays the kernel reads, when it is collected the standing worker
     is ended (:meth:`stop`). ``ends``: publish jobs of at most :data:`JOB_ENDS_MAX_BLOCKS`
     blocks to be taken from both ends, standing workers from the start and the calling
-    thread (and woken workers, whose role is the caller's) from the end (share.h; set by
-    the owner, default False).
+    thread (and woken workers, whose role is the caller's) from the end (share.h): where
+    ``bound_bytes``, the size of the data the owner's kernel binds, is given and at most
+    :data:`ENDS_MAX_BOUND_BYTES`.
     Not thread-safe: launch a deformer's kernels from one thread at a time.
     """
 
-    def __init__(self, svm: bool | None = None, owner=None):
+    def __init__(self, svm: bool | None = None, owner=None, bound_bytes: int | None = None):
         self.box = HostArray(JOB_INTS, svm=svm, dtype=np.int32, atomics=True)
         self.box.host[:] = 0
         self.box.upload()
         self.alone_s = float("inf")
         self.keep: tuple = ()
-        self.ends = False
+        self.ends = bound_bytes is not None and bound_bytes <= ENDS_MAX_BOUND_BYTES
         self._tag = 0
         self._last = float("-inf")      # perf_counter() at the end of the last launch
         self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker

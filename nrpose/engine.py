@@ -180,8 +180,8 @@ class Deformer:
                    + (("-DGLOBAL_FIT",) if self._global is not None else ()))
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
-        self._jobs = device.Jobs(owner=self)   # the pose kernel's job mailbox (kernels/share.h)
-        self._jobs.ends = self._bound.size <= device.ENDS_MAX_BOUND_BYTES
+        # the pose kernel's job mailbox (kernels/share.h)
+        self._jobs = device.Jobs(owner=self, bound_bytes=self._bound.size)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # the pose kernel's arguments change with _reserve and _bind_handed: a variant
         # (pose_kernel_variant) is bound again only after such a change (set_args of its

@@ -402,9 +402,8 @@ class Deformer:
             alone_s = float("inf") if self._jobs is None else self._jobs.alone_s
             if self._jobs is not None:
                 self._jobs.retire()
-            self._jobs = device.Jobs(svm=self._svm, owner=self)
+            self._jobs = device.Jobs(svm=self._svm, owner=self, bound_bytes=self._bound_bytes)
             self._jobs.alone_s = alone_s
-            self._jobs.ends = self._bound_bytes <= device.ENDS_MAX_BOUND_BYTES
             self._kernel.set_arg(ARG_JOBS, self._jobs.box.arg)
         self._bind_out(*(direct or (arr_out, 0)))
         if j != self._joints_bound:
