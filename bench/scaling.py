@@ -13,12 +13,13 @@ validation: built by FK, consistent).
   binding builds several dense (N, H[, 3]) float64 arrays.
 * ``sparse``: ``Deformer(points, bones, k=8)`` (what CharacterPoser does on
   skeletons of more than 8 bones), run where N*H <= SPARSE_MAX (6.5e7: the
-  1M x 65 target; bind still builds dense (N, H) arrays, ~6 GB peak there).
+  1M x 65 target; binding it takes ~9 s and ~2 GB peak RSS in the committed run).
 
 Per size: bind wall time and the process's peak RSS after it, then rounds of
 ``posed = Deformer.pose(pose)`` back to back (wall; each result held until the next is made,
 as Table 1 times them), then each pose again followed by
-one profiling-event run of the pose kernel (its prologue included); medians. Fits per mode, on the
+one timing of its pose kernel as the roofline suite times it (``Roofs.pose_kernel_once``: as a
+frame loop runs it, from the job's publication; its prologue included); medians. Fits per mode, on the
 pose medians: t = c0 + c1 N + c2 N H (least squares, ms) and t = a (N H)^b.
 """
 from __future__ import annotations
@@ -180,8 +181,8 @@ def run(repeat: int = 5, quick: bool = False, roofs=None, log=None) -> dict:
                      "handles": list(QUICK_HANDLES if quick else HANDLES),
                      "dense_max_point_handles": DENSE_MAX, "sparse_max_point_handles": SPARSE_MAX,
                      "k_sparse": K_SPARSE,
-                     "rule": "dense runs where N*H <= 2e7, sparse (k=8) where N*H <= 6.5e7 (bind builds "
-                             "dense (N, H) float64 arrays); quick mode runs every cell of its tiny grid"},
+                     "rule": "dense runs where N*H <= 2e7, sparse (k=8) where N*H <= 6.5e7 (the 1M x 65 "
+                             "target; bind time grows with N*H); quick mode runs every cell of its tiny grid"},
             "shape": "synthetic tree skeleton of H unit bones, N points around it (see bench/scaling.py)",
             "rows": rows, "fits": fits,
             "target": dict(TARGET, measured=tgt["pose_ms"]["median"] if tgt else None,

@@ -72,6 +72,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .checks import real_rows
 from .errors import InputError
 from .handles import HandleSet, Pose, check_alpha
 from .rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
@@ -104,23 +105,6 @@ class RestTerms:
     lever: np.ndarray
     ref: np.ndarray
     phat: np.ndarray
-
-
-def check_points(points, what: str = "points") -> np.ndarray:
-    """(N, 3) finite float64 array with N ≥ 1, or InputError."""
-    try:
-        arr = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(f"{what}: expected an (N, 3) array of numbers") from None
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise InputError(f"{what}: expected shape (N, 3), got {arr.shape}")
-    if len(arr) == 0:
-        raise InputError(f"{what}: empty; nothing to deform")
-    bad = np.flatnonzero(~np.isfinite(arr).all(axis=1))
-    if len(bad):
-        raise InputError(f"{what}: {len(bad)} point(s) have NaN or infinite coordinates "
-                         f"(first: index {int(bad[0])}); remove or repair them")
-    return arr
 
 
 def segment_parameters(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
@@ -174,7 +158,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     is that dict for all points, and the dense (N, H) terms never exist for all
     points at once (the OpenCL deformer's bind, :func:`nrpose.engine.slot_terms`).
     """
-    v = check_points(points)
+    v = real_rows(points, "points")
     alpha = check_alpha(alpha)
     if lever not in LEVERS:
         raise InputError(f"lever must be one of {LEVERS}, got {lever!r}")

@@ -114,6 +114,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from .checks import real_rows, triangles
 from .errors import HandleError, InputError
 
 __all__ = [
@@ -134,54 +135,17 @@ _VIS_SAMPLES = np.linspace(0.125, 0.875, 7)  # along bone point -> vertex
 # ----------------------------------------------------------------------------
 # validation
 # ----------------------------------------------------------------------------
-def _as_points(a, name: str, err=InputError) -> np.ndarray:
-    try:
-        arr = np.asarray(a, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise err(f"{name} must be a numeric array of shape (N, 3): {exc}") from None
-    return arr
-
-
 def _validate(vertices, faces, point_handles, segment_handles):
-    V = _as_points(vertices, "vertices")
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise InputError(f"vertices must have shape (N, 3), got {V.shape}")
-    if len(V) == 0:
-        raise InputError("vertices is empty: nothing to bind")
-    if not np.isfinite(V).all():
-        bad = int(np.flatnonzero(~np.isfinite(V).all(axis=1))[0])
-        raise InputError(f"vertices contain NaN or inf (first bad row {bad})")
+    V = real_rows(vertices, "vertices")
     F = None
     if faces is not None:
-        Fa = np.asarray(faces)
-        if Fa.size == 0:
-            raise InputError("faces is empty; pass faces=None for a point cloud")
-        if Fa.ndim != 2 or Fa.shape[1] != 3:
-            raise InputError(f"faces must have shape (F, 3) (triangles), got {Fa.shape}")
-        if not np.issubdtype(Fa.dtype, np.integer):
-            if not np.issubdtype(Fa.dtype, np.floating) or not np.all(np.isfinite(Fa)) \
-                    or not np.all(Fa == np.round(Fa)):
-                raise InputError(f"faces must hold integer vertex indices, got dtype {Fa.dtype}")
-        F = Fa.astype(np.int64)
-        lo, hi = int(F.min()), int(F.max())
-        if lo < 0 or hi >= len(V):
-            raise InputError(
-                f"faces index vertices out of range: indices span [{lo}, {hi}] "
-                f"but there are {len(V)} vertices")
-    P = _as_points(np.zeros((0, 3)) if point_handles is None else point_handles,
-                   "point_handles", HandleError)
-    if P.size == 0:
-        P = np.zeros((0, 3))
-    if P.ndim != 2 or P.shape[1] != 3:
-        raise HandleError(f"point_handles must have shape (P, 3), got {P.shape}")
-    S = _as_points(np.zeros((0, 2, 3)) if segment_handles is None else segment_handles,
-                   "segment_handles", HandleError)
-    if S.size == 0:
-        S = np.zeros((0, 2, 3))
-    if S.ndim != 3 or S.shape[1:] != (2, 3):
-        raise HandleError(f"segment_handles must have shape (S, 2, 3), got {S.shape}")
-    if not (np.isfinite(P).all() and np.isfinite(S).all()):
-        raise HandleError("handles contain NaN or inf")
+        if np.size(faces) == 0:
+            raise InputError("faces: empty; pass faces=None for a point cloud")
+        F = triangles(faces, len(V))
+    P = real_rows(() if point_handles is None else point_handles, "point_handles", error=HandleError,
+                  allow_empty=True)
+    S = real_rows(() if segment_handles is None else segment_handles, "segment_handles", (2, 3),
+                  error=HandleError, allow_empty=True)
     if len(P) + len(S) == 0:
         raise HandleError("no handles: give at least one point or segment handle")
     return V, F, P, S

@@ -26,26 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .checks import real_rows
 from .errors import HandleError
 from .rotation import Rotation, minimal_rotvec
 
 #: largest accepted angle between R·(rest direction) and the posed direction
 DIRECTION_TOLERANCE = 1e-3  # radians
-
-
-def _array(value, shape_tail: tuple[int, ...], what: str) -> np.ndarray:
-    """Float64 array of shape (n, *shape_tail), finite; raise HandleError otherwise."""
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise HandleError(f"{what}: expected numbers of shape (n, {', '.join(map(str, shape_tail))})") from None
-    if arr.size == 0:
-        arr = arr.reshape((0,) + shape_tail)
-    if arr.ndim != len(shape_tail) + 1 or arr.shape[1:] != shape_tail:
-        raise HandleError(f"{what}: expected shape (n, {', '.join(map(str, shape_tail))}), got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise HandleError(f"{what}: contains NaN or infinite values; give finite coordinates")
-    return arr
 
 
 @dataclass(frozen=True)
@@ -60,8 +46,8 @@ class HandleSet:
 
     @classmethod
     def make(cls, points=(), segments=(), what: str = "handles") -> "HandleSet":
-        pts = _array(points, (3,), f"{what} points")
-        segs = _array(segments, (2, 3), f"{what} segments")
+        pts = real_rows(points, f"{what} points", (3,), HandleError, allow_empty=True)
+        segs = real_rows(segments, f"{what} segments", (2, 3), HandleError, allow_empty=True)
         if len(pts) + len(segs) == 0:
             raise HandleError(f"{what}: no handles; give at least one point or segment")
         lengths = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)
@@ -106,7 +92,8 @@ class Pose:
         s = len(rest.segments)
         d_rest = rest.segments[:, 1] - rest.segments[:, 0]
         d_pose = posed.segments[:, 1] - posed.segments[:, 0]
-        twist = np.zeros(s) if twists is None else _array([[t] for t in twists], (1,), "twists")[:, 0]
+        twist = (np.zeros(s) if twists is None
+                 else real_rows([[t] for t in twists], "twists", (1,), HandleError, allow_empty=True)[:, 0])
         if len(twist) != s:
             raise HandleError(f"twists: {len(twist)} values for {s} segments")
         given = _given_rotations(rotations, s)

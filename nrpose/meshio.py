@@ -71,6 +71,7 @@ from typing import Iterator
 
 import numpy as np
 
+from .checks import real_rows, triangles
 from .errors import FileFormatError, InputError
 
 __all__ = ["Geometry", "read_geometry", "write_geometry", "atomic_path", "SUFFIXES"]
@@ -243,34 +244,13 @@ def _check_read(path: Path, V: np.ndarray, F: np.ndarray) -> Geometry:
 
 
 def _check_arrays(path: Path, vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    V = np.asarray(vertices)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise InputError(f"{path}: vertices must have shape (N, 3), got {V.shape}")
-    if not (np.issubdtype(V.dtype, np.floating) or np.issubdtype(V.dtype, np.integer)):
-        raise InputError(f"{path}: vertices must be real numbers, got dtype {V.dtype}")
-    V = V.astype(np.float64)
-    if len(V) == 0:
-        raise InputError(f"{path}: no vertices to write")
-    bad = ~np.isfinite(V).all(axis=1)
-    if bad.any():
-        raise InputError(f"{path}: {int(bad.sum())} of {len(V)} vertices have NaN or infinite "
-                         f"coordinates (first: vertex {int(np.argmax(bad))}); nothing written")
-    if faces is None:
-        return V, np.zeros((0, 3), np.int64)
-    F = np.asarray(faces)
-    if F.size == 0:
-        return V, np.zeros((0, 3), np.int64)
-    if F.ndim != 2 or F.shape[1] != 3:
-        raise InputError(f"{path}: faces must be triangles of shape (F, 3), got {F.shape}")
-    if not np.issubdtype(F.dtype, np.integer):
-        raise InputError(f"{path}: face indices must be integers, got dtype {F.dtype}")
-    F = F.astype(np.int64)
-    out = ((F < 0) | (F >= len(V))).any(axis=1)
-    if out.any():
-        i = int(np.argmax(out))
-        raise InputError(f"{path}: {int(out.sum())} faces index vertices outside 0..{len(V) - 1} "
-                         f"(first: face {i} = {F[i].tolist()}); nothing written")
-    return V, F
+    try:
+        V = real_rows(vertices, f"{path}: vertices")
+        if faces is None or np.size(faces) == 0:
+            return V, np.zeros((0, 3), np.int64)
+        return V, triangles(faces, len(V), f"{path}: faces")
+    except InputError as e:
+        raise InputError(f"{e}; nothing written") from None
 
 
 def _fan(polys: list[list[int]]) -> np.ndarray:

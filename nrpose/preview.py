@@ -23,6 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .checks import real_rows, triangles
 from .errors import InputError
 from .meshio import atomic_path
 
@@ -36,15 +37,6 @@ _MESH_RGB = np.array([0.62, 0.70, 0.86])
 _UP = {"y": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
        "z": np.eye(3),
        "x": np.array([[0, 1.0, 0], [0, 0, 1.0], [1.0, 0, 0]])}
-
-
-def _points(a, what: str) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float64)
-    if a.ndim != 2 or a.shape[1] != 3 or len(a) == 0:
-        raise InputError(f"{what} must have shape (N, 3) with N >= 1, got {a.shape}")
-    if not np.isfinite(a).all():
-        raise InputError(f"{what} contain NaN or inf; cannot draw them")
-    return a
 
 
 def _spread(n: int, keep: int) -> np.ndarray:
@@ -107,29 +99,17 @@ def render_figure(panels: Sequence[tuple], handles: Sequence | None = None, *,
         if len(panel) != 3:
             raise InputError(f"panel {k} must be (title, vertices, faces or None)")
         title, V, F = panel
-        V = _points(V, f"panel {k} vertices") @ to_plot
-        if F is not None and np.size(F):
-            F = np.asarray(F)
-            if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-                raise InputError(f"panel {k} faces must be integer triangles (F, 3), "
-                                 f"got {F.shape} {F.dtype}")
-            if F.min() < 0 or F.max() >= len(V):
-                raise InputError(f"panel {k} faces index vertices outside 0..{len(V) - 1}")
-        else:
-            F = None
+        V = real_rows(V, f"panel {k} vertices") @ to_plot
+        F = triangles(F, len(V), f"panel {k} faces") if F is not None and np.size(F) else None
         pts = segs = None
         if handles is not None and handles[k] is not None:
             if len(handles[k]) != 2:
                 raise InputError(f"handles[{k}] must be (points, segments)")
             hp, hs = handles[k]
             if hp is not None and np.size(hp):
-                pts = _points(hp, f"handles[{k}] points") @ to_plot
+                pts = real_rows(hp, f"handles[{k}] points") @ to_plot
             if hs is not None and np.size(hs):
-                hs = np.asarray(hs, dtype=np.float64)
-                if hs.ndim != 3 or hs.shape[1:] != (2, 3) or not np.isfinite(hs).all():
-                    raise InputError(f"handles[{k}] segments must be finite (S, 2, 3), "
-                                     f"got {hs.shape}")
-                segs = hs @ to_plot
+                segs = real_rows(hs, f"handles[{k}] segments", (2, 3)) @ to_plot
         for a in (V, pts, None if segs is None else segs.reshape(-1, 3)):
             if a is not None:
                 lo, hi = np.minimum(lo, a.min(axis=0)), np.maximum(hi, a.max(axis=0))

@@ -30,6 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
+from .checks import triangles
 from .errors import InputError
 from .meshio import atomic_path
 from .preview import _LIGHT, _MESH_RGB, _UP, _spread
@@ -170,12 +171,7 @@ def _check(positions, faces, times, handles_per_frame, max_panels):
         raise InputError(f"positions of frame {f} contain NaN or inf; cannot draw them")
     F = None
     if faces is not None and np.size(faces):
-        F = np.asarray(faces)
-        if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-            raise InputError(f"faces must be integer triangles (M, 3), got {F.shape} {F.dtype}")
-        if F.min() < 0 or F.max() >= P.shape[1]:
-            raise InputError(f"faces index vertices outside 0..{P.shape[1] - 1}")
-        F = F.astype(np.int64)
+        F = triangles(faces, P.shape[1])
     if times is None:
         T = np.arange(P.shape[0], dtype=np.float64)
     else:

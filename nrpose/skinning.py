@@ -54,6 +54,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from . import device
+from .checks import real_rows
 from .errors import InputError
 from .skeleton import polar_rotation
 
@@ -70,29 +71,14 @@ BLOCK = 32         # groups (of 8 vertices) per block of work taken from the job
 
 # --------------------------------------------------------------------------- validation
 
-def _finite(name: str, a: np.ndarray) -> None:
-    if not np.all(np.isfinite(a)):
-        bad = int(np.count_nonzero(~np.isfinite(a).reshape(len(a), -1).all(axis=1)))
-        raise InputError(f"{name} contain NaN or inf ({bad} of {len(a)} rows); "
-                         f"give finite values")
-
-
 def prepare_influences(rest, joints, weights):
     """Validate bind inputs; return (rest (N,3) f64, joints (N,K) int64, weights (N,K) f64).
 
     Weights rows are normalised to sum 1; padding entries (weight 0) get joint 0.
     Also returns the largest joint index that carries weight, as a 4th item.
     """
-    rest = np.asarray(rest)
-    if rest.ndim != 2 or rest.shape[1] != 3:
-        raise InputError(f"rest vertices must have shape (N, 3), got {rest.shape}")
-    if not (np.issubdtype(rest.dtype, np.floating) or np.issubdtype(rest.dtype, np.integer)):
-        raise InputError(f"rest vertices must be real numbers, got dtype {rest.dtype}")
-    rest = rest.astype(np.float64)
+    rest = real_rows(rest, "rest vertices")
     n = rest.shape[0]
-    if n == 0:
-        raise InputError("rest vertices are empty (N = 0); give at least one vertex")
-    _finite("rest vertices", rest)
 
     joints = np.asarray(joints)
     if joints.ndim == 1:
@@ -108,10 +94,7 @@ def prepare_influences(rest, joints, weights):
     if weights.shape != joints.shape:
         raise InputError(f"weights must have the shape of the joint indices {joints.shape}, "
                          f"got {weights.shape}")
-    if not (np.issubdtype(weights.dtype, np.floating) or np.issubdtype(weights.dtype, np.integer)):
-        raise InputError(f"weights must be real numbers, got dtype {weights.dtype}")
-    weights = weights.astype(np.float64)
-    _finite("weights", weights)
+    weights = real_rows(weights, "weights", weights.shape[1:])
     if np.any(weights < 0):
         rows = np.flatnonzero((weights < 0).any(axis=1))
         raise InputError(f"weights must be non-negative: {len(rows)} of {n} vertices have "

@@ -15,6 +15,7 @@ from typing import Mapping
 
 import numpy as np
 
+from .checks import real_rows, triangles
 from .errors import InputError
 
 __all__ = ["save_weight_map", "save_weight_maps"]
@@ -23,13 +24,9 @@ _VIEWS = (("front", 90.0, -90.0), ("oblique", 28.0, -62.0))
 
 
 def _check(vertices, faces, w):
-    V = np.asarray(vertices, dtype=np.float64)
-    F = np.asarray(faces, dtype=np.int64)
+    V = real_rows(vertices, "vertices")
+    F = triangles(faces, len(V))
     w = np.asarray(w, dtype=np.float64).reshape(-1)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
-        raise InputError(f"vertices must have shape (N, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or F.min() < 0 or F.max() >= len(V):
-        raise InputError("faces must be a non-empty (F, 3) array of valid vertex indices")
     if len(w) != len(V) or not np.isfinite(w).all():
         raise InputError(f"weights must be {len(V)} finite values, got {w.shape}")
     return V, F, w

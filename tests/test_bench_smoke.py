@@ -20,6 +20,7 @@ BENCH = pathlib.Path(__file__).resolve().parent.parent / "bench" / "table1.py"
 ROW_FIELDS = {"model", "kind", "points", "handles", "paper_points", "paper_ms", "paper_ms_per_point_handle",
               "source", "bbox_diagonal", "bind_ms", "bind_first_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms",
               "pocl_pose_into_ms", "pocl_pose_after_pause_ms", "pocl_pose_warmup_ms", "numpy_pose_ms", "speedup_vs_numpy",
+              "pocl_batched_per_frame_ms", "batch_frames", "batched_speedup_vs_numpy",
               "pocl_ms_per_point_handle", "numpy_ms_per_point_handle",
               "paper_over_pocl", "max_error_rel_bbox", "handles_rest"}
 STATS = {"median", "p10", "p90", "min", "max", "n"}
@@ -58,7 +59,14 @@ def test_document_fields(quick_run):
         assert env[key], key
     assert env["device"]["compute_units"] >= 1
     t = doc["targets"]
-    assert t["meaningful"] is False and isinstance(t["pose_ms_met"], bool)
+    assert t["meaningful"] is False and t["row"] == "dragon/segments"
+    dragon = next(r for r in doc["rows"] if (r["model"], r["kind"]) == ("dragon", "segments"))
+    assert t["pose_ms"] == dragon["pocl_pose_ms"]["median"] and t["speedup"] == dragon["speedup_vs_numpy"]
+    assert t["pose_ms_met"] is (t["pose_ms"] <= t["pose_ms_max"])
+    assert t["speedup_met"] is (t["speedup"] >= t["speedup_min"])
+    assert t["speedup_met_all_rows"] is all(r["speedup_vs_numpy"] >= t["speedup_min"] for r in doc["rows"])
+    assert t["batched_per_frame_ms"] == dragon["pocl_batched_per_frame_ms"]["median"]
+    assert _positive(t["batched_speedup"])
     assert (out / "t.png").stat().st_size > 1000
 
 
@@ -71,7 +79,7 @@ def test_rows(quick_run):
         assert ROW_FIELDS <= set(r), ROW_FIELDS - set(r)
         assert r["points"] == 500
         for key in ("bind_ms", "bind_numpy_ms", "pose_make_ms", "pocl_pose_ms", "pocl_pose_into_ms",
-                    "pocl_pose_after_pause_ms",
+                    "pocl_pose_after_pause_ms", "pocl_batched_per_frame_ms",
                     "numpy_pose_ms"):
             assert set(r[key]) == STATS
             assert r[key]["n"] >= 1
@@ -82,7 +90,9 @@ def test_rows(quick_run):
         warm = r["pocl_pose_warmup_ms"]       # by elapsed time in the block; bins hold every pose
         assert sum(warm["n"]) == r["pocl_pose_ms"]["n"] and warm["from_ms"][0] == 0.0
         assert all(_positive(m) for m in warm["median_ms"]) and warm["from_ms"] == sorted(warm["from_ms"])
-        for key in ("paper_ms", "bbox_diagonal", "speedup_vs_numpy", "pocl_ms_per_point_handle",
+        assert r["batch_frames"] == 3
+        for key in ("paper_ms", "bbox_diagonal", "speedup_vs_numpy", "batched_speedup_vs_numpy",
+                    "pocl_ms_per_point_handle",
                     "numpy_ms_per_point_handle", "paper_over_pocl", "paper_ms_per_point_handle"):
             assert _positive(r[key]), (r["model"], key, r[key])
         # PoCL (float32) agrees with the float64 reference; 0 only if exact

@@ -63,6 +63,16 @@ def test_document(quick):
     assert not [p for p in out.iterdir() if p.name.startswith(".")]     # no temporary left over
     for t in doc["targets"]:
         assert t["meaningful"] is False and {"name", "target", "measured", "met"} <= set(t)
+        if t["measured"] is None:            # quick scaling has no 1M x 65 cell
+            assert t["met"] is None
+            continue
+        # `met` agrees with `measured` and the target's direction; every-row targets judge the worst row
+        at_most = "<=" in t["name"]
+        assert t["met"] is (t["measured"] <= t["target"] if at_most else t["measured"] >= t["target"]), t
+        if "per_row" in t:
+            per_row = [v["fraction_arithmetic"] if isinstance(v, dict) else v for v in t["per_row"].values()]
+            assert len(per_row) == 8 and all(_finite_positive(v) for v in per_row)
+            assert t["measured"] == (max(per_row) if at_most else min(per_row)), t
 
 
 def test_table1(quick):

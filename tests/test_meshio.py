@@ -402,12 +402,12 @@ def test_corrupt_files(tmp_path, name):
 
 @pytest.mark.parametrize("args,match", [
     ((np.zeros((3, 2)),), r"shape \(N, 3\)"),
-    ((np.zeros((0, 3)),), "no vertices"),
+    ((np.zeros((0, 3)),), "vertices: empty"),
     ((np.array([[0, 0, 0], [np.nan, 0, 0], [1, np.inf, 0]]),),
-     r"2 of 3 vertices have NaN or infinite coordinates \(first: vertex 1\)"),
+     r"vertices: 2 of 3 rows have NaN or infinite values \(first: row 1\)"),
     ((np.eye(3), [[0, 1, 3]]), r"outside 0\.\.2 \(first: face 0"),
     ((np.eye(3), [[0, 1, 2, 0]]), r"triangles of shape \(F, 3\)"),
-    ((np.eye(3), [[0.0, 1.0, 2.0]]), "integers"),
+    ((np.eye(3), [[0.5, 1.0, 2.0]]), "integer vertex indices"),
     ((np.array([["a", "b", "c"]]),), "real numbers"),
 ])
 @pytest.mark.parametrize("ext", [".obj", ".ply"])

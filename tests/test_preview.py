@@ -107,13 +107,13 @@ def test_large_inputs_are_drawn(tmp_path):
 
 @pytest.mark.parametrize("panels,handles,match", [
     ([], None, "at least one panel"),
-    ([("a", np.zeros((3, 2)), None)], None, r"panel 0 vertices must have shape \(N, 3\)"),
+    ([("a", np.zeros((3, 2)), None)], None, r"panel 0 vertices: expected shape \(N, 3\)"),
     ([("a", np.array([[0, 0, np.nan]]), None)], None, "NaN"),
     ([("a", np.eye(3), [[0, 1, 3]])], None, r"outside 0\.\.2"),
-    ([("a", np.eye(3), [[0.0, 1.0, 2.0]])], None, "integer triangles"),
+    ([("a", np.eye(3), [[0.0, 1.0, 2.0]])], None, "panel 0 faces: expected integer vertex indices"),
     ([("a", np.eye(3))], None, "panel 0 must be"),
     ([("a", np.eye(3), None)], [None, None], "one entry per panel"),
-    ([("a", np.eye(3), None)], [(np.eye(3), np.zeros((2, 3)))], r"segments must be finite \(S, 2, 3\)"),
+    ([("a", np.eye(3), None)], [(np.eye(3), np.zeros((2, 3)))], r"handles\[0\] segments: expected shape \(N, 2, 3\)"),
     ([("a", np.eye(3), None)], [(np.eye(3),)], r"handles\[0\] must be \(points, segments\)"),
 ])
 def test_bad_input_writes_nothing(tmp_path, panels, handles, match):

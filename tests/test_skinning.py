@@ -519,10 +519,10 @@ def test_bad_bind_inputs(fn, good):
     _raises(r"shape of the joint indices", fn, rest, joints, weights[:, :1])
     bad = rest.copy()
     bad[3, 1] = np.nan
-    _raises(r"rest vertices contain NaN or inf \(1 of 10", fn, bad, joints, weights)
+    _raises(r"rest vertices: 1 of 10 rows have NaN or infinite values \(first: row 3\)", fn, bad, joints, weights)
     w = weights.copy()
     w[2, 0] = np.inf
-    _raises(r"weights contain NaN or inf", fn, rest, joints, w)
+    _raises(r"weights: 1 of 10 rows have NaN or infinite values \(first: row 2\)", fn, rest, joints, w)
     w = weights.copy()
     w[4, 1] = -0.1
     _raises(r"non-negative.*vertex 4", fn, rest, joints, w)

@@ -1,0 +1,68 @@
+"""Validation of array arguments given by users: vertices, handle coordinates, triangles.
+
+Each check returns the array in the dtype the package computes with, or raises a typed
+error (:mod:`nrpose.errors`) whose message names the argument, the problem and the fix.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .errors import InputError
+
+
+def _shape_text(tail: tuple[int, ...]) -> str:
+    return "(N, " + ", ".join(map(str, tail)) + ")"
+
+
+def real_rows(value, what: str, tail: tuple[int, ...] = (3,), error: type[InputError] = InputError,
+              allow_empty: bool = False) -> np.ndarray:
+    """``value`` as a float64 array of shape (N, *tail) with every entry finite.
+
+    value: anything numpy reads as real numbers (floats or integers; not bool, complex
+    or text). what: the argument's name as the message should call it (a plural noun,
+    e.g. "rest vertices"). error: the exception class raised. allow_empty: accept N = 0
+    (an empty input of any shape then becomes a (0, *tail) array).
+    Returns (N, *tail) float64 (no copy when the input is already float64).
+    """
+    try:
+        arr = np.asarray(value)
+        if arr.dtype.kind == "O":
+            arr = arr.astype(np.float64)
+    except (TypeError, ValueError):
+        raise error(f"{what}: expected real numbers of shape {_shape_text(tail)}; "
+                    f"got {type(value).__name__} that is not a numeric array") from None
+    if arr.dtype.kind not in "fiu":
+        raise error(f"{what}: expected real numbers of shape {_shape_text(tail)}, got dtype {arr.dtype}")
+    if arr.size == 0 and allow_empty:
+        return np.zeros((0,) + tuple(tail))
+    if arr.ndim != len(tail) + 1 or arr.shape[1:] != tuple(tail):
+        raise error(f"{what}: expected shape {_shape_text(tail)}, got {arr.shape}")
+    if len(arr) == 0:
+        raise error(f"{what}: empty; expected shape {_shape_text(tail)} with N >= 1")
+    arr = arr.astype(np.float64, copy=False)
+    if not np.isfinite(arr).all():
+        bad = np.flatnonzero(~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1))
+        raise error(f"{what}: {len(bad)} of {len(arr)} rows have NaN or infinite values "
+                    f"(first: row {int(bad[0])}); give finite values")
+    return arr
+
+
+def triangles(faces, n_vertices: int, what: str = "faces") -> np.ndarray:
+    """``faces`` as an (F, 3) int64 array of vertex indices in 0 .. n_vertices - 1.
+
+    faces: an integer array, F >= 1. what: the argument's name.
+    Raises InputError naming the problem (and the first face out of range).
+    """
+    arr = np.asarray(faces)
+    if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) == 0:
+        raise InputError(f"{what}: expected triangles of shape (F, 3) with F >= 1, got {arr.shape}")
+    if arr.dtype.kind not in "iu":
+        raise InputError(f"{what}: expected integer vertex indices, got dtype {arr.dtype}; "
+                         f"convert them with .astype(int)")
+    arr = arr.astype(np.int64, copy=False)
+    outside = ((arr < 0) | (arr >= n_vertices)).any(axis=1)
+    if outside.any():
+        i = int(np.argmax(outside))
+        raise InputError(f"{what}: {int(outside.sum())} of {len(arr)} index vertices outside "
+                         f"0..{n_vertices - 1} (first: face {i} = {arr[i].tolist()})")
+    return arr
