@@ -15,22 +15,16 @@ def _shape_text(tail: tuple[int, ...]) -> str:
 
 
 def real_rows(value, what: str, tail: tuple[int, ...] = (3,), error: type[InputError] = InputError,
-              allow_empty: bool = False) -> np.ndarray:
+              allow_empty: bool = False, fix: str = "give finite values") -> np.ndarray:
     """``value`` as a float64 array of shape (N, *tail) with every entry finite.
 
     value: anything numpy reads as real numbers (floats or integers; not bool, complex
-    or text). what: the argument's name as the message should call it (a plural noun,
-    e.g. "rest vertices"). error: the exception class raised. allow_empty: accept N = 0
-    (an empty input of any shape then becomes a (0, *tail) array).
+    or text). what: the argument's name as the message should call it (e.g. "rest
+    vertices"). error: the exception class raised. allow_empty: accept N = 0 (an empty
+    input of any shape then becomes a (0, *tail) array). fix: the advice for non-finite rows.
     Returns (N, *tail) float64 (no copy when the input is already float64).
     """
-    try:
-        arr = np.asarray(value)
-        if arr.dtype.kind == "O":
-            arr = arr.astype(np.float64)
-    except (TypeError, ValueError):
-        raise error(f"{what}: expected real numbers of shape {_shape_text(tail)}; "
-                    f"got {type(value).__name__} that is not a numeric array") from None
+    arr = _numeric(value, what, f"real numbers of shape {_shape_text(tail)}", error)
     if arr.dtype.kind not in "fiu":
         raise error(f"{what}: expected real numbers of shape {_shape_text(tail)}, got dtype {arr.dtype}")
     if arr.size == 0 and allow_empty:
@@ -43,26 +37,41 @@ def real_rows(value, what: str, tail: tuple[int, ...] = (3,), error: type[InputE
     if not np.isfinite(arr).all():
         bad = np.flatnonzero(~np.isfinite(arr.reshape(len(arr), -1)).all(axis=1))
         raise error(f"{what}: {len(bad)} of {len(arr)} rows have NaN or infinite values "
-                    f"(first: row {int(bad[0])}); give finite values")
+                    f"(first: row {int(bad[0])}); {fix}")
     return arr
 
 
-def triangles(faces, n_vertices: int, what: str = "faces") -> np.ndarray:
+def triangles(faces, n_vertices: int, what: str = "faces", error: type[InputError] = InputError,
+              fix: str = "drop those faces or give the vertices they index") -> np.ndarray:
     """``faces`` as an (F, 3) int64 array of vertex indices in 0 .. n_vertices - 1.
 
-    faces: an integer array, F >= 1. what: the argument's name.
-    Raises InputError naming the problem (and the first face out of range).
+    faces: integers, or floats holding whole numbers; F >= 1. what: the argument's name.
+    error: the exception class raised. fix: the advice for faces out of range.
     """
-    arr = np.asarray(faces)
+    arr = _numeric(faces, what, "triangles of shape (F, 3)", error)
     if arr.ndim != 2 or arr.shape[1] != 3 or len(arr) == 0:
-        raise InputError(f"{what}: expected triangles of shape (F, 3) with F >= 1, got {arr.shape}")
-    if arr.dtype.kind not in "iu":
-        raise InputError(f"{what}: expected integer vertex indices, got dtype {arr.dtype}; "
-                         f"convert them with .astype(int)")
-    arr = arr.astype(np.int64, copy=False)
+        raise error(f"{what}: expected triangles of shape (F, 3) with F >= 1, got {arr.shape}")
+    if arr.dtype.kind == "f":
+        broken = ~(arr == np.round(arr)).all(axis=1)          # NaN and fractions
+        if broken.any():
+            i = int(np.argmax(broken))
+            raise error(f"{what}: {int(broken.sum())} of {len(arr)} faces hold vertex indices that are not "
+                        f"whole numbers (first: face {i} = {arr[i].tolist()}); give integer indices")
+    elif arr.dtype.kind not in "iu":
+        raise error(f"{what}: expected integer vertex indices, got dtype {arr.dtype}")
     outside = ((arr < 0) | (arr >= n_vertices)).any(axis=1)
     if outside.any():
         i = int(np.argmax(outside))
-        raise InputError(f"{what}: {int(outside.sum())} of {len(arr)} index vertices outside "
-                         f"0..{n_vertices - 1} (first: face {i} = {arr[i].tolist()})")
-    return arr
+        raise error(f"{what}: {int(outside.sum())} of {len(arr)} faces index vertices outside "
+                    f"0..{n_vertices - 1} (first: face {i} = {arr[i].tolist()}); {fix}")
+    return arr.astype(np.int64, copy=False)
+
+
+def _numeric(value, what: str, expected: str, error: type[InputError]) -> np.ndarray:
+    """np.asarray(value), object arrays of numbers turned to float64; ``error`` if not an array."""
+    try:
+        arr = np.asarray(value)
+        return arr.astype(np.float64) if arr.dtype.kind == "O" else arr
+    except (TypeError, ValueError):
+        raise error(f"{what}: expected {expected}; got {type(value).__name__} that is not a "
+                    f"numeric array") from None

@@ -25,6 +25,7 @@ from typing import Sequence
 import numpy as np
 import pygltflib
 
+from .checks import real_rows, triangles
 from .errors import InputError
 from .meshio import atomic_path
 
@@ -46,16 +47,8 @@ def _mesh_list(character_or_meshes) -> list[tuple[str, np.ndarray, np.ndarray]]:
             name, V, F = (f"mesh{i}", *m) if len(m) == 2 else m
         else:
             raise InputError(f"mesh {i}: expected a Mesh or a (vertices, faces) pair")
-        V = np.asarray(V, dtype=np.float64)
-        F = np.asarray(F)
-        if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or not np.isfinite(V).all():
-            raise InputError(f"mesh {i} ({name}): vertices must be finite (N, 3) with N >= 1, got {V.shape}")
-        if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or not np.issubdtype(F.dtype, np.integer):
-            raise InputError(f"mesh {i} ({name}): faces must be integer triangles (M, 3) with M >= 1, "
-                             f"got {F.shape} {F.dtype}")
-        if F.min() < 0 or F.max() >= len(V):
-            raise InputError(f"mesh {i} ({name}): faces index vertices outside 0..{len(V) - 1}")
-        out.append((str(name), V, F.astype(np.int64)))
+        V = real_rows(V, f"mesh {i} ({name}) vertices")
+        out.append((str(name), V, triangles(F, len(V), f"mesh {i} ({name}) faces")))
     return out
 
 

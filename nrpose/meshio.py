@@ -228,18 +228,9 @@ def _check_read(path: Path, V: np.ndarray, F: np.ndarray) -> Geometry:
     F = np.array(F, dtype=np.int64).reshape(-1, 3)
     if len(V) == 0:
         raise FileFormatError(f"{path}: no vertices found; give a file with geometry")
-    bad = ~np.isfinite(V).all(axis=1)
-    if bad.any():
-        raise FileFormatError(f"{path}: {int(bad.sum())} of {len(V)} vertices have NaN or "
-                              f"infinite coordinates (first: vertex {int(np.argmax(bad))}); "
-                              f"fix or remove them")
+    V = real_rows(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
     if len(F):
-        out = ((F < 0) | (F >= len(V))).any(axis=1)
-        if out.any():
-            i = int(np.argmax(out))
-            raise FileFormatError(f"{path}: {int(out.sum())} faces index vertices outside "
-                                  f"0..{len(V) - 1} (first: face {i} = {F[i].tolist()}); "
-                                  f"the file is inconsistent, re-export it")
+        F = triangles(F, len(V), f"{path}: faces", FileFormatError, "the file is inconsistent, re-export it")
     return Geometry(V, F)
 
 

@@ -30,7 +30,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .checks import triangles
+from .checks import real_rows, triangles
 from .errors import InputError
 from .meshio import atomic_path
 from .preview import _LIGHT, _MESH_RGB, _UP, _spread
@@ -190,10 +190,7 @@ def _check(positions, faces, times, handles_per_frame, max_panels):
 def _segments(h, k: int) -> np.ndarray | None:
     if h is None or np.size(h) == 0:
         return None
-    S = np.asarray(h, dtype=np.float64)
-    if S.ndim != 3 or S.shape[1:] != (2, 3) or not np.isfinite(S).all():
-        raise InputError(f"handles_per_frame[{k}] must be finite segments (S, 2, 3), got {S.shape}")
-    return S
+    return real_rows(h, f"handles_per_frame[{k}] segments", (2, 3))
 
 
 def _grid(n: int, panel_aspect: float) -> tuple[int, int]:

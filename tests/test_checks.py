@@ -58,11 +58,15 @@ def test_real_rows_error_class_and_empty():
     for empty in ((), [], np.zeros((0, 3)), np.zeros(0)):
         got = real_rows(empty, "handles", (2, 3), HandleError, allow_empty=True)
         assert got.shape == (0, 2, 3) and got.dtype == np.float64
+    with pytest.raises(HandleError, match=r"expected shape \(N, 2, 3\), got \(1, 3\)"):
+        real_rows([[0, 0, 0]], "handles", (2, 3), HandleError, allow_empty=True)   # not empty: checked
+    with pytest.raises(HandleError, match="1 of 1 rows have NaN or infinite values .*; repair them"):
+        real_rows([[0, 0, np.nan]], "handles", error=HandleError, fix="repair them")
 
 
-@pytest.mark.parametrize("dtype", [np.int32, np.int64, np.uint32])
+@pytest.mark.parametrize("dtype", [np.int32, np.int64, np.uint32, np.float64, object])
 def test_triangles_accepts_integer_indices(dtype):
-    F = np.array([[0, 1, 2], [2, 1, 3]], dtype=dtype)
+    F = np.array([[0, 1, 2], [2, 1, 3]], dtype=dtype)      # whole-number floats too
     got = triangles(F, 4)
     assert got.dtype == np.int64
     np.testing.assert_array_equal(got, F)
@@ -72,11 +76,21 @@ def test_triangles_accepts_integer_indices(dtype):
     (np.zeros((2, 4), int), r"faces: expected triangles of shape \(F, 3\) with F >= 1, got \(2, 4\)"),
     (np.zeros((0, 3), int), r"got \(0, 3\)"),
     (np.zeros(3, int), r"got \(3,\)"),
-    (np.array([[0.0, 1.0, 2.0]]), r"faces: expected integer vertex indices, got dtype float64; convert"),
-    (np.array([[0, 1, 2], [1, 2, 4], [4, 5, 0]]), r"faces: 2 of 3 index vertices outside 0\.\.3 "
-                                                  r"\(first: face 1 = \[1, 2, 4\]\)"),
-    (np.array([[0, 1, 2], [-1, 2, 3]]), r"1 of 2 index vertices outside 0\.\.3 \(first: face 1 = \[-1, 2, 3\]\)"),
+    (np.array([[0.0, 1.0, 2.0], [0.0, 1.5, 2.0], [np.nan, 1, 2]]),
+     r"faces: 2 of 3 faces hold vertex indices that are not whole numbers \(first: face 1 = \[0\.0, 1\.5, 2\.0\]\)"),
+    (np.ones((1, 3), dtype=bool), "faces: expected integer vertex indices, got dtype bool"),
+    ([[0, 1, 2], [1, 2]], r"faces: expected triangles of shape \(F, 3\); got list that is not a numeric array"),
+    (np.array([[0, 1, 2], [1, 2, 4], [4, 5, 0]]), r"faces: 2 of 3 faces index vertices outside 0\.\.3 "
+                                                  r"\(first: face 1 = \[1, 2, 4\]\); drop those faces"),
+    (np.array([[0, 1, 2], [-1, 2, 3]]), r"1 of 2 faces index vertices outside 0\.\.3 \(first: face 1 = \[-1, 2, 3\]\)"),
+    (np.array([[0, 1, 2**63 + 5]], np.uint64), r"outside 0\.\.3 \(first: face 0 = \[0, 1, 9223372036854775813\]\)"),
 ])
 def test_triangles_names_the_problem(faces, match):
     with pytest.raises(InputError, match=match):
         triangles(faces, 4)
+
+
+def test_triangles_error_class_and_fix():
+    from nrpose.errors import FileFormatError
+    with pytest.raises(FileFormatError, match=r"m\.obj: faces: .*; re-export it"):
+        triangles([[0, 1, 7]], 4, "m.obj: faces", FileFormatError, "re-export it")

@@ -232,7 +232,7 @@ def test_bad_input(sphere):
         distance_matrix(Vn, F, P)
     Fb = F.copy()
     Fb[0, 0] = len(V)
-    with pytest.raises(InputError, match=rf"faces: 1 of {len(F)} index vertices outside 0\.\.{len(V) - 1} "
+    with pytest.raises(InputError, match=rf"faces: 1 of {len(F)} faces index vertices outside 0\.\.{len(V) - 1} "
                                          r"\(first: face 0 = "):
         distance_matrix(V, Fb, P)
     with pytest.raises(InputError, match="outside"):

@@ -113,7 +113,9 @@ def test_bad_meshes_and_offsets(tmp_path):
         write_animated_glb(tmp_path / "x.glb", meshes, P, T, [0, 3])
     with pytest.raises(InputError, match="meshes"):
         write_animated_glb(tmp_path / "x.glb", [], P, T)
-    with pytest.raises(InputError, match="faces"):
+    with pytest.raises(InputError, match=r"mesh 0 \(mesh0\) faces: 1 of 1 faces index vertices outside 0\.\.2"):
         write_animated_glb(tmp_path / "x.glb", [(np.zeros((3, 3)), [[0, 1, 5]])], P[:, :3], T)
+    with pytest.raises(InputError, match=r"mesh 0 \(mesh0\) vertices: 1 of 3 rows have NaN"):
+        write_animated_glb(tmp_path / "x.glb", [([[0, 0, 0], [1, 0, 0], [0, np.nan, 0]], [[0, 1, 2]])], P[:, :3], T)
     with pytest.raises(InputError, match="directory"):
         write_animated_glb(tmp_path / "missing" / "x.glb", meshes, P, T)

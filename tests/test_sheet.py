@@ -64,10 +64,10 @@ def test_view_matrix_is_a_rotation():
     (dict(positions=np.zeros((2, 4))), "positions"),
     (dict(positions=np.full((2, 4, 3), np.nan)), "NaN"),
     (dict(faces=np.array([[0, 1, 9]])), "faces"),
-    (dict(faces=np.array([[0.0, 1.0, 2.0]])), "faces"),
+    (dict(faces=np.array([[0.5, 1.0, 2.0]])), "faces: 1 of 1 faces hold vertex indices that are not whole"),
     (dict(times=[0.0]), "times"),
     (dict(handles_per_frame=[None]), "handles_per_frame"),
-    (dict(handles_per_frame=[np.zeros((1, 3, 3)), None]), "handles_per_frame"),
+    (dict(handles_per_frame=[np.zeros((1, 3, 3)), None]), r"handles_per_frame\[0\] segments: expected shape \(N, 2, 3\)"),
     (dict(max_panels=0), "max_panels"),
 ])
 def test_bad_input(tmp_path, kwargs, message):

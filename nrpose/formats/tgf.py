@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import real_rows, triangles
 from ..errors import FileFormatError, InputError
 from ..skeleton import LocalPose, Skeleton
 
@@ -177,10 +178,8 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     F = np.asarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
         raise FileFormatError(f"{path}: no triangles read (vertices {V.shape}, faces {F.shape})")
-    if F.min() < 0 or F.max() >= len(V):
-        raise FileFormatError(f"{path}: face indices outside 0..{len(V) - 1}")
-    if not np.isfinite(V).all():
-        raise FileFormatError(f"{path}: vertex coordinates contain NaN or infinity")
+    V = real_rows(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
+    F = triangles(F, len(V), f"{path}: faces", FileFormatError, "the file is inconsistent, re-export it")
     used = np.unique(F)
     if suffix == ".mesh" and len(used) < len(V):
         remap = np.full(len(V), -1, np.int64)
