@@ -51,7 +51,7 @@ import numpy as np
 from .errors import InputError
 from .rotation import Rotation
 
-__all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation"]
+__all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components"]
 
 #: relative length below which a bone is considered degenerate
 ZERO_LENGTH = 1e-9
@@ -88,43 +88,68 @@ def polar_rotation(A: np.ndarray) -> np.ndarray:
     """Rotation part of (..., 3, 3) linear maps (polar decomposition), (..., 3, 3).
 
     For ``A = R @ S`` with S symmetric positive (uniform or axis scale) this is R.
-    Maps within 1e-3 of a rotation times a uniform scale s (nearly every joint of a
-    character, float32 data included) take a fast path: three Newton–Schulz steps
-    ``X ← X (3I − XᵀX) / 2`` from X = A / s, which converge quadratically to the
-    polar factor (error 1e-3 → ~1e-6 → ~1e-12 → rounding). The others take an SVD.
-    (The batched SVD was ~40 % of posing a Mannequin clip.) The fast path works on
-    component-major (3, 3, n) arrays: numpy's stacked 3x3 ``@`` and ``det`` cost
-    ~14x more than these element-wise products.
+    See :func:`polar_components` for the method; this is its row/column layout.
     """
     A = np.asarray(A, dtype=np.float64)
     if A.ndim < 2 or A.shape[-2:] != (3, 3):
         raise InputError(f"polar_rotation needs (..., 3, 3) matrices, got shape {A.shape}")
     flat = A.reshape(-1, 3, 3)
-    C = np.ascontiguousarray(np.moveaxis(flat, 0, -1))                 # (3, 3, n)
+    out = polar_components(np.ascontiguousarray(np.moveaxis(flat, 0, -1)), flat)
+    return np.ascontiguousarray(np.moveaxis(out, -1, 0)).reshape(A.shape)
+
+
+#: the fast path's Newton–Schulz steps stop once max |σ² − 1| over the singular values σ is
+#: at most this (a bound: 3 max |XᵀX − I| before the first step, δ² after a step from δ)
+POLAR_TOLERANCE = 1e-14
+
+
+def polar_components(C: np.ndarray, flat: np.ndarray | None = None) -> np.ndarray:
+    """Polar rotation factors of n maps given component-major: C (3, 3, n) float64 with
+    C[i, j] the (i, j) entries of all maps; returns (3, 3, n) float64, a new array.
+
+    flat: the same maps as (n, 3, 3), if the caller has them (else a view of C).
+    Maps within 1e-3 of a rotation times a uniform scale s (nearly every joint of a
+    character, float32 data included) take a fast path: Newton–Schulz steps
+    ``X ← X (3I − XᵀX) / 2`` from X = A / s, which take δ = max |σ² − 1| to ~(3/4) δ²
+    (1e-3 → ~1e-6 → ~1e-12 → rounding), as many as :data:`POLAR_TOLERANCE` needs: float32
+    data (δ ~1e-6) two, float64 rotations none. The others take an SVD. (The batched SVD
+    was ~40 % of posing a Mannequin clip.) Component-major (3, 3, n) arrays because numpy's
+    stacked 3x3 ``@`` and ``det`` cost ~14x more than these element-wise products.
+    """
     s2 = np.einsum("ijn,ijn->n", C, C) / 3.0                           # mean squared column norm
     X = C / np.sqrt(np.where(s2 > 0, s2, 1.0))
     D = np.einsum("kin,kjn->ijn", X, X)                                # XᵀX - I
     for i in range(3):
         D[i, i] -= 1.0
     off = np.abs(D.reshape(9, -1)).max(axis=0)
-    det = np.einsum("in,in->n", X[:, 0], np.cross(X[:, 1], X[:, 2], axis=0))
+    det = (X[0, 0] * (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]) - X[0, 1] * (X[1, 0] * X[2, 2] - X[1, 2] * X[2, 0])
+           + X[0, 2] * (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]))
     near = (off <= 1e-3) & (det > 0)
-    Y = np.compress(near, X, axis=2)  # only where it converges (elsewhere it may overflow);
-    # compress keeps (3, 3, m) contiguous, X[..., near] would lay it out (m, 3, 3)
-    for _ in range(3):
-        M = np.einsum("kin,kjn->ijn", Y, Y)                            # (3I - YᵀY) / 2
-        M *= -0.5
+    every = bool(near.all())
+    # only where it converges (elsewhere it may overflow); compress keeps (3, 3, m)
+    # contiguous, X[..., near] would lay it out (m, 3, 3)
+    Y, G = (X, D) if every else (np.compress(near, X, axis=2), np.compress(near, D, axis=2))
+    delta = 3.0 * float(off[near].max(initial=0.0))     # |σ² − 1| ≤ the 3x3 spectral norm of G
+    while delta > POLAR_TOLERANCE:
+        G *= -0.5                                                      # (3I − YᵀY) / 2 = I − G / 2
         for i in range(3):
-            M[i, i] += 1.5
-        Y = np.einsum("ikn,kjn->ijn", Y, M)
+            G[i, i] += 1.0
+        Y = np.einsum("ikn,kjn->ijn", Y, G)
+        delta = delta * delta
+        if delta > POLAR_TOLERANCE:
+            G = np.einsum("kin,kjn->ijn", Y, Y)
+            for i in range(3):
+                G[i, i] -= 1.0
+    if every:
+        return Y
     X[..., near] = Y
-    out = np.moveaxis(X, -1, 0)
     if not near.all():
+        flat = np.moveaxis(C, -1, 0) if flat is None else flat
         U, _, Vt = np.linalg.svd(flat[~near])
         d = np.sign(np.linalg.det(U @ Vt))
         U[..., :, 2] *= d[..., None]
-        out[~near] = U @ Vt
-    return np.ascontiguousarray(out).reshape(A.shape)
+        X[..., ~near] = np.moveaxis(U @ Vt, 0, -1)
+    return X
 
 
 def _match_hint(name: str, names) -> str:
@@ -155,6 +180,7 @@ class Skeleton:
     tips: np.ndarray = None
     deform: np.ndarray = None
     _levels: tuple = field(init=False, repr=False, compare=False)
+    _pre_at: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self):
         names = tuple(str(n) for n in self.names)
@@ -198,7 +224,11 @@ class Skeleton:
         for j in range(J):
             depth[j] = 0 if parents[j] < 0 else depth[parents[j]] + 1
         levels = tuple(np.flatnonzero(depth == d) for d in range(int(depth.max()) + 1))
-        for key, value in (("names", names), ("parents", parents), ("deform", deform), ("_levels", levels)):
+        # joints whose pre is not the identity (glTF: the few nodes with a transform the
+        # skeleton does not animate; none in BVH/TGF): forward_kinematics multiplies only those
+        pre_at = np.flatnonzero((self.pre != np.eye(4)).any(axis=(1, 2)))
+        for key, value in (("names", names), ("parents", parents), ("deform", deform), ("_levels", levels),
+                           ("_pre_at", pre_at)):
             object.__setattr__(self, key, value)
 
     @property
@@ -228,7 +258,9 @@ class Skeleton:
         if shapes != [(self.num_joints, 3), (self.num_joints, 4), (self.num_joints, 3)]:
             raise InputError(f"pose arrays end in shapes {shapes}; this skeleton needs "
                              f"({self.num_joints}, 3), ({self.num_joints}, 4), ({self.num_joints}, 3)")
-        L = self.pre @ local_matrices(pose.translation, pose.rotation, pose.scale)
+        L = local_matrices(pose.translation, pose.rotation, pose.scale)
+        if len(self._pre_at):        # an identity pre changes nothing: skip its product
+            L[..., self._pre_at, :, :] = self.pre[self._pre_at] @ L[..., self._pre_at, :, :]
         G = np.empty_like(L)
         G[..., self._levels[0], :, :] = L[..., self._levels[0], :, :]
         for level in self._levels[1:]:
@@ -316,12 +348,21 @@ class Bones:
         globals_: (..., J, 4, 4) global joint matrices of the pose (from
         :meth:`Skeleton.forward_kinematics`).
         """
-        Gp = np.asarray(globals_, dtype=np.float64)[..., self.joints, :, :]
+        Gp = np.asarray(globals_, dtype=np.float64)[..., self.joints, :3, :]
+        batch = Gp.shape[:-2]
         # the posed joint frames applied to the ends in rest joint frames, and the rotations
-        # times the rest ones' inverses, column by column: numpy's einsum and stacked 3x3
-        # matmul took 3 times as long on a clip's (frames x bones) small matrices
+        # times the rest ones' inverses, entry by entry on component-major copies C[i, j]
+        # (..., B): numpy's einsum and stacked 3x3 matmul took 3 times as long on a clip's
+        # (frames x bones) small matrices, and broadcasting over strided 4x4 entries twice
+        C = np.ascontiguousarray(np.moveaxis(Gp, (-2, -1), (0, 1)))    # (3, 4, ..., B)
         L, Q = self._local_ends, self._rest_rot_t
-        ends = Gp[..., None, :3, 3] + sum(Gp[..., None, :3, j] * L[:, :, None, j] for j in range(3))
-        P = polar_rotation(Gp[..., :3, :3])
-        R = sum(P[..., :, j, None] * Q[:, None, j, :] for j in range(3))
+        ends = np.empty(batch + (2, 3))
+        for e in range(2):
+            for i in range(3):
+                ends[..., e, i] = C[i, 3] + C[i, 0] * L[:, e, 0] + C[i, 1] * L[:, e, 1] + C[i, 2] * L[:, e, 2]
+        P = polar_components(C[:, :3].reshape(3, 3, -1)).reshape((3, 3) + batch)
+        R = np.empty(batch + (3, 3))
+        for i in range(3):
+            for k in range(3):
+                R[..., i, k] = P[i, 0] * Q[:, 0, k] + P[i, 1] * Q[:, 1, k] + P[i, 2] * Q[:, 2, k]
         return ends, R

@@ -57,6 +57,8 @@ def test_batch_matches_frame_by_frame_and_uses_pre_and_scale():
     pre = np.tile(np.eye(4), (4, 1, 1))
     pre[0, :3, 3] = [5, 0, 0]
     pre[0, :3, :3] = 2.0 * Rotation.from_rotvec([0.3, 0, 0]).as_matrix()
+    pre[2, :3, 3] = [0, 1, -2]                   # a pre below the root (joints 1 and 3 have none)
+    pre[2, :3, :3] = Rotation.from_rotvec([0, 0.7, 0.2]).as_matrix()
     skel = make(parents, rng.normal(size=(4, 3)), pre=pre)
     F = 5
     pose = LocalPose(rng.normal(size=(F, 4, 3)), Rotation.random(F * 4, random_state=2).as_quat().reshape(F, 4, 4),
@@ -193,3 +195,55 @@ def test_polar_rotation_shapes_layouts_and_input_untouched():
     for bad in (np.zeros(9), np.zeros((3, 6)), np.zeros((6, 3)), np.zeros(0)):
         with pytest.raises(InputError, match="3, 3"):
             polar_rotation(bad)
+
+
+def _polar_by_svd(A):
+    U, _, Vt = np.linalg.svd(A)
+    U[..., :, 2] *= np.sign(np.linalg.det(U @ Vt))[..., None]
+    return U @ Vt
+
+
+def test_posed_bones_match_a_per_bone_reference():
+    """Bones.pose (component-major, vectorised over frames and bones) against the plain
+    per-frame, per-bone computation: each end through its joint's global matrix, the
+    rotation the SVD polar factor of the joint's linear part times the rest one's inverse.
+    Scales: uniform on most joints (the Newton–Schulz path), per axis on one (the SVD)."""
+    rng = np.random.default_rng(11)
+    parents = [-1, 0, 1, 2, 1, 4, 0]
+    skel = make(parents, rng.normal(size=(7, 3)), rotation=Rotation.random(7, random_state=4).as_quat())
+    bones = skel.bones()
+    F = 6
+    scale = np.repeat(rng.uniform(0.5, 2.0, size=(F, 7, 1)), 3, axis=2)
+    scale[:, 4] = [1.0, 2.0, 0.5]                                     # non-uniform: SVD path
+    pose = LocalPose(rng.normal(size=(F, 7, 3)), Rotation.random(F * 7, random_state=5).as_quat().reshape(F, 7, 4),
+                     scale)
+    G = skel.forward_kinematics(pose)
+    ends, R = bones.pose(G)
+    assert ends.shape == (F, len(bones), 2, 3) and R.shape == (F, len(bones), 3, 3)
+    Gr = skel.rest_globals()
+    for f in range(F):
+        for b, j in enumerate(bones.joints):
+            local = np.linalg.inv(Gr[j]) @ np.c_[bones.segments[b], np.ones(2)].T      # (4, 2)
+            np.testing.assert_allclose(ends[f, b], (G[f, j] @ local)[:3].T, atol=1e-12)
+            expect = _polar_by_svd(G[f, j, :3, :3]) @ _polar_by_svd(Gr[j, :3, :3]).T
+            np.testing.assert_allclose(R[f, b], expect, atol=1e-12)
+    one_ends, one_R = bones.pose(G[2])                              # no batch axis
+    np.testing.assert_allclose(one_ends, ends[2], atol=1e-15)
+    np.testing.assert_allclose(one_R, R[2], atol=1e-15)
+
+
+def test_polar_components_layout_and_steps():
+    """polar_components on component-major maps equals polar_rotation; exact rotations
+    times a scale come back without a step (to rounding), float32-rounded ones orthonormal
+    to 1e-14 after the steps the tolerance asks for."""
+    from nrpose.skeleton import polar_components, polar_rotation
+    R = Rotation.random(40, random_state=9).as_matrix()
+    A = R * np.linspace(0.1, 10.0, 40)[:, None, None]
+    out = polar_components(np.ascontiguousarray(np.moveaxis(A, 0, -1)))
+    assert out.shape == (3, 3, 40)
+    np.testing.assert_array_equal(np.moveaxis(out, -1, 0), polar_rotation(A))
+    np.testing.assert_allclose(polar_rotation(A), R, atol=4e-16)
+    R32 = R.astype(np.float32).astype(np.float64)                     # ~1e-7 off orthonormal
+    P = polar_rotation(R32)
+    assert np.abs(P @ np.swapaxes(P, 1, 2) - np.eye(3)).max() <= 1e-14
+    np.testing.assert_allclose(P, _polar_by_svd(R32), atol=1e-14)
