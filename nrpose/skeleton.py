@@ -51,7 +51,8 @@ import numpy as np
 from .errors import InputError
 from .rotation import Rotation
 
-__all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components"]
+__all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components",
+           "det_components"]
 
 #: relative length below which a bone is considered degenerate
 ZERO_LENGTH = 1e-9
@@ -98,6 +99,12 @@ def polar_rotation(A: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.moveaxis(out, -1, 0)).reshape(A.shape)
 
 
+def det_components(C: np.ndarray) -> np.ndarray:
+    """Determinants (n,) of n 3x3 maps given component-major, C (3, 3, n)."""
+    return (C[0, 0] * (C[1, 1] * C[2, 2] - C[1, 2] * C[2, 1]) - C[0, 1] * (C[1, 0] * C[2, 2] - C[1, 2] * C[2, 0])
+            + C[0, 2] * (C[1, 0] * C[2, 1] - C[1, 1] * C[2, 0]))
+
+
 #: the fast path's Newton–Schulz steps stop once max |σ² − 1| over the singular values σ is
 #: at most this (a bound: 3 max |XᵀX − I| before the first step, δ² after a step from δ)
 POLAR_TOLERANCE = 1e-14
@@ -122,9 +129,7 @@ def polar_components(C: np.ndarray, flat: np.ndarray | None = None) -> np.ndarra
     for i in range(3):
         D[i, i] -= 1.0
     off = np.abs(D.reshape(9, -1)).max(axis=0)
-    det = (X[0, 0] * (X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]) - X[0, 1] * (X[1, 0] * X[2, 2] - X[1, 2] * X[2, 0])
-           + X[0, 2] * (X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]))
-    near = (off <= 1e-3) & (det > 0)
+    near = (off <= 1e-3) & (det_components(X) > 0)
     every = bool(near.all())
     # only where it converges (elsewhere it may overflow); compress keeps (3, 3, m)
     # contiguous, X[..., near] would lay it out (m, 3, 3)

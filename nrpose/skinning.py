@@ -56,7 +56,7 @@ from scipy.spatial.transform import Rotation
 from . import device
 from .checks import real_rows
 from .errors import InputError
-from .skeleton import polar_rotation
+from .skeleton import det_components, polar_components
 
 __all__ = ["LbsDeformer", "DqsDeformer", "Deformer", "lbs_reference", "dqs_reference",
            "dqs_reference_dq", "dual_quaternions", "prepare_influences"]
@@ -123,17 +123,19 @@ def _check_mats(mats, max_joint: int, *, frames: bool = False) -> np.ndarray:
     if mats.ndim != nd or mats.shape[-2:] != (4, 4) or mats.shape[-3] == 0 \
             or (frames and mats.shape[0] == 0):
         raise InputError(f"skinning matrices must have shape {want}, got {mats.shape}")
-    if not np.all(np.isfinite(mats)):
+    largest = float(np.abs(mats).max())          # NaN or inf if any entry is (one pass for both)
+    if not np.isfinite(largest):
         raise InputError("skinning matrices contain NaN or inf; give finite values")
     j = mats.shape[-3]
     if max_joint >= j:
         raise InputError(f"joint index {max_joint} is out of range for {j} skinning matrices "
                          f"(valid: 0..{j - 1})")
-    bottom = mats[..., 3, :]
-    scale = max(1.0, float(np.abs(mats).max()))
-    if np.any(np.abs(bottom - np.array([0.0, 0.0, 0.0, 1.0])) > 1e-6 * scale):
+    if np.abs(mats[..., 3, :] - _AFFINE_BOTTOM).max() > 1e-6 * max(1.0, largest):
         raise InputError("skinning matrices must be affine: bottom row 0 0 0 1")
     return mats
+
+
+_AFFINE_BOTTOM = np.array([0.0, 0.0, 0.0, 1.0])
 
 
 # --------------------------------------------------------------------------- dual quaternions
@@ -141,28 +143,22 @@ def _check_mats(mats, max_joint: int, *, frames: bool = False) -> np.ndarray:
 def dual_quaternions(mats) -> np.ndarray:
     """Unit dual quaternions (..., 8) = (qr.xyzw, qd.xyzw) of the rigid parts of mats (..., 4, 4).
 
-    The rotation is the nearest rotation to the 3x3 block, scale and shear
-    dropped: the block divided by det^(1/3) where that is a rotation to 1e-6
-    (a rotation times a uniform scale; float rounding left in), else its polar
-    factor (:func:`nrpose.skeleton.polar_rotation`). ``qd = 0.5 (t, 0) qr``
-    with t the translation column. Reflections (det <= 0) are rejected.
+    The rotation is the nearest rotation to the 3x3 block, scale and shear dropped: its
+    polar factor (:func:`nrpose.skeleton.polar_components`; a few Newton–Schulz steps for
+    the near-conformal float32 matrices of glTF characters: scipy's orthogonalising
+    from_matrix was ~40 % of a Mannequin DQS frame). ``qd = 0.5 (t, 0) qr`` with t the
+    translation column. Reflections (det <= 0) are rejected.
     """
     mats = np.asarray(mats, dtype=np.float64)
     lead = mats.shape[:-2]
     flat = mats.reshape(-1, 4, 4)
     lin = flat[:, :3, :3]
-    c0, c1, c2 = lin[:, :, 0], lin[:, :, 1], lin[:, :, 2]
-    det = np.einsum("ni,ni->n", c0, _cross(c1, c2))
+    C = np.ascontiguousarray(np.moveaxis(lin, 0, -1))                 # (3, 3, n) component-major
+    det = det_components(C)
     if np.any(det <= 0):
         raise InputError(f"{int(np.count_nonzero(det <= 0))} skinning matrices have a "
                          f"non-positive determinant (reflection or collapse); DQS needs rotations")
-    # rotation times a uniform scale (to 1e-6): the scaled block itself; otherwise its polar
-    # factor (Newton–Schulz for the near-conformal float32 matrices of glTF characters:
-    # scipy's orthogonalising from_matrix was ~40 % of a Mannequin DQS frame)
-    rot = lin / np.cbrt(det)[:, None, None]
-    exact = np.abs(np.matmul(rot.transpose(0, 2, 1), rot) - np.eye(3)).max(axis=(1, 2)) < 1e-6
-    if not exact.all():
-        rot[~exact] = polar_rotation(lin[~exact])
+    rot = np.moveaxis(polar_components(C, lin), -1, 0)
     qr = Rotation.from_matrix(rot, assume_valid=True).as_quat()
     t = flat[:, :3, 3]
     out = np.empty((len(flat), 8))
