@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import FileFormatError, InputError
-from .rotation import Rotation
+from .rotation import Rotation, unit_quaternions
 from .skeleton import LocalPose, Skeleton, _match_hint
 
 __all__ = ["Track", "Clip", "Mesh", "Character", "load_character", "load_pose", "parse_pose"]
@@ -205,10 +205,30 @@ def load_character(path: str | Path, skeleton: str | Path | None = None) -> Char
                           f".tgf or a mesh ({', '.join(tgf.MESH_SUFFIXES)}) with a skeleton")
 
 
+#: the most frames one call samples (an hour at 30 fps is 108,000 frames)
+MAX_FRAMES = 1_000_000
+
+
+def check_frame_count(count: float, what: str) -> None:
+    """InputError when ``count`` frames (``what`` asked for them) exceed :data:`MAX_FRAMES`."""
+    if count > MAX_FRAMES:
+        raise InputError(f"{what} asks for {count:.3g} frames, more than {MAX_FRAMES:,}; "
+                         f"pose the clip in parts or at a lower frame rate")
+
+
+def sample_times(duration: float, fps: float) -> np.ndarray:
+    """Times k / fps (seconds, float64) for 0 <= k / fps <= duration (at least the time 0)."""
+    if not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"fps must be a positive number, got {fps}")
+    count = np.floor(duration * fps + 1e-6) + 1
+    check_frame_count(count, f"{duration:g} s at {fps:g} fps")
+    return np.minimum(np.arange(int(count)) / fps, duration)
+
+
 def _vector(value, width: int, what: str) -> np.ndarray:
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         arr = np.zeros(0)
     if arr.shape != (width,) or not np.isfinite(arr).all():
         raise InputError(f"{what}: expected {width} finite numbers, got {value!r}")
@@ -230,10 +250,7 @@ def parse_pose(doc, skeleton: Skeleton, where: str = "pose") -> LocalPose:
             if name not in skeleton.names:
                 raise InputError(f"{where}: {key}: unknown joint {name!r}; {_match_hint(name, skeleton.names)}")
             field[skeleton.index(name)] = _vector(value, width, f"{where}: {key}[{name!r}]")
-    norms = np.linalg.norm(pose.rotation, axis=1)
-    if (norms < 1e-12).any():
-        raise InputError(f"{where}: rotation of {skeleton.names[int(np.argmin(norms))]!r} is a zero quaternion")
-    pose.rotation[:] /= norms[:, None]
+    pose.rotation[:] = unit_quaternions(pose.rotation, [f"{where}: rotation of {n!r}" for n in skeleton.names])
     return pose
 
 

@@ -72,6 +72,6 @@ def _numeric(value, what: str, expected: str, error: type[InputError]) -> np.nda
     try:
         arr = np.asarray(value)
         return arr.astype(np.float64) if arr.dtype.kind == "O" else arr
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise error(f"{what}: expected {expected}; got {type(value).__name__} that is not a "
                     f"numeric array") from None

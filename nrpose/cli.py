@@ -9,12 +9,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from .blend import BLENDS, LEVERS
 from .engine import BACKENDS, Deformer
+from .character import check_frame_count
 from .errors import NrposeError
 
 
@@ -142,6 +144,7 @@ def parse_frames(spec: str, fps: float) -> np.ndarray:
     if not (np.isfinite(fps) and fps > 0):
         raise NrposeError(f"--fps {fps}: expected a positive number")
     step = nums[2] if len(nums) == 3 else 1
+    check_frame_count((nums[1] - nums[0]) // step + 1, f"--frames {spec}")
     return np.arange(nums[0], nums[1] + 1, step) / fps
 
 
@@ -155,7 +158,7 @@ def _progress(done: int, total: int) -> None:
 
 
 def cmd_pose(args) -> None:
-    from .character import load_character, load_pose
+    from .character import load_character, load_pose, sample_times
     from .posing import CharacterPoser
 
     kind = _frames_output_kind(args.output)
@@ -182,7 +185,7 @@ def cmd_pose(args) -> None:
             raise NrposeError("give either --time or --frames, not both")
         times = (np.asarray(args.time, dtype=np.float64) if args.time
                  else parse_frames(args.frames, args.fps) if args.frames
-                 else np.arange(0.0, clip.duration + 1e-9, 1.0 / args.fps))
+                 else sample_times(clip.duration, args.fps))
         if kind == "glb" and (np.diff(times) <= 0).any():
             raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
                               "write .npz or a directory")
@@ -367,17 +370,24 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
-        args.func(args)
+        # the commands check their inputs and results for NaN and infinity themselves and say
+        # so in one line; numpy's floating-point warnings on the way would add lines to stderr
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            args.func(args)
     except _UsageError as exc:
-        print(exc, file=sys.stderr)
-        return 2
+        return _fail(str(exc))
     except NrposeError as exc:
-        print(f"nrpose: error: {exc}", file=sys.stderr)
-        return 2
+        return _fail(f"nrpose: error: {exc}")
     except OSError as exc:
-        print(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
+        return _fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
     return 0
+
+
+def _fail(message: str) -> int:
+    """The message on stderr as one line (a path may hold a newline), exit status 2."""
+    print(message.replace("\r", "\\r").replace("\n", "\\n"), file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":

@@ -106,7 +106,8 @@ class Pose:
             minimal = Rotation.from_rotvec(minimal_rotvec(d_rest[free], d_pose[free]))
             if (twist[free] != 0).any():
                 axis = d_pose[free] / np.linalg.norm(d_pose[free], axis=1, keepdims=True)
-                minimal = Rotation.from_rotvec(axis * twist[free, None]) * minimal
+                turn = np.remainder(twist[free, None] + np.pi, 2 * np.pi) - np.pi   # same rotation, any size
+                minimal = Rotation.from_rotvec(axis * turn) * minimal
             mats[free] = minimal.as_matrix()
         if given.any():
             idx = np.flatnonzero(given)
@@ -133,13 +134,11 @@ def _given_rotations(rotations, s: int) -> np.ndarray:
 
 def _rotation_matrices(values, idx: np.ndarray) -> np.ndarray:
     """Validate user rotation matrices (3x3, orthonormal, det +1) of segments ``idx``; re-orthonormalise."""
-    try:
-        m = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError):
-        m = None
-    if m is None or m.shape != (len(idx), 3, 3) or not np.isfinite(m).all():
-        bad = next((int(i) for i, v in zip(idx, values) if np.shape(v) != (3, 3)), int(idx[0]))
-        raise HandleError(f"segment {bad} rotation: expected a finite 3x3 matrix")
+    rows = [real_rows(v, f"segment {i} rotation", (3,), HandleError) for i, v in zip(idx, values)]
+    for i, r in zip(idx, rows):
+        if r.shape != (3, 3):
+            raise HandleError(f"segment {int(i)} rotation: expected a 3x3 matrix, got shape {r.shape}")
+    m = np.stack(rows)
     err = np.abs(np.einsum("sji,sjk->sik", m, m) - np.eye(3)).max(axis=(1, 2))
     bad = np.flatnonzero((err > 1e-4) | (np.linalg.det(m) <= 0))
     if len(bad):

@@ -5,17 +5,14 @@ import json
 from pathlib import Path
 
 from .errors import FileFormatError, NrposeError
+from .meshio import read_input_text
 
 
 def read_json(path: str | Path, what: str, error: type[NrposeError] = FileFormatError):
     """The parsed JSON document at ``path``; ``error`` naming ``what`` (e.g. "pose file")
     when the file cannot be read or is not valid JSON."""
-    path = Path(path)
+    text = read_input_text(path, what, error)
     try:
-        return json.loads(path.read_text())
-    except FileNotFoundError:
-        raise error(f"{path}: {what} not found") from None
-    except OSError as exc:
-        raise error(f"{path}: cannot read {what} ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        return json.loads(text)
+    except ValueError as exc:       # JSONDecodeError, and integers past Python's digit limit
         raise error(f"{path}: {what} is not valid JSON ({exc})") from None

@@ -72,7 +72,7 @@ from typing import Iterator
 import numpy as np
 
 from .checks import real_rows, triangles
-from .errors import FileFormatError, InputError
+from .errors import FileFormatError, InputError, NrposeError
 
 __all__ = ["Geometry", "read_geometry", "write_geometry", "atomic_path", "SUFFIXES"]
 
@@ -104,6 +104,30 @@ def _umask() -> int:
 
 
 _UMASK = _umask()
+
+
+def read_input(path, what: str, error: type[NrposeError] = FileFormatError) -> bytes:
+    """The bytes of the input file ``path``, a ``what`` (e.g. "BVH file"); ``error`` naming
+    the problem when it does not exist, is not a regular file (a directory, or a FIFO, whose
+    read would wait for a writer) or cannot be read."""
+    path = Path(path)
+    if not path.exists():
+        raise error(f"{path}: no such file; check the path to the {what}")
+    if not path.is_file():
+        raise error(f"{path}: not a regular file; give a {what}")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror}); check its permissions") from None
+
+
+def read_input_text(path, what: str, error: type[NrposeError] = FileFormatError) -> str:
+    """:func:`read_input` decoded as UTF-8 text."""
+    data = read_input(path, what, error)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise error(f"{path}: not a text {what} ({exc.reason} at byte {exc.start})") from None
 
 
 def check_writable(path) -> Path:
@@ -140,8 +164,8 @@ def atomic_path(path) -> Iterator[Path]:
     # suffix: the full extension, so writers that infer the format from it work
     suffix = "".join(path.suffixes[-2:]) if path.name.endswith(".tar.gz") else path.suffix
     try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=f".tmp{suffix}",
-                                        dir=directory)
+        # a short name: any name legal for `path` (up to 255 bytes) leaves room for it
+        fd, tmp_name = tempfile.mkstemp(prefix=".nrpose-", suffix=f".tmp{suffix}", dir=directory)
     except OSError as exc:
         raise InputError(f"{path}: cannot write in {directory} ({exc.strerror}); "
                          f"choose a writable directory") from None
@@ -170,14 +194,7 @@ def read_geometry(path) -> Geometry:
     if suffix not in SUFFIXES:
         raise FileFormatError(f"{path}: unknown geometry extension {suffix or '(none)'!r}; "
                               f"{_SUPPORTED}")
-    if not path.exists():
-        raise FileFormatError(f"{path}: no such file; check the path")
-    if not path.is_file():
-        raise FileFormatError(f"{path}: not a regular file; give a {suffix} file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read ({exc.strerror}); check its permissions") from None
+    data = read_input(path, f"{suffix} file")
     if not data.strip():
         raise FileFormatError(f"{path}: file is empty; give a {suffix} file with vertices")
     reader = {".obj": _read_obj, ".ply": _read_ply, ".off": _read_off,
@@ -186,7 +203,7 @@ def read_geometry(path) -> Geometry:
         V, F = reader(data)
     except _Bad as exc:
         raise FileFormatError(f"{path}: {exc}") from None
-    except (ValueError, IndexError, struct.error, UnicodeDecodeError) as exc:
+    except (ValueError, IndexError, OverflowError, struct.error, UnicodeDecodeError) as exc:
         raise FileFormatError(f"{path}: corrupt or not a {suffix} file ({exc}); "
                               f"re-export it") from None
     return _check_read(path, V, F)
@@ -559,10 +576,10 @@ class _PlyAscii:
         for _ in range(count):
             for p in props:
                 if len(p) == 3:
-                    k = int(float(self._take(1, name)[0]))
+                    k = _whole(self._take(1, name)[0], f"{name} list length")
                     vals = self._take(k, name)
                     if p[0] in gathered:
-                        gathered[p[0]].append([int(v) for v in vals])
+                        gathered[p[0]].append([_whole(v, f"{name} vertex index") for v in vals])
                 else:
                     v = self._take(1, name)[0]
                     if p[0] in gathered:
@@ -575,9 +592,20 @@ def props_is_list(props, key) -> bool:
     return any(p[0] == key and len(p) == 3 for p in props)
 
 
+def _whole(token, what: str) -> int:
+    """An ASCII PLY integer (written as 3 or 3.0); _Bad for 4.5."""
+    value = float(token)
+    if value != int(value):
+        raise _Bad(f"{what} {token!r} is not a whole number")
+    return int(value)
+
+
 def _poly_block(block: np.ndarray, name: str) -> np.ndarray:
     if block.shape[1] < 3:
         raise _Bad(f"{name} lists need at least 3 vertex indices, found {block.shape[1]}")
+    broken = np.flatnonzero(~(block == np.round(block)).all(axis=1))
+    if len(broken):
+        raise _Bad(f"{name} {int(broken[0])} has a vertex index that is not a whole number")
     return _fan_block(block.astype(np.int64))
 
 

@@ -111,7 +111,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .character import Character, Clip, Track
+from .character import Character, Clip, Track, sample_times
 from .errors import FileFormatError, InputError
 from .rotation import Rotation, kabsch, minimal_rotvec
 from .skeleton import LocalPose, Skeleton, _match_hint, polar_rotation
@@ -666,14 +666,6 @@ def _continuous(q: np.ndarray) -> np.ndarray:
         flip = np.cumsum(np.r_[0, (np.sum(q[1:] * q[:-1], axis=1) < 0)]) % 2 == 1
         q[flip] *= -1
     return q
-
-
-def sample_times(duration: float, fps: float) -> np.ndarray:
-    """Times k / fps for 0 <= k / fps <= duration (at least the time 0)."""
-    if not (np.isfinite(fps) and fps > 0):
-        raise InputError(f"fps must be a positive number, got {fps}")
-    n = int(np.floor(duration * fps + 1e-6)) + 1
-    return np.minimum(np.arange(n) / fps, duration)
 
 
 def _check_motion(source: Character, clip: Clip, m: dict[int, int]) -> None:

@@ -18,8 +18,27 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["Rotation", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "covariance_rotation",
+from .errors import InputError
+
+__all__ = ["Rotation", "unit_quaternions", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "covariance_rotation",
            "relative_rotvec_table"]
+
+
+def unit_quaternions(q: np.ndarray, labels, error: type[InputError] = InputError) -> np.ndarray:
+    """Finite quaternions q (n, 4) scaled to unit length, float64 (n, 4), a new array.
+
+    Each row is divided by its largest |entry| before its norm is taken, so that entries
+    near the float64 limit (1e308) do not overflow. labels: n names for the message
+    (``labels[i]`` is a zero quaternion) raised as ``error`` where a norm is under 1e-12.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    big = np.abs(q).max(axis=1, initial=0.0)
+    scaled = q / np.where(big > 0, big, 1.0)[:, None]
+    n = np.linalg.norm(scaled, axis=1)                    # in [1, 2] unless the row is zero
+    zero = big * n < 1e-12
+    if zero.any():
+        raise error(f"{labels[int(np.argmax(zero))]} is a zero quaternion; give a unit (or non-zero) quaternion")
+    return scaled / n[:, None]
 
 
 def minimal_rotvec(a: np.ndarray, b: np.ndarray, opposite: str = "zero") -> np.ndarray:

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import InputError
-from .rotation import Rotation
+from .rotation import Rotation, unit_quaternions
 
 __all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components",
            "det_components"]
@@ -218,10 +218,11 @@ class Skeleton:
             if key != "tips" and not np.isfinite(arr).all():
                 raise InputError(f"skeleton {key}: contains NaN or infinite values")
             object.__setattr__(self, key, arr)
-        norms = np.linalg.norm(self.rotation, axis=1)
-        if (norms < 1e-12).any():
-            raise InputError(f"skeleton rotation of joint {names[int(np.argmin(norms))]!r} is a zero quaternion")
-        self.rotation[:] /= norms[:, None]
+        flat = np.flatnonzero((np.abs(self.scale) < 1e-12).any(axis=1))
+        if len(flat):
+            raise InputError(f"skeleton scale of joint {names[int(flat[0])]!r} is {self.scale[flat[0]].tolist()}: "
+                             f"a zero scale flattens the joint's frame (no inverse bind); give non-zero scales")
+        self.rotation[:] = unit_quaternions(self.rotation, [f"skeleton rotation of joint {n!r}" for n in names])
         deform = np.ones(J, bool) if self.deform is None else np.asarray(self.deform, dtype=bool)
         if deform.shape != (J,):
             raise InputError(f"skeleton deform: expected shape ({J},), got {deform.shape}")

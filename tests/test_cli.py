@@ -75,6 +75,11 @@ BAD_HANDLES = {
     "shape": json.dumps({"points": [{"rest": [0, 0], "pose": [0, 0, 0]}]}),
     "bad rotation": json.dumps({"segments": [{"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [0, 1, 0]],
                                               "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}),
+    # found by fuzzing the CLI (twenty-first session): each was a traceback
+    "ragged rotation": json.dumps({"segments": [{"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [0, 1, 0]],
+                                                 "rotation": [[1, 0, 0], [0, 1], [0, 0, 1]]}]}),
+    "400-digit number": '{"points": [{"rest": [' + "9" * 400 + ', 0, 0], "pose": [0, 0, 0]}]}',
+    "5000-digit number": '{"points": [{"rest": [' + "9" * 5000 + ', 0, 0], "pose": [0, 0, 0]}]}',
 }
 
 
@@ -105,6 +110,38 @@ def test_deform_bad_inputs_exit_2(cylinder_case, tmp_path, capsys):
         code, _, err = run(args, capsys)
         assert code == 2 and err.count("\n") == 1, (args, err)
         assert not (tmp_path / "o.obj").exists()
+
+
+def test_deform_odd_inputs_and_outputs(cylinder_case, tmp_path, capsys):
+    """Fuzzing finds (twenty-first session): a FIFO as input (its read would wait for a
+    writer), a PLY face index 1.5 or an OBJ one of 23 digits, a path with a newline, a
+    twist of 1e300 (a rotation like any other), and an output name of 240 characters,
+    legal, whose temporary name used to be too long."""
+    import os
+    mesh, handles = cylinder_case[:2]
+    fifo = tmp_path / "h.json"
+    os.mkfifo(fifo)
+    frac = tmp_path / "frac.ply"
+    frac.write_text("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                    "property float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n"
+                    "0 0 0\n1 0 0\n0 1 0\n3 0 1.5 2\n")
+    big = tmp_path / "big.obj"
+    big.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999999999999999999999\n")
+    odd = tmp_path / "a\nb.obj"
+    for args, needle in ((["deform", mesh, "-H", fifo, "-o", tmp_path / "o.obj"], "not a regular file"),
+                         (["deform", frac, "-H", handles, "-o", tmp_path / "o.obj"], "not a whole number"),
+                         (["deform", big, "-H", handles, "-o", tmp_path / "o.obj"], "big.obj"),
+                         (["deform", odd, "-H", handles, "-o", tmp_path / "o.obj"], "a\\nb.obj")):
+        code, _, err = run(args, capsys)
+        assert code == 2 and err.count("\n") == 1 and needle in err, (args, err)
+        assert not (tmp_path / "o.obj").exists()
+    twist = tmp_path / "twist.json"
+    twist.write_text(json.dumps({"segments": [{"rest": [[0, 0, 0], [0, 0, 1]], "pose": [[0, 0, 0], [0, 0, 1]],
+                                               "twist": 1e300}]}))
+    long_name = tmp_path / ("a" * 236 + ".obj")
+    code, _, err = run(["deform", mesh, "-H", twist, "-o", long_name], capsys)
+    assert code == 0 and np.isfinite(read_geometry(long_name).vertices).all(), err
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
 
 
 def test_console_script_runs_as_module(cylinder_case, tmp_path):
@@ -150,7 +187,10 @@ def test_pose_errors_exit_2_nothing_written(tmp_path, capsys):
              (["pose", fox, "--clip", "Jump", "-o", tmp_path / "o.npz"], "Survey"),
              (["pose", fox, "--pose", bad, "-o", tmp_path / "o.npz"], "b_Hip_01"),
              (["pose", truncated, "--rest", "-o", tmp_path / "o.npz"], "fox.glb"),
-             (["pose", fox, "--clip", "Run", "--frames", "5:2", "-o", tmp_path / "o.npz"], "frames")]
+             (["pose", fox, "--clip", "Run", "--frames", "5:2", "-o", tmp_path / "o.npz"], "frames"),
+             (["pose", fox, "--clip", "Run", "--frames", "0:99999999999999999999", "-o", tmp_path / "o.npz"],
+              "more than 1,000,000"),
+             (["pose", fox, "--clip", "Run", "--fps", "1e9", "-o", tmp_path / "o.npz"], "more than 1,000,000")]
     for args, needle in cases:
         code, _, err = run(args, capsys)
         assert code == 2 and err.count("\n") == 1 and needle in err, (args, err)

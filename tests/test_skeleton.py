@@ -80,6 +80,11 @@ def test_invalid_skeletons_and_unknown_names():
         Skeleton(("a", "a"), [-1, 0], np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), np.ones((2, 3)))
     with pytest.raises(InputError, match="zero quaternion"):
         make([-1], np.zeros((1, 3)), rotation=np.zeros((1, 4)))
+    with pytest.raises(InputError, match=r"scale of joint 'j1' is \[1.0, 0.0, 1.0\]: a zero scale"):
+        Skeleton(("j0", "j1"), [-1, 0], np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), [[1, 1, 1], [1, 0, 1]])
+    # quaternions near the float64 limit normalise without overflow
+    huge = make([-1, 0], np.zeros((2, 3)), rotation=[[1e308, 1e308, 0, 0], [0, 0, 0, 1e-6]])
+    np.testing.assert_allclose(huge.rotation, [[0.5 ** 0.5, 0.5 ** 0.5, 0, 0], [0, 0, 0, 1]], atol=1e-15)
     skel = Skeleton(("LeftArm", "LeftForeArm", "RightArm"), [-1, 0, -1], np.zeros((3, 3)),
                     np.tile(IDENTITY, (3, 1)), np.ones((3, 3)))
     assert skel.index("RightArm") == 2

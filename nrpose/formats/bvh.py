@@ -21,6 +21,7 @@ import numpy as np
 
 from ..character import Clip, Track
 from ..errors import FileFormatError, InputError
+from ..meshio import read_input_text
 from ..rotation import Rotation
 from ..skeleton import Skeleton
 
@@ -173,10 +174,7 @@ def _is_float(text: str) -> bool:
 def read_bvh(path: str | Path) -> tuple[Skeleton, Clip]:
     """Skeleton (J joints, file order) and its motion clip from a BVH file."""
     path = Path(path)
-    try:
-        lines = path.read_text().splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: cannot read BVH ({exc})") from None
+    lines = read_input_text(path, "BVH file").splitlines()
     motion = next((i for i, line in enumerate(lines) if line.strip() == "MOTION"), None)
     if motion is None:
         raise FileFormatError(f"{path}: no MOTION section")

@@ -40,6 +40,7 @@ import pygltflib
 
 from ..character import Character, Clip, Mesh, Track
 from ..errors import FileFormatError, InputError
+from ..meshio import read_input
 from ..rotation import Rotation
 from ..skeleton import Skeleton, local_matrices, polar_rotation
 
@@ -81,10 +82,7 @@ def _read_glb(path: Path, data: bytes) -> tuple[str, bytes | None]:
 
 def _read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
     """The parsed glTF and the bytes of each of its buffers."""
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read ({exc.strerror})") from None
+    data = read_input(path, f"{path.suffix} file")
     if path.suffix.lower() == ".glb":
         text, blob = _read_glb(path, data)
     else:
@@ -138,6 +136,9 @@ class _Accessors:
         if not 0 <= view.buffer < len(self.buffers):
             raise self._error(f"bufferView {index}: buffer {view.buffer} does not exist")
         start, length = view.byteOffset or 0, view.byteLength
+        if start < 0 or length is None or length < 0 or (offset or 0) < 0 or count < 0 \
+                or (view.byteStride or 0) < 0:
+            raise self._error(f"{what}: negative count, offset, length or stride in bufferView {index}")
         if start + length > len(self.buffers[view.buffer]):
             raise self._error(f"bufferView {index}: bytes {start}..{start + length} are beyond "
                               f"buffer {view.buffer} ({len(self.buffers[view.buffer])} bytes)")
@@ -158,6 +159,8 @@ class _Accessors:
             raise self._error(f"accessor {index} does not exist")
         acc = accessors[index]
         what = f"accessor {index}"
+        if acc.count is None or acc.count < 0:
+            raise self._error(f"{what}: count {acc.count} is not a non-negative integer")
         if acc.componentType not in COMPONENTS or acc.type not in WIDTHS:
             raise self._error(f"{what}: unsupported componentType {acc.componentType} / type {acc.type}")
         dtype, width = COMPONENTS[acc.componentType], WIDTHS[acc.type]
@@ -191,7 +194,12 @@ class _Accessors:
 def _trs(path: Path, index: int, node) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Local translation (3,), rotation (4,) xyzw and scale (3,) of a node."""
     if node.matrix is not None:
-        M = np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T
+        try:
+            M = np.asarray(node.matrix, dtype=np.float64).reshape(4, 4).T
+        except (TypeError, ValueError, OverflowError):
+            M = None
+        if M is None or not np.isfinite(M).all():
+            raise FileFormatError(f"{path}: node {index} matrix: expected 16 finite numbers")
         R = polar_rotation(M[:3, :3])
         S = np.diag(R.T @ M[:3, :3])
         if not np.allclose(R * S, M[:3, :3], atol=1e-6 * max(np.abs(M[:3, :3]).max(), 1e-12)) \

@@ -27,6 +27,8 @@ import numpy as np
 
 from ..checks import real_rows, triangles
 from ..errors import FileFormatError, InputError
+from ..meshio import read_input_text
+from ..rotation import unit_quaternions
 from ..skeleton import LocalPose, Skeleton
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
@@ -37,10 +39,7 @@ MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
 
 def _tgf_sections(path: Path) -> tuple[list[tuple[int, list[str]]], list[tuple[int, list[str]]]]:
     """Joint and bone lines as (line number, fields)."""
-    try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: cannot read TGF ({exc})") from None
+    text = read_input_text(path, "TGF file")
     sections: list[list[tuple[int, list[str]]]] = [[]]
     for number, line in enumerate(text.splitlines(), start=1):
         fields = line.split()
@@ -133,9 +132,9 @@ def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
         raise FileFormatError(f"{path}: expected {J} quaternions (a column of {4 * J} values), "
                               f"got a {Q.shape} matrix")
     quats = Q.reshape(J, 4)
-    norms = np.linalg.norm(quats, axis=1)
-    if not np.isfinite(quats).all() or (norms < 1e-12).any():
-        raise FileFormatError(f"{path}: quaternions must be finite and non-zero")
+    if not np.isfinite(quats).all():
+        raise FileFormatError(f"{path}: quaternions must be finite")
+    quats = unit_quaternions(quats, [f"{path}: quaternion {k}" for k in range(J)], FileFormatError)
     try:
         bone_of_joint = [int(n[4:]) for n in skeleton.names if n.startswith("bone")]
     except ValueError:
@@ -143,7 +142,7 @@ def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
     if sorted(bone_of_joint) != list(range(J)):
         raise InputError("a DMAT pose needs a skeleton read from TGF (joints named bone0, bone1, ...)")
     pose = skeleton.rest_pose
-    pose.rotation[:] = quats[bone_of_joint] / norms[bone_of_joint, None]
+    pose.rotation[:] = quats[bone_of_joint]
     return pose
 
 
