@@ -169,6 +169,8 @@ def cmd_pose(args) -> None:
     _check_outputs(args.output if kind != "dir" else None, None, args.png)
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise NrposeError(f"--fps {args.fps}: expected a positive number of frames per second")
+    if (args.rest or args.pose) and (args.time or args.frames):
+        raise NrposeError("--time and --frames sample a clip; with --rest or --pose there is one frame: drop them")
     character = load_character(args.character, args.skeleton)
     skel = character.skeleton
     if args.rest:

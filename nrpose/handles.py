@@ -188,8 +188,10 @@ def _entries(doc: dict, key: str, where: str, allowed: set[str]) -> list[dict]:
 def check_alpha(alpha) -> float:
     """Validate the weight exponent α (> 0, finite)."""
     try:
+        if isinstance(alpha, (bool, np.bool_)):
+            raise TypeError("a truth value is not an exponent")
         a = float(alpha)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise HandleError(f"alpha must be a number, got {alpha!r}") from None
     if not (math.isfinite(a) and a > 0):
         raise HandleError(f"alpha must be positive and finite, got {alpha!r}")

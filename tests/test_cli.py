@@ -79,6 +79,7 @@ BAD_HANDLES = {
     "ragged rotation": json.dumps({"segments": [{"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [0, 1, 0]],
                                                  "rotation": [[1, 0, 0], [0, 1], [0, 0, 1]]}]}),
     "400-digit number": '{"points": [{"rest": [' + "9" * 400 + ', 0, 0], "pose": [0, 0, 0]}]}',
+    "alpha true": json.dumps({"alpha": True, "points": [{"rest": [0, 0, 0], "pose": [0, 0, 1]}]}),
     "5000-digit number": '{"points": [{"rest": [' + "9" * 5000 + ', 0, 0], "pose": [0, 0, 0]}]}',
 }
 
@@ -190,7 +191,8 @@ def test_pose_errors_exit_2_nothing_written(tmp_path, capsys):
              (["pose", fox, "--clip", "Run", "--frames", "5:2", "-o", tmp_path / "o.npz"], "frames"),
              (["pose", fox, "--clip", "Run", "--frames", "0:99999999999999999999", "-o", tmp_path / "o.npz"],
               "more than 1,000,000"),
-             (["pose", fox, "--clip", "Run", "--fps", "1e9", "-o", tmp_path / "o.npz"], "more than 1,000,000")]
+             (["pose", fox, "--clip", "Run", "--fps", "1e9", "-o", tmp_path / "o.npz"], "more than 1,000,000"),
+             (["pose", fox, "--rest", "--time", "1", "-o", tmp_path / "o.npz"], "--rest or --pose")]
     for args, needle in cases:
         code, _, err = run(args, capsys)
         assert code == 2 and err.count("\n") == 1 and needle in err, (args, err)
