@@ -212,8 +212,9 @@ MAX_FRAMES = 1_000_000
 def check_frame_count(count: float, what: str) -> None:
     """InputError when ``count`` frames (``what`` asked for them) exceed :data:`MAX_FRAMES`."""
     if count > MAX_FRAMES:
-        raise InputError(f"{what} asks for {count:.3g} frames, more than {MAX_FRAMES:,}; "
-                         f"pose the clip in parts or at a lower frame rate")
+        raise InputError(f"{what} asks for {float(min(count, 1e300)):.3g} frames, more than {MAX_FRAMES:,}; "
+                         f"sample fewer (a shorter range, a larger step or a lower frame rate) or pose the "
+                         f"clip in parts")
 
 
 def sample_times(duration: float, fps: float) -> np.ndarray:

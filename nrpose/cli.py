@@ -9,7 +9,6 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -267,7 +266,7 @@ def _write_frames(out: str, frames, times: np.ndarray, fmt: str, character) -> N
         import tempfile
 
         path.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", dir=path.parent))
+        tmp = Path(tempfile.mkdtemp(prefix=".nrpose-", dir=path.parent))
         try:
             for f, pos in enumerate(frames.positions):
                 write_geometry(tmp / f"frame_{f:04d}.{fmt}", pos, frames.faces)
@@ -374,8 +373,8 @@ def main(argv=None) -> int:
         args = build_parser().parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
         # so in one line; numpy's floating-point warnings on the way would add lines to stderr
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
+        # (nrpose's own warnings, e.g. a binding cache not written, still show)
+        with np.errstate(all="ignore"):
             args.func(args)
     except _UsageError as exc:
         return _fail(str(exc))

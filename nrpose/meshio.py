@@ -63,6 +63,7 @@ from __future__ import annotations
 import contextlib
 import os
 import re
+import stat
 import struct
 import tempfile
 from dataclasses import dataclass
@@ -111,9 +112,13 @@ def read_input(path, what: str, error: type[NrposeError] = FileFormatError) -> b
     the problem when it does not exist, is not a regular file (a directory, or a FIFO, whose
     read would wait for a writer) or cannot be read."""
     path = Path(path)
-    if not path.exists():
-        raise error(f"{path}: no such file; check the path to the {what}")
-    if not path.is_file():
+    try:
+        mode = path.stat().st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        raise error(f"{path}: no such file; check the path to the {what}") from None
+    except OSError as exc:
+        raise error(f"{path}: cannot read the {what} ({exc.strerror}); check the path") from None
+    if not stat.S_ISREG(mode):
         raise error(f"{path}: not a regular file; give a {what}")
     try:
         return path.read_bytes()
@@ -122,12 +127,13 @@ def read_input(path, what: str, error: type[NrposeError] = FileFormatError) -> b
 
 
 def read_input_text(path, what: str, error: type[NrposeError] = FileFormatError) -> str:
-    """:func:`read_input` decoded as UTF-8 text."""
+    """:func:`read_input` decoded as UTF-8 text (a byte-order mark dropped)."""
     data = read_input(path, what, error)
     try:
-        return data.decode("utf-8")
+        return data.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise error(f"{path}: not a text {what} ({exc.reason} at byte {exc.start})") from None
+        raise error(f"{path}: the {what} is not UTF-8 text ({exc.reason} at byte {exc.start}); "
+                    f"re-save it as UTF-8") from None
 
 
 def check_writable(path) -> Path:

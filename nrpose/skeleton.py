@@ -218,7 +218,7 @@ class Skeleton:
             if key != "tips" and not np.isfinite(arr).all():
                 raise InputError(f"skeleton {key}: contains NaN or infinite values")
             object.__setattr__(self, key, arr)
-        flat = np.flatnonzero((np.abs(self.scale) < 1e-12).any(axis=1))
+        flat = np.flatnonzero((self.scale == 0).any(axis=1))
         if len(flat):
             raise InputError(f"skeleton scale of joint {names[int(flat[0])]!r} is {self.scale[flat[0]].tolist()}: "
                              f"a zero scale flattens the joint's frame (no inverse bind); give non-zero scales")

@@ -192,7 +192,8 @@ def test_pose_errors_exit_2_nothing_written(tmp_path, capsys):
              (["pose", fox, "--clip", "Run", "--frames", "0:99999999999999999999", "-o", tmp_path / "o.npz"],
               "more than 1,000,000"),
              (["pose", fox, "--clip", "Run", "--fps", "1e9", "-o", tmp_path / "o.npz"], "more than 1,000,000"),
-             (["pose", fox, "--rest", "--time", "1", "-o", tmp_path / "o.npz"], "--rest or --pose")]
+             (["pose", fox, "--rest", "--time", "1", "-o", tmp_path / "o.npz"], "--rest or --pose"),
+             (["pose", fox, "--clip", "Run", "--frames", "0:" + "9" * 400, "-o", tmp_path / "o.npz"], "1e+300")]
     for args, needle in cases:
         code, _, err = run(args, capsys)
         assert code == 2 and err.count("\n") == 1 and needle in err, (args, err)

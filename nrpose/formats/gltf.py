@@ -107,10 +107,7 @@ def _read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
             except (IndexError, ValueError):
                 raise FileFormatError(f"{path}: buffer {i} has a malformed data: URI") from None
         else:
-            try:
-                content = (path.parent / urllib.parse.unquote(buf.uri)).read_bytes()
-            except OSError as exc:
-                raise FileFormatError(f"{path}: buffer {i}: cannot read {buf.uri!r} ({exc.strerror})") from None
+            content = read_input(path.parent / urllib.parse.unquote(buf.uri), f"buffer {i} of {path}")
         if buf.byteLength is None or len(content) < buf.byteLength:
             raise FileFormatError(f"{path}: buffer {i} holds {len(content)} bytes, "
                                   f"byteLength says {buf.byteLength}")
@@ -136,6 +133,8 @@ class _Accessors:
         if not 0 <= view.buffer < len(self.buffers):
             raise self._error(f"bufferView {index}: buffer {view.buffer} does not exist")
         start, length = view.byteOffset or 0, view.byteLength
+        if length is None:
+            raise self._error(f"bufferView {index} has no byteLength (it is required)")
         if start < 0 or length is None or length < 0 or (offset or 0) < 0 or count < 0 \
                 or (view.byteStride or 0) < 0:
             raise self._error(f"{what}: negative count, offset, length or stride in bufferView {index}")
