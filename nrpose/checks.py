@@ -67,6 +67,15 @@ def triangles(faces, n_vertices: int, what: str = "faces", error: type[InputErro
     return arr.astype(np.int64, copy=False)
 
 
+def within_float32(values: np.ndarray, what: str) -> None:
+    """InputError when a finite float64 value lies beyond float32's range (±3.4e38): a
+    float32 file would hold it as infinity. values: any float array; what: its name."""
+    big, largest = float(np.abs(values).max(initial=0.0)), float(np.finfo(np.float32).max)
+    if big > largest:
+        raise InputError(f"{what}: a value of magnitude {big:.3g} does not fit the file's float32 numbers "
+                         f"(largest {largest:.3g}); scale the data down")
+
+
 def _numeric(value, what: str, expected: str, error: type[InputError]) -> np.ndarray:
     """np.asarray(value), object arrays of numbers turned to float64; ``error`` if not an array."""
     try:

@@ -25,7 +25,7 @@ from typing import Sequence
 import numpy as np
 import pygltflib
 
-from .checks import real_rows, triangles
+from .checks import real_rows, triangles, within_float32
 from .errors import InputError
 from .meshio import atomic_path
 
@@ -151,6 +151,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     meshes = _mesh_list(character_or_meshes)
     sizes = [len(V) for _, V, _ in meshes]
     P, T = _check(positions, times, sum(sizes) if mesh_offsets is None else 0)
+    within_float32(P, "positions")
     starts = _offsets(mesh_offsets, sizes, P.shape[1])
     n_frames = len(T)
 

@@ -72,7 +72,7 @@ from typing import Iterator
 
 import numpy as np
 
-from .checks import real_rows, triangles
+from .checks import real_rows, triangles, within_float32
 from .errors import FileFormatError, InputError, NrposeError
 
 __all__ = ["Geometry", "read_geometry", "write_geometry", "atomic_path", "SUFFIXES"]
@@ -233,6 +233,8 @@ def write_geometry(path, vertices, faces=None) -> None:
     if suffix == ".stl" and not len(F):
         raise InputError(f"{path}: STL stores triangles only, not a point cloud; "
                          f"write .ply or .xyz")
+    if suffix == ".stl":
+        within_float32(V, f"{path}: vertices")
     writer = {".obj": _write_obj, ".ply": _write_ply, ".off": _write_off,
               ".stl": _write_stl, ".xyz": _write_xyz}[suffix]
     with atomic_path(path) as tmp:

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
+from .checks import within_float32
 from .errors import InputError, NrposeError
 from .meshio import check_writable
 
@@ -176,6 +177,7 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
     for track in clip.tracks:
         if track.interpolation == "CUBICSPLINE":
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
+        within_float32(track.values, f"retargeted {track.path} track of joint {track.joint}")
         key = track.times.tobytes()
         if key not in inputs:
             inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)

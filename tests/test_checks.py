@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from nrpose.checks import real_rows, triangles
+from nrpose.checks import real_rows, triangles, within_float32
 from nrpose.errors import HandleError, InputError
 
 
@@ -94,3 +94,10 @@ def test_triangles_error_class_and_fix():
     from nrpose.errors import FileFormatError
     with pytest.raises(FileFormatError, match=r"m\.obj: faces: .*; re-export it"):
         triangles([[0, 1, 7]], 4, "m.obj: faces", FileFormatError, "re-export it")
+
+
+def test_within_float32_refuses_what_a_float32_file_would_hold_as_infinity():
+    within_float32(np.array([[3.4e38, -3.4e38, 0.0]]), "v")
+    within_float32(np.zeros((0, 3)), "v")
+    with pytest.raises(InputError, match=r"v: a value of magnitude 1e\+39 does not fit the file's float32"):
+        within_float32(np.array([[0.0, -1e39, 0.0]]), "v")

@@ -423,6 +423,8 @@ def test_write_refuses_lossy_or_unknown(tmp_path, mesh):
         write_geometry(tmp_path / "o.xyz", V, F)
     with pytest.raises(InputError, match="STL stores triangles only"):
         write_geometry(tmp_path / "o.stl", V)
+    with pytest.raises(InputError, match=r"o\.stl: vertices: a value of magnitude 1e\+39 does not fit"):
+        write_geometry(tmp_path / "o.stl", V * 0 + [[1e39, 0, 0]], F)     # float32 STL: inf
     with pytest.raises(FileFormatError, match=r"unknown geometry extension '\.fbx'"):
         write_geometry(tmp_path / "o.fbx", V, F)
     with pytest.raises(InputError, match="does not exist"):
