@@ -134,10 +134,11 @@ def _given_rotations(rotations, s: int) -> np.ndarray:
 
 def _rotation_matrices(values, idx: np.ndarray) -> np.ndarray:
     """Validate user rotation matrices (3x3, orthonormal, det +1) of segments ``idx``; re-orthonormalise."""
-    rows = [real_rows(v, f"segment {i} rotation", (3,), HandleError) for i, v in zip(idx, values)]
-    for i, r in zip(idx, rows):
-        if r.shape != (3, 3):
-            raise HandleError(f"segment {int(i)} rotation: expected a 3x3 matrix, got shape {r.shape}")
+    rows = []
+    for i, v in zip(idx, values):
+        rows.append(real_rows(v, f"segment {int(i)} rotation", (3,), HandleError))
+        if rows[-1].shape != (3, 3):
+            raise HandleError(f"segment {int(i)} rotation: expected a 3x3 matrix, got shape {rows[-1].shape}")
     m = np.stack(rows)
     err = np.abs(np.einsum("sji,sjk->sik", m, m) - np.eye(3)).max(axis=(1, 2))
     bad = np.flatnonzero((err > 1e-4) | (np.linalg.det(m) <= 0))

@@ -148,12 +148,11 @@ def polar_components(C: np.ndarray, flat: np.ndarray | None = None) -> np.ndarra
     if every:
         return Y
     X[..., near] = Y
-    if not near.all():
-        flat = np.moveaxis(C, -1, 0) if flat is None else flat
-        U, _, Vt = np.linalg.svd(flat[~near])
-        d = np.sign(np.linalg.det(U @ Vt))
-        U[..., :, 2] *= d[..., None]
-        X[..., ~near] = np.moveaxis(U @ Vt, 0, -1)
+    flat = np.moveaxis(C, -1, 0) if flat is None else flat
+    U, _, Vt = np.linalg.svd(flat[~near])
+    d = np.sign(np.linalg.det(U @ Vt))
+    U[..., :, 2] *= d[..., None]
+    X[..., ~near] = np.moveaxis(U @ Vt, 0, -1)
     return X
 
 

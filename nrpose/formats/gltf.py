@@ -135,7 +135,7 @@ class _Accessors:
         start, length = view.byteOffset or 0, view.byteLength
         if length is None:
             raise self._error(f"bufferView {index} has no byteLength (it is required)")
-        if start < 0 or length is None or length < 0 or (offset or 0) < 0 or count < 0 \
+        if start < 0 or length < 0 or (offset or 0) < 0 or count < 0 \
                 or (view.byteStride or 0) < 0:
             raise self._error(f"{what}: negative count, offset, length or stride in bufferView {index}")
         if start + length > len(self.buffers[view.buffer]):
