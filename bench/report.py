@@ -1,14 +1,16 @@
-"""Render the committed benchmark results into bench/README.md.
+"""Render the committed benchmark results into bench/README.md and the project README.
 
     python bench/report.py [--table1 results/table1.json] [--suites results/suites.json]
-                           [--readme bench/README.md]
+                           [--readme bench/README.md] [--manual README.md]
 
-Replaces the text between ``<!-- results -->`` / ``<!-- /results -->`` (from the
-Table-1 document) and ``<!-- suites-results -->`` / ``<!-- /suites-results -->``
-(from the suites document) with tables of their figures, so that the README
-quotes exactly what the JSON holds. Everything outside the markers (method,
-observations) is left alone. Writes atomically; exits 2 with one line on a
-missing or malformed document.
+In bench/README.md, replaces the text between ``<!-- results -->`` /
+``<!-- /results -->`` (from the Table-1 document) and ``<!-- suites-results -->`` /
+``<!-- /suites-results -->`` (from the suites document) with tables of their
+figures; in the project README (the user manual), the text between
+``<!-- readme-results -->`` / ``<!-- /readme-results -->`` with one summary table
+of the suites document. So the docs quote exactly what the JSON holds; everything
+outside the markers is left alone. Writes atomically; exits 2 with one line on a
+missing or malformed document or missing markers.
 """
 from __future__ import annotations
 
@@ -153,6 +155,42 @@ def suites_block(doc: dict) -> str:
     return "\n".join(out)
 
 
+def manual_block(doc: dict) -> str:
+    """Markdown for the user manual: one table of the suites document's Table-1 rows."""
+    s = doc["suites"]
+    env = doc.get("environment", {})
+    roof = {f"{r['model']}/{r['kind']}": r for r in s.get("roofline", {}).get("rows", [])}
+    rows = []
+    for r in s["table1"]["rows"]:
+        key = f"{r['model']}/{r['kind']}"
+        ro = roof.get(key)
+        rows.append([f"{r['model']}, {r['handles']} {r['kind']}", f"{r['points']:,}", f"{r['paper_ms']:g}",
+                     f"**{_ms(r['pocl_pose_ms']['median'])}**", _ms(r["pocl_batched_per_frame_ms"]["median"]),
+                     _ms(r["numpy_pose_ms"]["median"]), f"{r['speedup_vs_numpy']:.0f}×",
+                     f"{r['paper_over_pocl']:.0f}×",
+                     "—" if ro is None else f"{100 * ro['fraction_arithmetic']:.0f} %"])
+    steal = doc.get("cpu_steal_percent")
+    out = [f"`bench/results/suites.json` of {doc.get('timestamp', '?')[:10]}: {env.get('cpu', '?')}, "
+           f"{env.get('cpu_count', '?')} CPUs, PoCL {env.get('pocl_version', '?')}"
+           + ("" if steal is None else f", CPU steal {steal} %")
+           + ". Medians in ms per pose (batched: 20 poses in one launch, per frame); "
+           "roof: the pose kernel's share of the measured arithmetic peak.", "",
+           _table(["Table-1 row", "points", "paper", "nrpose", "batched", "numpy float64", "numpy / nrpose",
+                   "paper / nrpose", "roof"], rows)]
+    sc = s.get("scaling", {}).get("target")
+    if sc:
+        out += ["", f"{sc['points']:,} points × {sc['handles']} bones (k = {sc['k']}): "
+                    f"{_ms(sc['measured'])} ms per pose, bound in {sc['bind_ms'] / 1e3:.1f} s."]
+    if "clips" in s:
+        per = {}
+        for r in s["clips"]["rows"]:
+            per.setdefault(f"{r['character']} ({r['vertices']:,} vertices)", {})[r["method"]] = r["frame_ms"]["median"]
+        out += ["", "Characters, ms per frame NR-MLS / LBS / DQS: " + "; ".join(
+            f"{name} {' / '.join(_ms(m[k]) for k in ('nrmls', 'lbs', 'dqs') if k in m)}" for name, m in per.items())
+            + "."]
+    return "\n".join(out)
+
+
 def splice(text: str, tag: str, block: str) -> str:
     """text with the part between <!-- tag --> and <!-- /tag --> replaced by block."""
     pat = re.compile(rf"(<!-- {re.escape(tag)} -->\n).*?(\n<!-- /{re.escape(tag)} -->)", re.S)
@@ -166,17 +204,21 @@ def main(argv=None) -> int:
     ap.add_argument("--table1", default=str(HERE / "results" / "table1.json"))
     ap.add_argument("--suites", default=str(HERE / "results" / "suites.json"))
     ap.add_argument("--readme", default=str(HERE / "README.md"))
+    ap.add_argument("--manual", default=str(HERE.parent / "README.md"))
     a = ap.parse_args(argv)
     try:
+        suites = json.loads(pathlib.Path(a.suites).read_text())
         text = pathlib.Path(a.readme).read_text()
         text = splice(text, "results", table1_block(json.loads(pathlib.Path(a.table1).read_text())))
-        text = splice(text, "suites-results", suites_block(json.loads(pathlib.Path(a.suites).read_text())))
+        text = splice(text, "suites-results", suites_block(suites))
+        manual = splice(pathlib.Path(a.manual).read_text(), "readme-results", manual_block(suites))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"bench/report.py: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
-    with atomic_path(a.readme) as tmp:
-        tmp.write_text(text)
-    print(f"wrote {a.readme}")
+    for path, content in ((a.readme, text), (a.manual, manual)):
+        with atomic_path(path) as tmp:
+            tmp.write_text(content)
+        print(f"wrote {path}")
     return 0
 
 
