@@ -2,13 +2,15 @@
 
     python bench/report.py [--table1 results/table1.json] [--suites results/suites.json]
                            [--readme bench/README.md] [--manual README.md]
+                           [--performance docs/performance.md]
 
 In bench/README.md, replaces the text between ``<!-- results -->`` /
 ``<!-- /results -->`` (from the Table-1 document) and ``<!-- suites-results -->`` /
 ``<!-- /suites-results -->`` (from the suites document) with tables of their
 figures; in the project README (the user manual), the text between
 ``<!-- readme-results -->`` / ``<!-- /readme-results -->`` with one summary table
-of the suites document. So the docs quote exactly what the JSON holds; everything
+of the suites document; in docs/performance.md, the text between ``<!-- bounds -->`` /
+``<!-- /bounds -->`` with what bounds each Table-1 row. So the docs quote exactly what the JSON holds; everything
 outside the markers is left alone. Writes atomically; exits 2 with one line on a
 missing or malformed document or missing markers.
 """
@@ -191,6 +193,30 @@ def manual_block(doc: dict) -> str:
     return "\n".join(out)
 
 
+def bounds_block(doc: dict) -> str:
+    """Markdown for docs/performance.md: what bounds each Table-1 row (the roofline suite)."""
+    ro = doc["suites"]["roofline"]
+    c, rule = ro["roofs"], ro.get("roof_rule", "max")
+    standing = c.get("launch_standing") or {}
+
+    def share(r, name):
+        a = r.get("ablation", {}).get(name)
+        return "—" if a is None else f"{100 * max(a['share'], 0.0):.0f} %"
+
+    rows = [[f"{r['model']}/{r['kind']}", r["work"]["flops_per_point"], r["work"]["bytes_per_point"],
+             _ms(r["kernel_ms"]["median"]), f"{100 * r['fraction_arithmetic']:.1f} %",
+             f"{100 * r['fraction_arithmetic_net_of_launch']:.1f} %" if "fraction_arithmetic_net_of_launch" in r
+             else "—", share(r, "memory"), share(r, "stores"), f"{100 * r['outside_kernel_fraction']:.0f} %",
+             r["kernel_bound"]] for r in ro["rows"]]
+    return "\n".join([
+        f"`bench/results/suites.json` of {doc.get('timestamp', '?')[:10]}. Roofs: {c['gflops'][rule]:.0f} GFLOP/s "
+        f"arithmetic, {c['l3_gbs'][rule]:.1f} GB/s L3-resident copy, {c['dram_gbs'][rule]:.1f} GB/s DRAM copy "
+        "(best samples)" + (f"; an empty job with a standing worker spans {standing['span_ms'] * 1e3:.1f} µs"
+                            if "span_ms" in standing else "") + ".", "",
+        _table(["row", "flop/point", "bytes/point", "kernel ms", "of the arithmetic roof", "net of an empty job",
+                "waiting for memory", "scattered stores", "pose wall outside the kernel", "bound"], rows)])
+
+
 def splice(text: str, tag: str, block: str) -> str:
     """text with the part between <!-- tag --> and <!-- /tag --> replaced by block."""
     pat = re.compile(rf"(<!-- {re.escape(tag)} -->\n).*?(\n<!-- /{re.escape(tag)} -->)", re.S)
@@ -205,6 +231,7 @@ def main(argv=None) -> int:
     ap.add_argument("--suites", default=str(HERE / "results" / "suites.json"))
     ap.add_argument("--readme", default=str(HERE / "README.md"))
     ap.add_argument("--manual", default=str(HERE.parent / "README.md"))
+    ap.add_argument("--performance", default=str(HERE.parent / "docs" / "performance.md"))
     a = ap.parse_args(argv)
     try:
         suites = json.loads(pathlib.Path(a.suites).read_text())
@@ -212,10 +239,11 @@ def main(argv=None) -> int:
         text = splice(text, "results", table1_block(json.loads(pathlib.Path(a.table1).read_text())))
         text = splice(text, "suites-results", suites_block(suites))
         manual = splice(pathlib.Path(a.manual).read_text(), "readme-results", manual_block(suites))
+        performance = splice(pathlib.Path(a.performance).read_text(), "bounds", bounds_block(suites))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"bench/report.py: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
-    for path, content in ((a.readme, text), (a.manual, manual)):
+    for path, content in ((a.readme, text), (a.manual, manual), (a.performance, performance)):
         with atomic_path(path) as tmp:
             tmp.write_text(content)
         print(f"wrote {path}")
