@@ -1,18 +1,20 @@
-"""Render the committed benchmark results into bench/README.md and the project README.
+"""Render the committed benchmark results into the docs that quote them.
 
     python bench/report.py [--table1 results/table1.json] [--suites results/suites.json]
-                           [--readme bench/README.md] [--manual README.md]
-                           [--performance docs/performance.md]
+                           [--readme FILE ...]
 
-In bench/README.md, replaces the text between ``<!-- results -->`` /
-``<!-- /results -->`` (from the Table-1 document) and ``<!-- suites-results -->`` /
-``<!-- /suites-results -->`` (from the suites document) with tables of their
-figures; in the project README (the user manual), the text between
-``<!-- readme-results -->`` / ``<!-- /readme-results -->`` with one summary table
-of the suites document; in docs/performance.md, the text between ``<!-- bounds -->`` /
-``<!-- /bounds -->`` with what bounds each Table-1 row. So the docs quote exactly what the JSON holds; everything
-outside the markers is left alone. Writes atomically; exits 2 with one line on a
-missing or malformed document or missing markers.
+Each ``--readme`` file (repeatable; default: bench/README.md, the project README
+and docs/performance.md) gets every block below whose markers it holds replaced
+by tables of the documents' figures, so that the docs quote exactly what the
+JSON holds; everything outside the markers is left alone.
+
+* ``<!-- results -->`` / ``<!-- /results -->``: the Table-1 document (bench/README.md);
+* ``<!-- suites-results -->``: every suite of the suites document (bench/README.md);
+* ``<!-- readme-results -->``: one summary table of the suites document (the user manual);
+* ``<!-- bounds -->``: what bounds each Table-1 row (docs/performance.md).
+
+Writes atomically; exits 2 with one line, writing nothing, on a missing or
+malformed document or a file without any of the markers.
 """
 from __future__ import annotations
 
@@ -229,26 +231,35 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--table1", default=str(HERE / "results" / "table1.json"))
     ap.add_argument("--suites", default=str(HERE / "results" / "suites.json"))
-    ap.add_argument("--readme", default=str(HERE / "README.md"))
-    ap.add_argument("--manual", default=str(HERE.parent / "README.md"))
-    ap.add_argument("--performance", default=str(HERE.parent / "docs" / "performance.md"))
+    ap.add_argument("--readme", action="append",
+                    help="a file to render into (repeatable; default: bench/README.md, README.md, "
+                         "docs/performance.md)")
     a = ap.parse_args(argv)
+    paths = a.readme or [str(HERE / "README.md"), str(HERE.parent / "README.md"),
+                         str(HERE.parent / "docs" / "performance.md")]
     try:
         suites = json.loads(pathlib.Path(a.suites).read_text())
-        text = pathlib.Path(a.readme).read_text()
-        text = splice(text, "results", table1_block(json.loads(pathlib.Path(a.table1).read_text())))
-        text = splice(text, "suites-results", suites_block(suites))
-        manual = splice(pathlib.Path(a.manual).read_text(), "readme-results", manual_block(suites))
-        performance = splice(pathlib.Path(a.performance).read_text(), "bounds", bounds_block(suites))
+        blocks = {"results": lambda: table1_block(json.loads(pathlib.Path(a.table1).read_text())),
+                  "suites-results": lambda: suites_block(suites),
+                  "readme-results": lambda: manual_block(suites),
+                  "bounds": lambda: bounds_block(suites)}
+        rendered = []
+        for path in paths:
+            text = pathlib.Path(path).read_text()
+            tags = [tag for tag in blocks if f"<!-- {tag} -->" in text]
+            if not tags:
+                raise ValueError(f"{path}: none of the markers <!-- {' -->, <!-- '.join(blocks)} --> found")
+            for tag in tags:
+                text = splice(text, tag, blocks[tag]())
+            rendered.append((path, text))
     except (OSError, ValueError, KeyError, TypeError) as exc:
         print(f"bench/report.py: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 2
-    for path, content in ((a.readme, text), (a.manual, manual), (a.performance, performance)):
+    for path, text in rendered:
         with atomic_path(path) as tmp:
-            tmp.write_text(content)
+            tmp.write_text(text)
         print(f"wrote {path}")
     return 0
-
 
 if __name__ == "__main__":
     sys.exit(main())
