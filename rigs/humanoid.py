@@ -43,10 +43,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from nrpose.character import Character, Clip, Mesh, Track
-from nrpose.distances import point_segment_distances
-from nrpose.rotation import Rotation
-from nrpose.skeleton import LocalPose, Skeleton
+from nrpose.model.character import Character, Clip, Mesh, Track
+from nrpose.bind.distances import point_segment_distances
+from nrpose.model.rotation import Rotation
+from nrpose.model.skeleton import LocalPose, Skeleton
 
 __all__ = ["humanoid", "JOINT_NAMES", "PARENTS", "REST_POSITIONS", "WALK_DURATION", "WALK_SAMPLES"]
 

@@ -22,10 +22,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 igl = pytest.importorskip("igl")
 
-from nrpose import bindcache  # noqa: E402
-from nrpose.distances import distance_matrix, euclidean_distances, handle_sources  # noqa: E402
+from nrpose.bind import cache as bindcache  # noqa: E402
+from nrpose.bind.distances import distance_matrix, euclidean_distances, handle_sources  # noqa: E402
 from nrpose.errors import HandleError, InputError  # noqa: E402
-from nrpose.weights import deviation, dense_weights, keep_top_k, relative_weights  # noqa: E402
+from nrpose.bind.weights import deviation, dense_weights, keep_top_k, relative_weights  # noqa: E402
 from nrpose.rigs.fingers import fingers_shape  # noqa: E402
 
 
@@ -390,7 +390,7 @@ def test_cache_default_location(monkeypatch, tmp_path):
 # weight map
 # ---------------------------------------------------------------------------
 def test_save_weight_map(tmp_path, sphere):
-    from nrpose.weightmap import save_weight_map
+    from nrpose.render.weightmap import save_weight_map
 
     V, F = icosphere(1)
     w = dense_weights(distance_matrix(V, F, V[[0, 5]], None, method="graph"))[:, 0]

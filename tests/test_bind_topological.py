@@ -8,8 +8,6 @@ The issue's bound is 0.10.
 """
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -19,14 +17,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 igl = pytest.importorskip("igl")
 
-from nrpose import Deformer, HandleSet, Pose, bindcache  # noqa: E402
-from nrpose import distances as distances_mod  # noqa: E402
-from nrpose.character import load_character  # noqa: E402
-from nrpose.distances import distance_matrix  # noqa: E402
-from nrpose.meshio import write_geometry  # noqa: E402
-from nrpose.posing import CharacterPoser  # noqa: E402
-from nrpose.rotation import Rotation  # noqa: E402
-from nrpose.weightcli import add_weights_parser  # noqa: E402
+from nrpose import Deformer, HandleSet, Pose
+from nrpose.bind import cache as bindcache  # noqa: E402
+from nrpose.bind import distances as distances_mod  # noqa: E402
+from nrpose.io import load_character  # noqa: E402
+from nrpose.bind.distances import distance_matrix  # noqa: E402
+from nrpose.io.meshes import write_geometry  # noqa: E402
+from nrpose.pose.poser import CharacterPoser  # noqa: E402
+from nrpose.model.rotation import Rotation  # noqa: E402
 from nrpose.rigs.fingers import fingers_shape  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
@@ -182,24 +180,11 @@ def test_cache_file_of_a_pose_run_is_rebuilt_when_corrupt(fingers_files, counted
 # ---------------------------------------------------------------------------
 # nrpose weights
 # ---------------------------------------------------------------------------
-def _subparsers(parser):
-    return next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-
-
 @pytest.fixture
-def nrpose_main(monkeypatch):
-    """``nrpose.cli.main``, with ``weights`` registered if cli.py does not do it yet."""
+def nrpose_main():
+    """``nrpose.cli.main``."""
     from nrpose import cli
 
-    if "weights" not in _subparsers(cli.build_parser()).choices:
-        original = cli.build_parser
-
-        def build():
-            parser = original()
-            add_weights_parser(_subparsers(parser))
-            return parser
-
-        monkeypatch.setattr(cli, "build_parser", build)
     return cli.main
 
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from nrpose import Deformer, DeviceError
-from nrpose.character import load_character
+from nrpose.io import load_character
 from nrpose.cli import main
-from nrpose.handles import handles_document
-from nrpose.meshio import read_geometry, write_geometry
-from nrpose.posing import CharacterPoser
+from nrpose.model.handles import handles_document
+from nrpose.io.meshes import read_geometry, write_geometry
+from nrpose.pose.poser import CharacterPoser
 from nrpose.rigs import box, cylinder
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"

@@ -8,11 +8,13 @@ import pygltflib
 import pytest
 from scipy.spatial.transform import Rotation
 
-from nrpose.character import Character, load_character, load_pose
+from nrpose.io import load_character
+from nrpose.io.poses import load_pose
+from nrpose.model.character import Character
 from nrpose.errors import FileFormatError, InputError
-from nrpose.formats.bvh import read_bvh
-from nrpose.formats.gltf import load_gltf
-from nrpose.formats.tgf import read_dmat_pose, read_mesh, read_tgf
+from nrpose.io.bvh_read import read_bvh
+from nrpose.io.gltf_read import load_gltf
+from nrpose.io.tgf import read_dmat_pose, read_mesh, read_tgf
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared test data not found at {DATA}")

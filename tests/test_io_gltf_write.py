@@ -3,9 +3,9 @@ import numpy as np
 import pygltflib
 import pytest
 
-from nrpose.character import Mesh
+from nrpose.model.character import Mesh
 from nrpose.errors import InputError
-from nrpose.gltf_export import write_animated_glb
+from nrpose.io.gltf_write import write_animated_glb
 
 
 def accessor(gltf, blob, index):

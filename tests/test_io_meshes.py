@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nrpose import meshio
+from nrpose.io import meshes as meshio
 from nrpose.errors import FileFormatError, InputError
-from nrpose.meshio import Geometry, atomic_path, read_geometry, write_geometry
+from nrpose.io.files import atomic_path
+from nrpose.io.meshes import Geometry, read_geometry, write_geometry
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BUNNY = DATA / "meshes" / "stanford-bunny.obj"

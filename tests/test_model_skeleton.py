@@ -4,7 +4,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from nrpose.errors import InputError
-from nrpose.skeleton import LocalPose, Skeleton, local_matrices
+from nrpose.model.skeleton import LocalPose, Skeleton, local_matrices
 
 IDENTITY = [0.0, 0.0, 0.0, 1.0]
 
@@ -163,7 +163,7 @@ def test_polar_rotation_fast_path_matches_the_svd():
     polar factor, orthonormal to rounding."""
     from scipy.spatial.transform import Rotation as Rot
 
-    from nrpose.skeleton import polar_rotation
+    from nrpose.model.skeleton import polar_rotation
 
     def by_svd(A):
         U, _, Vt = np.linalg.svd(A)
@@ -185,7 +185,7 @@ def test_polar_rotation_shapes_layouts_and_input_untouched():
     shapes are refused."""
     from scipy.spatial.transform import Rotation as Rot
 
-    from nrpose.skeleton import polar_rotation
+    from nrpose.model.skeleton import polar_rotation
 
     R = Rot.random(12, random_state=5).as_matrix() * 1.7
     big = np.zeros((12, 3, 6))
@@ -241,7 +241,7 @@ def test_polar_components_layout_and_steps():
     """polar_components on component-major maps equals polar_rotation; exact rotations
     times a scale come back without a step (to rounding), float32-rounded ones orthonormal
     to 1e-14 after the steps the tolerance asks for."""
-    from nrpose.skeleton import polar_components, polar_rotation
+    from nrpose.model.skeleton import polar_components, polar_rotation
     R = Rotation.random(40, random_state=9).as_matrix()
     A = R * np.linspace(0.1, 10.0, 40)[:, None, None]
     out = polar_components(np.ascontiguousarray(np.moveaxis(A, 0, -1)))

@@ -10,9 +10,10 @@ import pygltflib
 import pytest
 
 from nrpose import device
-from nrpose.character import Character, Mesh, load_character
-from nrpose.posing import CharacterPoser
-from nrpose.skeleton import LocalPose, Skeleton
+from nrpose.io import load_character
+from nrpose.model.character import Character, Mesh
+from nrpose.pose.poser import CharacterPoser
+from nrpose.model.skeleton import LocalPose, Skeleton
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")

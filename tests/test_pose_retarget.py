@@ -1,13 +1,10 @@
-"""Retargeting (nrpose.retarget, nrpose.retargetcli, nrpose.formats.bvh_write).
+"""Retargeting (nrpose.pose.retarget, nrpose.cli.retarget, nrpose.io.bvh_write).
 
-The CLI is exercised through ``nrpose.cli.main`` when the ``retarget``
-subcommand is wired into it, else through an equivalent parser built from
-``nrpose.retargetcli.add_retarget_parser`` with the same error handling.
+The CLI is exercised through ``nrpose.cli.main``.
 """
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,15 +12,15 @@ import pygltflib
 import pytest
 
 from nrpose import cli
-from nrpose.character import Character, load_character
-from nrpose.errors import InputError, NrposeError
-from nrpose.formats.bvh import read_bvh
-from nrpose.formats.bvh_write import write_bvh
-from nrpose.retarget import (RetargetPlan, joint_map, mapped_bones, normalize_name, retarget, retarget_pose,
+from nrpose.io import load_character
+from nrpose.model.character import Character
+from nrpose.errors import InputError
+from nrpose.io.bvh_read import read_bvh
+from nrpose.io.bvh_write import write_bvh
+from nrpose.pose.retarget import (RetargetPlan, joint_map, mapped_bones, normalize_name, retarget, retarget_pose,
                              sole_heights)
-from nrpose.retargetcli import add_retarget_parser
-from nrpose.rotation import Rotation
-from nrpose.skeleton import LocalPose, Skeleton, polar_rotation
+from nrpose.model.rotation import Rotation
+from nrpose.model.skeleton import LocalPose, Skeleton, polar_rotation
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 BVH = DATA / "bvh" / "131_03.bvh"
@@ -34,24 +31,7 @@ needs_data = pytest.mark.skipif(not BVH.is_file(), reason=f"shared assets not fo
 
 def run(args, capsys):
     """Exit code, stdout, stderr of ``nrpose retarget ...``."""
-    args = [str(a) for a in args]
-    parser = cli.build_parser()
-    sub = next(a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction")
-    if "retarget" in sub.choices:
-        code = cli.main(args)
-    else:  # not wired into cli.py yet: same parser class and error handling
-        p = cli._Parser(prog="nrpose")
-        add_retarget_parser(p.add_subparsers(dest="command", required=True, parser_class=cli._Parser))
-        code = 0
-        try:
-            ns = p.parse_args(args)
-            ns.func(ns)
-        except cli._UsageError as exc:
-            print(exc, file=sys.stderr)
-            code = 2
-        except NrposeError as exc:
-            print(f"nrpose: error: {exc}", file=sys.stderr)
-            code = 2
+    code = cli.main([str(a) for a in args])
     out = capsys.readouterr()
     return code, out.out, out.err
 

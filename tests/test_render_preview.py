@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nrpose.errors import InputError
-from nrpose.preview import MAX_FACES, _front_faces, render_figure, save_preview
+from nrpose.render.preview import MAX_FACES, _front_faces, render_figure, save_preview
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 

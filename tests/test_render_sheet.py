@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from nrpose.errors import InputError
-from nrpose.sheet import save_contact_sheet, view_matrix
+from nrpose.render.sheet import save_contact_sheet, view_matrix
 
 
 def png_size(path):
@@ -81,7 +81,7 @@ def test_bad_input(tmp_path, kwargs, message):
 
 
 def test_rasterize_square():
-    from nrpose.sheet import rasterize
+    from nrpose.render.sheet import rasterize
 
     # a closed, outward tetrahedron-like "pillow": two triangles facing the viewer, two away
     V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0], [0.5, 0.5, -0.5]])

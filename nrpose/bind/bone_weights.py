@@ -1,144 +1,75 @@
-"""``nrpose weights``: a character's bone weights to a file, and optionally a weight map.
+"""Bone weights of a character: the one place posing and ``nrpose weights`` get them from.
 
-    nrpose weights CHARACTER [--skeleton S] --method heat|exact|graph|euclidean [--k K]
-                   [--alpha A] -o WEIGHTS.npz [--png MAP.png --bone NAME]
+:func:`bone_weights` turns a character and a weights method into (V, B) weights
+of all its vertices (meshes concatenated in file order,
+:func:`nrpose.model.meshset.concatenate_meshes`) on the bones of
+:meth:`nrpose.model.skeleton.Skeleton.bones`:
 
-The weights are the ones ``nrpose pose --method nrmls --weights METHOD`` binds
-with: the distance ``d`` from every vertex to every bone of
-:meth:`nrpose.skeleton.Skeleton.bones` (over the surface for ``heat``,
-``exact``, ``graph``, see :mod:`nrpose.distances`; straight-line for
-``euclidean``), then ``w = 1/d^(2α)`` normalised per vertex
-(:func:`nrpose.weights.dense_weights`). Surface distances are computed for the
-deforming meshes together (one vertex set, several connected components) and
-cached on disk by content (:func:`nrpose.posing.surface_distances`), so a later
-``nrpose pose`` with the same weights binds from the cache, and vice versa.
+* ``authored``: the file's skin weights. A vertex's weight on joint j becomes
+  weight on j's bones, shared between them by inverse squared distance (a
+  joint's bones all move with its rigid transform, so any split keeps that
+  motion exact); a weighted joint that drives no bone hands its weight to its
+  nearest ancestor that does.
+* ``euclidean``: straight-line distance ``d`` to the bone segments, then
+  ``w = 1/d^(2α)`` normalised per vertex (:func:`nrpose.bind.weights.dense_weights`).
+* ``heat``, ``exact``, ``graph``: the same with distances over the surface of
+  the deforming meshes together (:func:`nrpose.bind.distances.distance_matrix`,
+  cached on disk by content, :func:`nrpose.bind.distances.surface_distances`).
 
-``--k K`` keeps the ``K`` most influential bones of each vertex (renormalised;
-the others are stored as 0). Default: dense up to
-:data:`nrpose.posing.SKELETON_K` bones, else ``K = SKELETON_K`` (what the
-poser uses); ``--k all`` keeps every bone.
+Then each vertex keeps its ``k`` most influential bones (renormalised; the
+others are 0). Default: all bones up to :data:`SKELETON_K`, else ``SKELETON_K``.
 
-A mesh attached rigidly to a joint (glTF node child of a joint) does not
-deform: its vertices get weight 1 on the first bone of that joint (or of its
-nearest ancestor that drives a bone) and their Euclidean bone distances.
-
-Output (``.npz``, written under a temporary name and renamed): ``weights``
-(V, B) float32; ``distances`` (V, B) float64; ``bones`` (B, 2, 3) rest
-segments; ``bone_names`` (B,) str; ``bone_joints`` (B,) int64 driving joint;
-``method`` str; ``k`` int (the number of bones kept per vertex; B when dense);
-``alpha`` float; ``mesh_names`` (M,) str and ``mesh_offsets`` (M,) int64
-(vertices of all meshes concatenated in file order, as ``nrpose pose``
-writes them).
-
-``--png MAP.png --bone NAME`` draws the weight of one bone on the mesh
-(:mod:`nrpose.weightmap`, colour scale γ = 0.5 so that small leaked weights
-show; a glTF character is drawn upright from the front and both sides, other
-meshes with the weight map's default views). ``NAME`` is a bone name as listed by ``Skeleton.bones().names``
-(``"joint->child"``) or a joint name, meaning that joint's first bone.
+A mesh attached rigidly to a joint does not deform: its vertices get weight 1
+on the first bone of that joint (or of its nearest ancestor that drives a bone)
+and their Euclidean bone distances.
 """
 from __future__ import annotations
 
-import argparse
-import difflib
-import time
-from pathlib import Path
+from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
+from ..model.handles import check_alpha
+from ..model.meshset import MeshSet, concatenate_meshes, submesh_faces
+from ..model.skeleton import Bones
+from .distances import point_segment_distances, surface_distances
+from .weights import dense_weights, keep_top_k
 
-__all__ = ["add_weights_parser", "cmd_weights", "resolve_bone", "character_weights", "WEIGHT_METHODS"]
+__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights"]
 
-WEIGHT_METHODS = ("heat", "exact", "graph", "euclidean")
-GLTF_VIEWS = (("front", 0.0, -90.0), ("left side", 0.0, 0.0), ("right side", 0.0, 180.0))
-
-
-def _k_arg(text: str):
-    if text.strip().lower() in ("all", "dense"):
-        return "all"
-    try:
-        k = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer or 'all', got {text!r}") from None
-    if k < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer or 'all', got {text!r}")
-    return k
+WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
+SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
 
 
-def add_weights_parser(subparsers) -> argparse.ArgumentParser:
-    """Register the ``weights`` subcommand on an ``add_subparsers()`` object."""
-    p = subparsers.add_parser(
-        "weights", help="bone weights of a character (surface or Euclidean distances) to .npz, with a PNG map",
-        description="Compute the nrmls bone weights of a character and write them to an .npz file.")
-    p.add_argument("character", help=".glb/.gltf, or a mesh (OBJ, OFF, PLY, STL, .mesh) with --skeleton")
-    p.add_argument("--skeleton", help="skeleton for a mesh character (.tgf or .bvh)")
-    p.add_argument("--method", required=True, choices=WEIGHT_METHODS,
-                   help="distances: over the surface (heat, exact, graph) or straight-line (euclidean)")
-    p.add_argument("--k", type=_k_arg, default=None,
-                   help="bones kept per vertex (a positive integer, or 'all'); default: all up to 8 bones, else 8")
-    p.add_argument("--alpha", type=float, default=1.0, help="weight exponent: w = 1/d^(2 alpha) (default 1)")
-    p.add_argument("-o", "--output", required=True, help="WEIGHTS.npz")
-    p.add_argument("--png", help="write a weight map of --bone to this PNG")
-    p.add_argument("--bone", help="bone (as 'joint->child', or a joint name: its first bone) for --png")
-    p.set_defaults(func=cmd_weights)
-    return p
+@dataclass(frozen=True)
+class BoneWeights:
+    """weights (V, B) float64 rows summing to 1 (at most ``k`` non-zero); distances (V, B)
+    float64 vertex-to-bone distances (over the surface for deforming vertices with heat,
+    exact, graph; else straight-line); bones; k (bones kept per vertex, B when dense);
+    alpha; meshes: the concatenated meshes the rows belong to."""
+
+    weights: np.ndarray
+    distances: np.ndarray
+    bones: Bones
+    k: int
+    alpha: float
+    meshes: MeshSet
 
 
-# ---------------------------------------------------------------------------- pieces
-def resolve_bone(name: str, bones, skeleton) -> int:
-    """Index of the bone called ``name`` (a bone name, or a joint name → its first bone)."""
-    if name in bones.names:
-        return bones.names.index(name)
-    if name in skeleton.names:
-        j = skeleton.names.index(name)
-        own = np.flatnonzero(bones.joints == j)
-        if len(own):
-            return int(own[0])
-        kids = [bones.names[b] for b in range(len(bones)) if skeleton.parents[bones.joints[b]] == j][:4]
-        hint = f"; bones of its children: {', '.join(map(repr, kids))}" if kids else ""
-        raise InputError(f"--bone {name!r}: this joint drives no bone (it sits where its child starts, or "
-                         f"does not deform){hint}")
-    pool = list(bones.names) + [n for n in skeleton.names if n not in bones.names]
-    close = difflib.get_close_matches(name, pool, n=6, cutoff=0.5)
-    if not close:  # substring matches help with long prefixed names (mixamorig:...)
-        low = name.lower()
-        close = [n for n in pool if low in n.lower()][:6]
-    if close:
-        hint = "did you mean " + ", ".join(map(repr, close)) + "?"
-    else:
-        hint = f"bones: {', '.join(map(repr, bones.names[:8]))}{', ...' if len(bones) > 8 else ''}"
-    raise InputError(f"--bone {name!r}: no such bone or joint; {hint}")
+def bone_weights(character, weights: str = "authored", k: int | str | None = None,
+                 alpha: float = 1.0) -> BoneWeights:
+    """Weights of a character's vertices on its bones (see the module docstring).
 
-
-def _rigid_owner_bone(j: int, bones, parents: np.ndarray) -> int:
-    """First bone of joint j or of its nearest ancestor that drives one."""
-    a = j
-    while a >= 0:
-        own = np.flatnonzero(bones.joints == a)
-        if len(own):
-            return int(own[0])
-        a = int(parents[a])
-    raise InputError(f"rigid mesh on joint {j}: neither it nor an ancestor drives a bone")
-
-
-def character_weights(character, method: str, k=None, alpha: float = 1.0) -> dict:
-    """Weights of a character's vertices (all meshes, file order) on its bones.
-
-    Returns a dict with ``weights`` (V, B) float64, ``distances`` (V, B),
-    ``bones`` (the :class:`~nrpose.skeleton.Bones`), ``k`` (effective),
-    ``faces`` (concatenated), ``vertices``, ``mesh_offsets``, ``mesh_names``.
+    weights: one of :data:`WEIGHTS`; k: bones kept per vertex (a positive integer, "all",
+    or None for the default); alpha: the exponent of distance weights.
     """
-    from .distances import point_segment_distances
-    from .handles import check_alpha
-    from .posing import SKELETON_K, _submesh_faces, concatenate_meshes, surface_distances
-    from .weights import dense_weights, keep_top_k
-
-    if method not in WEIGHT_METHODS:
-        raise InputError(f"method must be one of {', '.join(WEIGHT_METHODS)}, got {method!r}")
+    if weights not in WEIGHTS:
+        raise InputError(f"weights must be one of {', '.join(WEIGHTS)}, got {weights!r}")
     alpha = check_alpha(alpha)
     if not character.meshes:
         raise InputError("the character has no mesh (a skeleton-only file); give a mesh and pass the "
-                         "skeleton with --skeleton")
+                         "skeleton with skeleton=")
     skel = character.skeleton
     bones = skel.bones()
     B = len(bones)
@@ -153,65 +84,72 @@ def character_weights(character, method: str, k=None, alpha: float = 1.0) -> dic
             raise InputError(f"k must be a positive integer or 'all', got {k!r}")
         k_eff = min(int(k), B)
     geo = concatenate_meshes(character.meshes)
-    V, faces, offsets, rigid = geo.vertices, geo.faces, geo.offsets, geo.rigid
+    V, rigid = geo.vertices, geo.rigid
     deform = np.flatnonzero(rigid < 0)
-    n = len(V)
-    D = point_segment_distances(V, bones.segments)[0] if n else np.zeros((0, B))
-    W = np.zeros((n, B))
+    D = point_segment_distances(V, bones.segments)[0] if len(V) else np.zeros((0, B))
+    W = np.zeros((len(V), B))
     if len(deform):
-        Vd = V[deform]
-        if method != "euclidean":
-            Fd = _submesh_faces(faces, deform, n)
-            if len(Fd) == 0:
-                raise InputError(f"the character's deforming meshes have no faces: {method!r} distances "
-                                 "run over a surface; use --method euclidean")
-            D[deform] = surface_distances(Vd, Fd, np.zeros((0, 3)), bones.segments, method)
-        W[deform] = keep_top_k(dense_weights(D[deform], alpha), k_eff if k_eff < B else None)
+        if weights == "authored":
+            joint_w = authored_joint_weights([m for m in character.meshes if m.rigid_joint is None],
+                                             skel.num_joints)
+            dense = _joint_to_bone_weights(joint_w, D[deform], bones, skel.parents)
+        else:
+            if weights != "euclidean":
+                faces = submesh_faces(geo.faces, deform, len(V))
+                if len(faces) == 0:
+                    raise InputError(f"the character's deforming meshes have no faces: {weights!r} distances "
+                                     "run over a surface; use weights='euclidean'")
+                D[deform] = surface_distances(V[deform], faces, np.zeros((0, 3)), bones.segments, weights)
+            dense = dense_weights(D[deform], alpha)
+        W[deform] = keep_top_k(dense, k_eff if k_eff < B else None)
     for j in np.unique(rigid[rigid >= 0]):
         W[rigid == j, _rigid_owner_bone(int(j), bones, skel.parents)] = 1.0
-    return {"weights": W, "distances": D, "bones": bones, "k": k_eff, "alpha": alpha, "vertices": V,
-            "faces": faces, "mesh_offsets": offsets, "mesh_names": geo.names}
+    return BoneWeights(W, D, bones, k_eff, alpha, geo)
 
 
-# ---------------------------------------------------------------------------- command
-def cmd_weights(args) -> None:
-    from .character import load_character
-    from .meshio import atomic_path, check_writable
+def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
+    """Dense (V, J) skin weights of the meshes (concatenated), rows summing to 1."""
+    missing = [m.name for m in meshes if m.joints is None or m.weights is None]
+    if missing:
+        raise InputError(f"mesh {missing[0]!r} has no skin weights; use weights='euclidean' "
+                         "(or heat, exact, graph)")
+    rows = []
+    for m in meshes:
+        W = np.zeros((len(m.vertices), n_joints))
+        np.add.at(W, (np.repeat(np.arange(len(m.vertices)), m.joints.shape[1]), m.joints.ravel()),
+                  m.weights.ravel())
+        rows.append(W)
+    W = np.concatenate(rows)
+    return W / W.sum(axis=1, keepdims=True)
 
-    out = Path(args.output)
-    if out.suffix.lower() != ".npz":
-        raise InputError(f"{out}: the weights file must end in .npz")
-    if bool(args.png) != bool(args.bone):
-        raise InputError("--png and --bone go together: --png MAP.png --bone NAME")
-    if args.png and Path(args.png).suffix.lower() != ".png":
-        raise InputError(f"{args.png}: the weight map must end in .png")
-    check_writable(out)
-    if args.png:
-        check_writable(args.png)
-    character = load_character(args.character, args.skeleton)
-    bones = character.skeleton.bones()
-    b = resolve_bone(args.bone, bones, character.skeleton) if args.bone else None  # fail before the work
-    t0 = time.perf_counter()
-    res = character_weights(character, args.method, args.k, args.alpha)
-    bind_ms = 1e3 * (time.perf_counter() - t0)
-    with atomic_path(out) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, weights=res["weights"].astype(np.float32), distances=res["distances"],
-                     bones=bones.segments, bone_names=np.array(bones.names, dtype=str),
-                     bone_joints=bones.joints.astype(np.int64), method=np.array(args.method),
-                     k=np.array(res["k"], np.int64), alpha=np.array(res["alpha"]),
-                     mesh_names=np.array(res["mesh_names"], dtype=str), mesh_offsets=res["mesh_offsets"])
-    msg = (f"{out}: {len(res['vertices'])} vertices × {len(bones)} bones, {args.method} distances, "
-           f"k={res['k']}{' (dense)' if res['k'] == len(bones) else ''}, alpha {res['alpha']:g}: {bind_ms:.0f} ms")
-    if args.png:
-        from .weightmap import save_weight_maps
 
-        w = res["weights"][:, b]
-        label = f"{args.method}: max {w.max():.3f}"
-        gltf = Path(args.character).suffix.lower() in (".glb", ".gltf")  # Y-up, facing +Z
-        with atomic_path(args.png) as tmp:
-            save_weight_maps(res["vertices"], res["faces"], {label: w}, tmp,
-                             f"{Path(args.character).name}: weight of bone {bones.names[b]}",
-                             vmax=1.0, gamma=0.5, views=GLTF_VIEWS if gltf else None, up="y" if gltf else "z")
-        msg += f"; map of {bones.names[b]} → {args.png}"
-    print(msg)
+def _joint_to_bone_weights(joint_w: np.ndarray, D: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
+    """(V, B) bone weights from (V, J) joint weights and (V, B) bone distances (module docstring)."""
+    owner = np.arange(joint_w.shape[1])
+    driven = np.zeros(joint_w.shape[1], bool)
+    driven[bones.joints] = True
+    for j in range(len(owner)):                      # parents come first: resolve in order
+        if not driven[j]:
+            p = parents[j]
+            owner[j] = owner[p] if p >= 0 else -1
+    lost = (owner < 0) & (joint_w.sum(axis=0) > 0)
+    if lost.any():
+        raise InputError(f"joint {int(np.flatnonzero(lost)[0])} carries skin weight but neither it nor "
+                         "an ancestor drives a bone")
+    jw = np.zeros_like(joint_w)
+    np.add.at(jw.T, owner[owner >= 0], joint_w.T[owner >= 0])
+    share = 1.0 / np.maximum(D ** 2, 1e-12)
+    per_joint = np.zeros((len(D), jw.shape[1]))
+    np.add.at(per_joint.T, bones.joints, share.T)
+    return jw[:, bones.joints] * share / per_joint[:, bones.joints]
+
+
+def _rigid_owner_bone(j: int, bones: Bones, parents: np.ndarray) -> int:
+    """First bone of joint j or of its nearest ancestor that drives one."""
+    a = j
+    while a >= 0:
+        own = np.flatnonzero(bones.joints == a)
+        if len(own):
+            return int(own[0])
+        a = int(parents[a])
+    raise InputError(f"rigid mesh on joint {j}: neither it nor an ancestor drives a bone")

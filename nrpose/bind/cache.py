@@ -32,7 +32,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status",
            "binding_key_parts"]

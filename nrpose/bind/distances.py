@@ -114,10 +114,12 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
-from .checks import real_rows, triangles
-from .errors import HandleError, InputError
+from ..checks import real_rows, triangles
+from ..errors import HandleError, InputError
+from .cache import binding_key_parts, cached
 
 __all__ = [
+    "surface_distances",
     "METHODS",
     "distance_matrix",
     "euclidean_distances",
@@ -537,3 +539,10 @@ def distance_matrix(
     if not np.isfinite(D).all():  # cannot happen: every handle has a source
         raise RuntimeError("internal error: non-finite distance left")
     return D
+
+
+def surface_distances(V: np.ndarray, faces, points: np.ndarray, segments: np.ndarray, method: str) -> np.ndarray:
+    """(V, P + S) handle distances over the surface (or a kNN graph of a point cloud),
+    :func:`distance_matrix`, cached on disk by content (:mod:`nrpose.bind.cache`)."""
+    parts = binding_key_parts(V, faces, points, segments, {"distances": method})
+    return cached(parts, lambda: {"D": distance_matrix(V, faces, points, segments, method=method)})["D"]

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import InputError
-from .handles import check_alpha
+from ..errors import InputError
+from ..model.handles import check_alpha
 
 __all__ = ["relative_weights", "dense_weights", "keep_top_k", "deviation"]
 

@@ -4,19 +4,16 @@
                     [--map MAP.json] [--in-place] [--fps F] [--show-map]
                     -o OUT (.glb|.bvh) [--png SHEET.png]
 
-The retargeting itself is :mod:`nrpose.retarget`. Outputs:
+The retargeting itself is :mod:`nrpose.pose.retarget`. Outputs:
 
 * ``OUT.glb``: the target file with the retargeted clip appended as a new
   animation (named after the source clip; `` (2)``... if that name is taken):
   one sampler per mapped joint's node rotation (float32 quaternions) and one
-  for the root-motion node's translation, LINEAR, keyed at ``k / fps``. The
-  original content (meshes, skins, materials, textures, other animations) is
-  kept: every buffer of the target is copied into the single GLB buffer (a
-  ``.gltf`` with external buffers or images becomes self-contained) and the
-  new data is appended after it. Pose it with ``nrpose pose OUT.glb --clip
-  NAME``.
+  for the root-motion node's translation, LINEAR, keyed at ``k / fps``
+  (:func:`nrpose.io.gltf_write.write_glb_with_clip`: the original content is
+  kept). Pose it with ``nrpose pose OUT.glb --clip NAME``.
 * ``OUT.bvh``: the target skeleton and the clip as BVH
-  (:mod:`nrpose.formats.bvh_write`), frame time ``1 / fps``.
+  (:mod:`nrpose.io.bvh_write`), frame time ``1 / fps``.
 * ``--png``: a contact sheet of the retargeted character (linear blend
   skinning of its meshes in numpy) with the source skeleton, scaled by the
   root-motion scale, drawn beside it; every panel is centred horizontally on
@@ -26,31 +23,38 @@ The retargeting itself is :mod:`nrpose.retarget`. Outputs:
 
 Bad input (unknown joints in the map, no motion, no mapped joint, wrong
 extensions) raises :class:`~nrpose.errors.NrposeError` before anything is
-written; files are written through :func:`nrpose.meshio.atomic_path`.
+written; files are written through :func:`nrpose.io.files.atomic_path`.
 """
 from __future__ import annotations
 
-import argparse
-import mimetypes
 from pathlib import Path
 
 import numpy as np
-import pygltflib
 
-from .checks import within_float32
-from .errors import InputError, NrposeError
-from .meshio import check_writable
+from ..errors import InputError
+from ..io import load_character
+from ..io.bvh_write import write_bvh
+from ..io.files import check_writable
+from ..io.gltf_write import write_glb_with_clip
+from ..io.poses import load_map
+from ..model.skeleton import LocalPose
+from ..pose.retarget import format_map, joint_map, make_clip, retarget_pose
+from ..render.preview import spread
+from ..render.sheet import save_contact_sheet, view_matrix
+from ..skinning import lbs_reference
 
-__all__ = ["add_retarget_parser", "cmd_retarget", "write_glb_with_clip", "save_retarget_sheet"]
+__all__ = ["add_parser", "run", "save_retarget_sheet"]
+
+#: library argument name -> the flag users type
+FLAGS = {"user_map": "--map MAP.json,", "format_map": "--show-map", "in_place": "--in-place", "fps": "--fps"}
 
 SOURCE_SUFFIXES = (".bvh", ".glb", ".gltf")
 TARGET_SUFFIXES = (".glb", ".gltf")
 OUTPUT_SUFFIXES = (".glb", ".bvh")
 
 
-def add_retarget_parser(subparsers) -> argparse.ArgumentParser:
-    """Add the ``retarget`` subcommand to an argparse subparsers object."""
-    p = subparsers.add_parser("retarget", help="play a motion (BVH or glTF clip) on another rig (glTF)")
+def add_parser(sub) -> None:
+    p = sub.add_parser("retarget", help="play a motion (BVH or glTF clip) on another rig (glTF)")
     p.add_argument("source", help="motion: .bvh, or a .glb/.gltf with an animation")
     p.add_argument("target", help="character to drive: .glb or .gltf")
     p.add_argument("--source-clip", help="animation of a glTF source, by name (default: its first)")
@@ -60,8 +64,7 @@ def add_retarget_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--show-map", action="store_true", help="print the joint mapping and the unmapped joints")
     p.add_argument("-o", "--output", help="OUT.glb (target + new animation) or OUT.bvh (target skeleton)")
     p.add_argument("--png", help="write a contact sheet PNG (retargeted character beside the source skeleton)")
-    p.set_defaults(func=cmd_retarget)
-    return p
+    p.set_defaults(func=run, flags=FLAGS)
 
 
 def _suffix(path: str, allowed: tuple[str, ...], what: str) -> str:
@@ -71,10 +74,7 @@ def _suffix(path: str, allowed: tuple[str, ...], what: str) -> str:
     return suffix
 
 
-def cmd_retarget(args) -> None:
-    from .character import load_character
-    from .retarget import format_map, joint_map, load_map, make_clip, retarget_pose
-
+def run(args) -> None:
     _suffix(args.source, SOURCE_SUFFIXES, "the source")
     _suffix(args.target, TARGET_SUFFIXES, "the target")
     if args.output is None and not args.show_map:
@@ -112,7 +112,6 @@ def cmd_retarget(args) -> None:
     if out.suffix.lower() == ".glb":
         name = write_glb_with_clip(args.target, out, target, result)
     else:
-        from .formats.bvh_write import write_bvh
         write_bvh(out, target.skeleton, local, 1.0 / args.fps, position_joints=[plan.root])
         name = result.name
     if args.png:
@@ -123,86 +122,10 @@ def cmd_retarget(args) -> None:
           f"{' in place' if args.in_place else ''}, lift {plan.lift:+.3g}")
 
 
-# --------------------------------------------------------------------------- glTF
-
-def _joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes], names) -> np.ndarray:
-    """Node index of each skeleton joint, as :func:`nrpose.formats.gltf.load_gltf` orders them."""
-    from .formats import gltf as gltf_format
-
-    acc = gltf_format._Accessors(path, gltf, buffers)
-    binds = gltf_format._skin_binds(path, gltf, acc)
-    nodes = gltf_format._Nodes(path, gltf)
-    skeleton, node_to_joint, _ = gltf_format._skeleton(gltf, nodes, binds)
-    if tuple(skeleton.names) != tuple(names):
-        raise NrposeError(f"{path}: its skeleton changed since it was loaded")
-    joint_nodes = np.empty(skeleton.num_joints, np.int64)
-    joint_nodes[node_to_joint[node_to_joint >= 0]] = np.flatnonzero(node_to_joint >= 0)
-    return joint_nodes
-
-
-def write_glb_with_clip(target_path, out_path, target, clip) -> str:
-    """Write the target glTF plus ``clip`` (a Clip of its skeleton) as a new animation, as a GLB.
-
-    Returns the animation's name. Every track of the clip becomes a channel on
-    its joint's node (float32, the track's times and interpolation; CUBICSPLINE
-    is not written).
-    """
-    from .formats import gltf as gltf_format
-    from .gltf_export import Blob
-    from .meshio import atomic_path
-
-    path = Path(target_path)
-    gltf, buffers = gltf_format._read_document(path)
-    joint_nodes = _joint_nodes(path, gltf, buffers, target.skeleton.names)
-    blob = Blob(gltf)
-    starts = [blob.append(bytes(b)) for b in buffers]
-    for view in gltf.bufferViews:
-        view.byteOffset = (view.byteOffset or 0) + starts[view.buffer]
-        view.buffer = 0
-    for i, image in enumerate(gltf.images or []):
-        if image.uri is not None and not image.uri.startswith("data:"):
-            import urllib.parse
-            try:
-                data = (path.parent / urllib.parse.unquote(image.uri)).read_bytes()
-            except OSError as exc:
-                raise InputError(f"{path}: image {i}: cannot read {image.uri!r} ({exc.strerror})") from None
-            image.mimeType = image.mimeType or mimetypes.guess_type(image.uri)[0] or "image/png"
-            image.bufferView, image.uri = blob.raw(data), None
-    taken = {a.name for a in gltf.animations or []}
-    name, k = clip.name, 2
-    while name in taken:
-        name, k = f"{clip.name} ({k})", k + 1
-    animation = pygltflib.Animation(name=name, channels=[], samplers=[])
-    inputs = {}
-    for track in clip.tracks:
-        if track.interpolation == "CUBICSPLINE":
-            raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
-        within_float32(track.values, f"retargeted {track.path} track of joint {track.joint}")
-        key = track.times.tobytes()
-        if key not in inputs:
-            inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)
-        output = blob.add(track.values.astype(np.float32),
-                          {"rotation": "VEC4", "translation": "VEC3", "scale": "VEC3"}[track.path])
-        animation.samplers.append(pygltflib.AnimationSampler(input=inputs[key], output=output,
-                                                             interpolation=track.interpolation))
-        animation.channels.append(pygltflib.AnimationChannel(
-            sampler=len(animation.samplers) - 1,
-            target=pygltflib.AnimationChannelTarget(node=int(joint_nodes[track.joint]), path=track.path)))
-    gltf.animations = list(gltf.animations or []) + [animation]
-    data = blob.bytes()
-    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
-    gltf.set_binary_blob(data)
-    with atomic_path(Path(out_path)) as tmp:
-        gltf.save_binary(str(tmp))
-    return name
-
-
 # --------------------------------------------------------------------------- contact sheet
 
 def _skinned_frames(character, G: np.ndarray):
     """Posed vertices (F, V, 3) of all meshes by linear blend skinning, and the faces."""
-    from .skinning import lbs_reference
-
     mats = character.skin_matrices(G)
     verts, faces, offset = [], [], 0
     for mesh in character.meshes:
@@ -219,11 +142,8 @@ def _skinned_frames(character, G: np.ndarray):
 def save_retarget_sheet(path, source, clip, target, times, local, plan, title: str = "",
                         max_panels: int = 8) -> list[int]:
     """Contact sheet: retargeted target (mesh, or bones without one) with the source skeleton beside it."""
-    from .preview import _spread
-    from .sheet import save_contact_sheet, view_matrix
-
     F = len(times)
-    pick = np.arange(F) if F <= max_panels else _spread(F, max_panels)
+    pick = np.arange(F) if F <= max_panels else spread(F, max_panels)
     Gt = target.skeleton.forward_kinematics(_take(local, pick))
     Gs = source.skeleton.forward_kinematics(clip.sample(times[pick]))
     hips_t = Gt[:, plan.root, :3, 3].copy()
@@ -248,6 +168,4 @@ def save_retarget_sheet(path, source, clip, target, times, local, plan, title: s
 
 
 def _take(local, index):
-    from .skeleton import LocalPose
-
     return LocalPose(local.translation[index], local.rotation[index], local.scale[index])

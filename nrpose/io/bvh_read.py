@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..character import Clip, Track
+from ..model.character import Clip, Track
 from ..errors import FileFormatError, InputError
-from ..meshio import read_input_text
-from ..rotation import Rotation
-from ..skeleton import Skeleton
+from .files import read_input_text
+from ..model.rotation import Rotation
+from ..model.skeleton import Skeleton
 
 __all__ = ["read_bvh"]
 

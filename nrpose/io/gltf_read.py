@@ -11,7 +11,7 @@ What is read:
   a repeated name gets ``.<i>`` appended.
 * Inverse bind matrices: (J, 4, 4) per skeleton joint, from the first skin
   that lists the joint (identity when a skin has none, as the spec says).
-* Meshes, one :class:`~nrpose.character.Mesh` per primitive (triangles,
+* Meshes, one :class:`~nrpose.model.character.Mesh` per primitive (triangles,
   strips and fans) of the nodes of the default scene. Skinned primitives
   take every ``JOINTS_n``/``WEIGHTS_n`` set (n = 0, 1, ...), remapped to
   skeleton joints, rows normalised to sum 1; their rest vertices are the bind
@@ -38,11 +38,11 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
-from ..character import Character, Clip, Mesh, Track
+from ..model.character import Character, Clip, Mesh, Track
 from ..errors import FileFormatError, InputError
-from ..meshio import read_input
-from ..rotation import Rotation
-from ..skeleton import Skeleton, local_matrices, polar_rotation
+from .files import read_input
+from ..model.rotation import Rotation
+from ..model.skeleton import Skeleton, local_matrices, polar_rotation
 
 __all__ = ["load_gltf"]
 
@@ -80,7 +80,7 @@ def _read_glb(path: Path, data: bytes) -> tuple[str, bytes | None]:
         raise FileFormatError(f"{path}: corrupt GLB: JSON chunk is not UTF-8") from None
 
 
-def _read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
+def read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
     """The parsed glTF and the bytes of each of its buffers."""
     data = read_input(path, f"{path.suffix} file")
     if path.suffix.lower() == ".glb":
@@ -440,10 +440,20 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
     return clips
 
 
+def joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes]) -> tuple[Skeleton, np.ndarray]:
+    """The skeleton of a document from :func:`read_document` and the node index (J,) int64 of
+    each of its joints, in :func:`load_gltf`'s joint order."""
+    acc = _Accessors(path, gltf, buffers)
+    skeleton, node_to_joint, _ = _skeleton(gltf, _Nodes(path, gltf), _skin_binds(path, gltf, acc))
+    nodes = np.empty(skeleton.num_joints, np.int64)
+    nodes[node_to_joint[node_to_joint >= 0]] = np.flatnonzero(node_to_joint >= 0)
+    return skeleton, nodes
+
+
 def load_gltf(path: str | Path) -> Character:
     """Character from a ``.glb`` or ``.gltf`` file (see the module docstring)."""
     path = Path(path)
-    gltf, buffers = _read_document(path)
+    gltf, buffers = read_document(path)
     acc = _Accessors(path, gltf, buffers)
     binds = _skin_binds(path, gltf, acc)
     nodes = _Nodes(path, gltf)

@@ -1,4 +1,4 @@
-"""Baked animations as glTF 2.0 binaries (``.glb``) that any viewer plays.
+"""glTF 2.0 binaries (``.glb``): baked animations, and a character file with a clip added.
 
 :func:`write_animated_glb` writes the rest geometry of each mesh with every
 posed frame stored as a **morph target** (target f = posed frame f − rest,
@@ -15,21 +15,32 @@ default ``weights`` select frame 0, so static viewers show the first frame;
 ``mesh.extras.targetNames`` are ``frame0 ...``. Coordinates are written as
 given (no axis conversion; glTF is Y-up, metres). Size is about
 ``12 * F * V`` bytes; the caller limits the number of frames.
-Written through :func:`nrpose.meshio.atomic_path`.
+Written through :func:`nrpose.io.files.atomic_path`.
+
+:func:`write_glb_with_clip` writes a glTF character file again with one more
+animation: a :class:`~nrpose.model.character.Clip` of its skeleton, one
+sampler per track on its joint's node (float32, the track's times and
+interpolation). The original content (meshes, skins, materials, textures,
+other animations) is kept: every buffer is copied into the single GLB buffer
+(a ``.gltf`` with external buffers or images becomes self-contained) and the
+new data is appended after it.
 """
 from __future__ import annotations
 
+import mimetypes
+import urllib.parse
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 import pygltflib
 
-from .checks import real_rows, triangles, within_float32
-from .errors import InputError
-from .meshio import atomic_path
+from ..checks import real_rows, triangles, within_float32
+from ..errors import InputError, NrposeError
+from .files import atomic_path
+from .gltf_read import joint_nodes, read_document
 
-__all__ = ["write_animated_glb"]
+__all__ = ["write_animated_glb", "write_glb_with_clip", "Blob"]
 
 _FLOAT, _UINT = pygltflib.FLOAT, pygltflib.UNSIGNED_INT
 
@@ -192,3 +203,57 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     gltf.set_binary_blob(data)
     with atomic_path(Path(path)) as tmp:
         gltf.save_binary(str(tmp))
+
+
+def write_glb_with_clip(target_path, out_path, target, clip) -> str:
+    """Write the target glTF plus ``clip`` (a Clip of its skeleton) as a new animation, as a GLB.
+
+    Returns the animation's name. Every track of the clip becomes a channel on
+    its joint's node (float32, the track's times and interpolation; CUBICSPLINE
+    is not written).
+    """
+    path = Path(target_path)
+    gltf, buffers = read_document(path)
+    skeleton, nodes = joint_nodes(path, gltf, buffers)
+    if tuple(skeleton.names) != tuple(target.skeleton.names):
+        raise NrposeError(f"{path}: its skeleton changed since it was loaded")
+    blob = Blob(gltf)
+    starts = [blob.append(bytes(b)) for b in buffers]
+    for view in gltf.bufferViews:
+        view.byteOffset = (view.byteOffset or 0) + starts[view.buffer]
+        view.buffer = 0
+    for i, image in enumerate(gltf.images or []):
+        if image.uri is not None and not image.uri.startswith("data:"):
+            try:
+                data = (path.parent / urllib.parse.unquote(image.uri)).read_bytes()
+            except OSError as exc:
+                raise InputError(f"{path}: image {i}: cannot read {image.uri!r} ({exc.strerror})") from None
+            image.mimeType = image.mimeType or mimetypes.guess_type(image.uri)[0] or "image/png"
+            image.bufferView, image.uri = blob.raw(data), None
+    taken = {a.name for a in gltf.animations or []}
+    name, k = clip.name, 2
+    while name in taken:
+        name, k = f"{clip.name} ({k})", k + 1
+    animation = pygltflib.Animation(name=name, channels=[], samplers=[])
+    inputs = {}
+    for track in clip.tracks:
+        if track.interpolation == "CUBICSPLINE":
+            raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
+        within_float32(track.values, f"retargeted {track.path} track of joint {track.joint}")
+        key = track.times.tobytes()
+        if key not in inputs:
+            inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)
+        output = blob.add(track.values.astype(np.float32),
+                          {"rotation": "VEC4", "translation": "VEC3", "scale": "VEC3"}[track.path])
+        animation.samplers.append(pygltflib.AnimationSampler(input=inputs[key], output=output,
+                                                             interpolation=track.interpolation))
+        animation.channels.append(pygltflib.AnimationChannel(
+            sampler=len(animation.samplers) - 1,
+            target=pygltflib.AnimationChannelTarget(node=int(nodes[track.joint]), path=track.path)))
+    gltf.animations = list(gltf.animations or []) + [animation]
+    data = blob.bytes()
+    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
+    gltf.set_binary_blob(data)
+    with atomic_path(Path(out_path)) as tmp:
+        gltf.save_binary(str(tmp))
+    return name

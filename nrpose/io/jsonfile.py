@@ -4,8 +4,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from .errors import FileFormatError, NrposeError
-from .meshio import read_input_text
+from ..errors import FileFormatError, NrposeError
+from .files import read_input_text
 
 
 def read_json(path: str | Path, what: str, error: type[NrposeError] = FileFormatError):

@@ -27,9 +27,9 @@ import numpy as np
 
 from ..checks import real_rows, triangles
 from ..errors import FileFormatError, InputError
-from ..meshio import read_input_text
-from ..rotation import unit_quaternions
-from ..skeleton import LocalPose, Skeleton
+from .files import read_input_text
+from ..model.rotation import unit_quaternions
+from ..model.skeleton import LocalPose, Skeleton
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
 
@@ -169,7 +169,7 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
             if len(T):
                 F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
         else:
-            from ..meshio import read_geometry
+            from .meshes import read_geometry
             V, F = read_geometry(path)
     except RuntimeError as exc:
         raise FileFormatError(f"{path}: cannot read mesh ({exc})") from None

@@ -1,4 +1,4 @@
-"""Characters (meshes + skeleton + clips), animation clips, pose files, and loading.
+"""Characters (meshes + skeleton + clips) and animation clips; readers are :mod:`nrpose.io`.
 
 A :class:`Character` is what every loader returns: meshes whose rest vertices
 are in world space at the skeleton's rest pose, the :class:`Skeleton`, the
@@ -12,25 +12,18 @@ slerp along the shortest arc for rotations); ``CUBICSPLINE`` (Hermite, per the
 glTF 2.0 spec, tangents scaled by the key interval, quaternions normalised).
 Before its first key a track holds its first value, after its last key its
 last value; a joint without a track keeps its rest value.
-
-Pose files (JSON) replace rest local values of named joints::
-
-    {"rotations": {"JointName": [x, y, z, w]}, "translations": {"JointName": [x, y, z]}}
-
-A ``.dmat`` pose file is libigl's per-bone quaternions for a TGF skeleton.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from .errors import FileFormatError, InputError
-from .rotation import Rotation, unit_quaternions
-from .skeleton import LocalPose, Skeleton, _match_hint
+from ..errors import InputError
+from .rotation import Rotation
+from .skeleton import LocalPose, Skeleton
 
-__all__ = ["Track", "Clip", "Mesh", "Character", "load_character", "load_pose", "parse_pose"]
+__all__ = ["Track", "Clip", "Mesh", "Character"]
 
 PATH_WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
 INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
@@ -171,96 +164,3 @@ class Character:
     def skin_matrices(self, globals_: np.ndarray) -> np.ndarray:
         """Skinning matrices ``G @ G_rest^-1`` (..., J, 4, 4) for world-space rest vertices."""
         return np.asarray(globals_, dtype=np.float64) @ np.linalg.inv(self.skeleton.rest_globals())
-
-
-def load_character(path: str | Path, skeleton: str | Path | None = None) -> Character:
-    """Load a character by extension.
-
-    ``.glb``/``.gltf``: meshes, skin, clips. ``.bvh``: skeleton and its motion
-    clip, no mesh. ``.tgf``: skeleton only. A mesh (``.obj .off .ply .stl
-    .mesh``) needs ``skeleton`` (a ``.tgf`` or ``.bvh``); it gets no skin weights.
-    """
-    from .formats import bvh, gltf, tgf
-
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix in (".glb", ".gltf"):
-        if skeleton is not None:
-            raise InputError(f"{path}: a glTF file carries its own skeleton; do not pass one")
-        return gltf.load_gltf(path)
-    if suffix in (".bvh", ".tgf"):
-        if skeleton is not None:
-            raise InputError(f"{path}: is already a skeleton; pass a mesh with it instead")
-        if suffix == ".bvh":
-            skel, clip = bvh.read_bvh(path)
-            return Character(skel, clips=(clip,))
-        return Character(tgf.read_tgf(path))
-    if suffix in tgf.MESH_SUFFIXES:
-        if skeleton is None:
-            raise InputError(f"{path}: a mesh needs a skeleton (a .tgf or .bvh file)")
-        base = load_character(skeleton)
-        V, F = tgf.read_mesh(path)
-        return Character(base.skeleton, (Mesh(path.stem, V, F),), base.clips)
-    raise FileFormatError(f"{path}: unknown character extension {suffix!r}; use .glb, .gltf, .bvh, "
-                          f".tgf or a mesh ({', '.join(tgf.MESH_SUFFIXES)}) with a skeleton")
-
-
-#: the most frames one call samples (an hour at 30 fps is 108,000 frames)
-MAX_FRAMES = 1_000_000
-
-
-def check_frame_count(count: float, what: str) -> None:
-    """InputError when ``count`` frames (``what`` asked for them) exceed :data:`MAX_FRAMES`."""
-    if count > MAX_FRAMES:
-        raise InputError(f"{what} asks for {float(min(count, 1e300)):.3g} frames, more than {MAX_FRAMES:,}; "
-                         f"sample fewer (a shorter range, a larger step or a lower frame rate) or pose the "
-                         f"clip in parts")
-
-
-def sample_times(duration: float, fps: float) -> np.ndarray:
-    """Times k / fps (seconds, float64) for 0 <= k / fps <= duration (at least the time 0)."""
-    if not (np.isfinite(fps) and fps > 0):
-        raise InputError(f"fps must be a positive number, got {fps}")
-    count = np.floor(duration * fps + 1e-6) + 1
-    check_frame_count(count, f"{duration:g} s at {fps:g} fps")
-    return np.minimum(np.arange(int(count)) / fps, duration)
-
-
-def _vector(value, width: int, what: str) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        arr = np.zeros(0)
-    if arr.shape != (width,) or not np.isfinite(arr).all():
-        raise InputError(f"{what}: expected {width} finite numbers, got {value!r}")
-    return arr
-
-
-def parse_pose(doc, skeleton: Skeleton, where: str = "pose") -> LocalPose:
-    """Local pose (J, ...) from a pose document (see the module docstring)."""
-    if not isinstance(doc, dict) or set(doc) - {"rotations", "translations"}:
-        extra = sorted(set(doc) - {"rotations", "translations"}) if isinstance(doc, dict) else []
-        raise InputError(f"{where}: expected an object with 'rotations' and/or 'translations'"
-                         + (f", got keys {extra}" if extra else ""))
-    pose = skeleton.rest_pose
-    for key, field, width in (("rotations", pose.rotation, 4), ("translations", pose.translation, 3)):
-        entries = doc.get(key, {})
-        if not isinstance(entries, dict):
-            raise InputError(f"{where}: '{key}' must map joint names to lists of {width} numbers")
-        for name, value in entries.items():
-            if name not in skeleton.names:
-                raise InputError(f"{where}: {key}: unknown joint {name!r}; {_match_hint(name, skeleton.names)}")
-            field[skeleton.index(name)] = _vector(value, width, f"{where}: {key}[{name!r}]")
-    pose.rotation[:] = unit_quaternions(pose.rotation, [f"{where}: rotation of {n!r}" for n in skeleton.names])
-    return pose
-
-
-def load_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
-    """Local pose from a JSON pose file, or a libigl ``.dmat`` for a TGF skeleton."""
-    path = Path(path)
-    if path.suffix.lower() == ".dmat":
-        from .formats.tgf import read_dmat_pose
-
-        return read_dmat_pose(path, skeleton)
-    from .jsonfile import read_json
-    return parse_pose(read_json(path, "pose file"), skeleton, str(path))

@@ -7,27 +7,17 @@ segment, (S, 3, 3), column-vector convention, which must carry the rest
 direction onto the posed one. Handle order is points first, then segments,
 everywhere (weights, distance matrices, kernels).
 
-The handle file (``HANDLES.json``)::
-
-    {"alpha": 1.0,
-     "points":   [{"rest": [x, y, z], "pose": [x, y, z]}],
-     "segments": [{"rest": [[x,y,z],[x,y,z]], "pose": [[x,y,z],[x,y,z]],
-                   "rotation": [[...],[...],[...]],   # optional, 3x3
-                   "twist": 0.5}]}                     # optional, radians
-
-A segment without ``rotation`` turns by the minimal rotation between its rest
-and posed directions, followed by ``twist`` radians about its posed direction.
+The handle file format is :mod:`nrpose.io.poses`.
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from .checks import real_rows
-from .errors import HandleError
+from ..checks import real_rows
+from ..errors import HandleError
 from .rotation import Rotation, minimal_rotvec
 
 #: largest accepted angle between R·(rest direction) and the posed direction
@@ -147,45 +137,6 @@ def _rotation_matrices(values, idx: np.ndarray) -> np.ndarray:
     return Rotation.from_matrix(m).as_matrix()
 
 
-def load_handles(path: str | Path) -> tuple[HandleSet, Pose, float | None]:
-    """Read a handle file; return (rest, pose, alpha or None if the file has none)."""
-    from .jsonfile import read_json
-    return parse_handles(read_json(path, "handle file", HandleError), str(path))
-
-
-def parse_handles(doc, where: str = "handles") -> tuple[HandleSet, Pose, float | None]:
-    """Parse a handle document (the JSON structure above)."""
-    if not isinstance(doc, dict):
-        raise HandleError(f"{where}: expected a JSON object with 'points' and/or 'segments'")
-    unknown = set(doc) - {"alpha", "points", "segments"}
-    if unknown:
-        raise HandleError(f"{where}: unknown key(s) {sorted(unknown)}; expected alpha, points, segments")
-    alpha = doc.get("alpha")
-    if alpha is not None:
-        alpha = check_alpha(alpha)
-    points = _entries(doc, "points", where, {"rest", "pose"})
-    segments = _entries(doc, "segments", where, {"rest", "pose", "rotation", "twist"})
-    rest = HandleSet.make([p["rest"] for p in points], [s["rest"] for s in segments], what=f"{where}: rest")
-    rotations = [s.get("rotation") for s in segments]
-    twists = [s.get("twist", 0.0) for s in segments]
-    pose = Pose.make(rest, [p["pose"] for p in points], [s["pose"] for s in segments],
-                     rotations=rotations, twists=twists)
-    return rest, pose, alpha
-
-
-def _entries(doc: dict, key: str, where: str, allowed: set[str]) -> list[dict]:
-    items = doc.get(key, [])
-    if not isinstance(items, list):
-        raise HandleError(f"{where}: '{key}' must be a list")
-    for n, item in enumerate(items):
-        if not isinstance(item, dict) or not {"rest", "pose"} <= set(item):
-            raise HandleError(f"{where}: {key}[{n}] needs 'rest' and 'pose'")
-        extra = set(item) - allowed
-        if extra:
-            raise HandleError(f"{where}: {key}[{n}] has unknown key(s) {sorted(extra)}")
-    return items
-
-
 def check_alpha(alpha) -> float:
     """Validate the weight exponent α (> 0, finite)."""
     try:
@@ -200,7 +151,7 @@ def check_alpha(alpha) -> float:
 
 
 def handles_document(rest: HandleSet, pose: Pose, alpha: float | None = None) -> dict:
-    """The handle-file structure (inverse of :func:`parse_handles`), rotations explicit."""
+    """The handle-file structure (inverse of :func:`nrpose.io.poses.parse_handles`), rotations explicit."""
     doc: dict = {} if alpha is None else {"alpha": float(alpha)}
     doc["points"] = [{"rest": r.tolist(), "pose": p.tolist()}
                      for r, p in zip(rest.points, pose.handles.points)]

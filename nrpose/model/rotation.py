@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from .errors import InputError
+from ..errors import InputError
 
 __all__ = ["Rotation", "unit_quaternions", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "covariance_rotation",
            "relative_rotvec_table"]

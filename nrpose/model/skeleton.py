@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
 from .rotation import Rotation, unit_quaternions
 
 __all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components",
@@ -156,7 +156,9 @@ def polar_components(C: np.ndarray, flat: np.ndarray | None = None) -> np.ndarra
     return X
 
 
-def _match_hint(name: str, names) -> str:
+def match_hint(name: str, names) -> str:
+    """"did you mean ...?" for an unknown joint name, else the first known joints."""
+    """"did you mean ...?" for an unknown joint name, or the known joints."""
     close = difflib.get_close_matches(name, list(names), n=5, cutoff=0.5)
     if close:
         return "did you mean " + ", ".join(repr(c) for c in close) + "?"
@@ -250,7 +252,7 @@ class Skeleton:
         try:
             return self.names.index(name)
         except ValueError:
-            raise InputError(f"unknown joint {name!r}; {_match_hint(name, self.names)}") from None
+            raise InputError(f"unknown joint {name!r}; {match_hint(name, self.names)}") from None
 
     def children(self, j: int) -> np.ndarray:
         """Indices (int64) of the children of joint j, ascending."""

@@ -8,22 +8,19 @@ Vertices of all the character's meshes are concatenated in file order
 (``mesh_offsets`` tells where each mesh starts). Methods:
 
 * ``nrmls``: the engine's near-rigid blend (:mod:`nrpose.blend`) with the
-  skeleton's bones (:meth:`nrpose.skeleton.Skeleton.bones`) as segment
-  handles carrying their full rotation. With ``weights="authored"`` a
-  vertex's weight on joint j becomes weight on j's bones, shared between
-  them by inverse squared distance (a joint's bones all move with its
-  rigid transform, so any split keeps that motion exact); a weighted joint
-  that drives no bone hands its weight to its nearest ancestor that does.
+  skeleton's bones (:meth:`nrpose.model.skeleton.Skeleton.bones`) as segment
+  handles carrying their full rotation, weighted by
+  :func:`nrpose.bind.bone_weights.bone_weights`.
 * ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.skinning`).
   With authored weights a glTF mesh is skinned from its own bind-space
   POSITION data with ``G_j @ inverse_bind_j`` of its own skin: the glTF
   specification's formula.
 
-Weights: ``authored`` (the file's skin weights), ``euclidean`` (distance to
-the bone segments, ``1/d^(2α)``), or a topological distance over the surface
-(``heat``, ``exact``, ``graph``: :func:`nrpose.distances.distance_matrix`,
-cached on disk by :mod:`nrpose.bindcache`). For lbs/dqs the distance weights
-keep each vertex's 4 nearest bones, summed per driving joint.
+Weights (:data:`nrpose.bind.bone_weights.WEIGHTS`): ``authored`` (the file's
+skin weights), ``euclidean`` (distance to the bone segments, ``1/d^(2α)``), or
+a topological distance over the surface (``heat``, ``exact``, ``graph``). For
+lbs/dqs the distance weights keep each vertex's 4 nearest bones, summed per
+driving joint.
 
 Meshes attached rigidly to a joint follow that joint's transform exactly,
 whatever the method.
@@ -35,18 +32,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .blend import BLENDS
-from .character import Character
-from .engine import Deformer
-from .errors import InputError
-from .handles import HandleSet, Pose
-from .skeleton import LocalPose
-from .weights import dense_weights, keep_top_k
+from .. import skinning
+from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
+from ..blend import BLENDS
+from ..engine import Deformer
+from ..errors import InputError
+from ..model.character import Character
+from ..model.handles import HandleSet, Pose
+from ..model.meshset import concatenate_meshes
+from ..model.skeleton import LocalPose
+
+__all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames"]
 
 METHODS = ("nrmls", "lbs", "dqs")
-WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
-SKELETON_K = 8        # segment slots per vertex for nrmls on skeletons with more bones
 BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
 
@@ -81,10 +80,10 @@ class CharacterPoser:
         if blend not in BLENDS:
             raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
         if blend != "relative" and method != "nrmls":
-            raise InputError(f"blend {blend!r} applies to the nrmls method only; drop --blend or use --method nrmls")
+            raise InputError(f"blend {blend!r} applies to the nrmls method only; drop blend= or use method='nrmls'")
         if not character.meshes:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
-                             "give a mesh and pass the skeleton with --skeleton")
+                             "give a mesh and pass the skeleton with skeleton=")
         t0 = time.perf_counter()
         self.character, self.method = character, method
         skel = character.skeleton
@@ -102,24 +101,15 @@ class CharacterPoser:
         self._deformer, self._bind_space = None, False
         if deform_meshes:
             V = self._rest_world[self._deform_idx]
-            faces = _submesh_faces(self.faces, self._deform_idx, self.n)
-            if weights == "authored":
-                joint_w = _authored_joint_weights(deform_meshes, skel.num_joints)
-            else:
-                D = _bone_distances(V, faces, self.bones.segments, weights)
             if method == "nrmls":
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
-                if weights == "authored":
-                    W = _joint_to_bone_weights(joint_w, V, self.bones, skel.parents)
-                    self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
-                else:
-                    self._deformer = Deformer(V, rest, alpha=alpha, distances=D, k=kk, backend=backend,
-                                              blend=blend)
+                W = bone_weights(character, weights, kk, alpha).weights[self._deform_idx]
+                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
             else:
-                from . import skinning
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
+                    joint_w = authored_joint_weights(deform_meshes, skel.num_joints)
                     self._bind_space = all(m.bind_vertices is not None and m.inverse_bind is not None
                                            for m in deform_meshes)
                     src = (np.concatenate([m.bind_vertices for m in deform_meshes]) if self._bind_space else V)
@@ -128,7 +118,7 @@ class CharacterPoser:
                         self._ibms, group = _distinct([m.inverse_bind for m in deform_meshes])
                         offset = np.repeat(group * skel.num_joints, [len(m.vertices) for m in deform_meshes])
                 else:
-                    bone_w = keep_top_k(dense_weights(D, alpha), SKIN_INFLUENCES)
+                    bone_w = bone_weights(character, weights, SKIN_INFLUENCES, alpha).weights[self._deform_idx]
                     joint_w = np.zeros((len(V), skel.num_joints))
                     np.add.at(joint_w.T, self.bones.joints, bone_w.T)
                     self._bind_space, src = False, V
@@ -146,7 +136,7 @@ class CharacterPoser:
 
         progress: optional callable(done, total) called after each frame.
         """
-        skel, ch = self.character.skeleton, self.character
+        skel = self.character.skeleton
         if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
             raise InputError("no frames to pose: give at least one time")
         G = skel.forward_kinematics(local)
@@ -185,7 +175,6 @@ class CharacterPoser:
                 elif self._deformer is not None:
                     self._deformer.pose_frames(mats[a:b], out=dst)
                 else:
-                    from . import skinning
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
                     dst[...] = [ref(*self._skin_ref, m) for m in mats[a:b]]
                 if not whole:
@@ -199,81 +188,6 @@ class CharacterPoser:
 
 
 # ---------------------------------------------------------------------- helpers
-@dataclass(frozen=True)
-class MeshSet:
-    """A character's meshes concatenated in file order: vertices (V, 3) float64,
-    faces (M, 3) int64 (into the concatenation), offsets (meshes,) int64 where
-    each mesh starts, names, rigid (V,) int64: the joint a rigidly attached
-    vertex follows, or -1 for skinned/deforming vertices."""
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    offsets: np.ndarray
-    names: tuple[str, ...]
-    rigid: np.ndarray
-
-
-def concatenate_meshes(meshes) -> MeshSet:
-    """:class:`MeshSet` of a character's meshes."""
-    sizes = np.array([len(m.vertices) for m in meshes], dtype=np.int64)
-    offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(np.int64)
-    return MeshSet(
-        vertices=np.concatenate([m.vertices for m in meshes]).astype(np.float64),
-        faces=np.concatenate([np.asarray(m.faces, np.int64).reshape(-1, 3) + o
-                              for m, o in zip(meshes, offsets)]).astype(np.int64),
-        offsets=offsets, names=tuple(m.name for m in meshes),
-        rigid=np.concatenate([np.full(len(m.vertices), -1 if m.rigid_joint is None else m.rigid_joint)
-                              for m in meshes]).astype(np.int64))
-
-
-def _submesh_faces(faces: np.ndarray, keep: np.ndarray, n: int) -> np.ndarray:
-    """Faces among the vertices ``keep`` (renumbered), dropping faces that leave them."""
-    new = np.full(n, -1)
-    new[keep] = np.arange(len(keep))
-    f = new[faces]
-    return f[(f >= 0).all(axis=1)]
-
-
-def _authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
-    """Dense (V, J) joint weights of the skinned meshes, rows summing to 1."""
-    missing = [m.name for m in meshes if m.joints is None or m.weights is None]
-    if missing:
-        raise InputError(f"mesh {missing[0]!r} has no skin weights; use --weights euclidean "
-                         "(or heat, exact, graph)")
-    rows = []
-    for m in meshes:
-        W = np.zeros((len(m.vertices), n_joints))
-        np.add.at(W, (np.repeat(np.arange(len(m.vertices)), m.joints.shape[1]), m.joints.ravel()),
-                  m.weights.ravel())
-        rows.append(W)
-    W = np.concatenate(rows)
-    return W / W.sum(axis=1, keepdims=True)
-
-
-def _joint_to_bone_weights(joint_w: np.ndarray, V: np.ndarray, bones, parents: np.ndarray) -> np.ndarray:
-    """(V, B) bone weights from (V, J) joint weights (see the module docstring)."""
-    from .distances import point_segment_distances
-
-    owner = np.arange(joint_w.shape[1])
-    driven = np.zeros(joint_w.shape[1], bool)
-    driven[bones.joints] = True
-    for j in range(len(owner)):                      # parents come first: resolve in order
-        if not driven[j]:
-            p = parents[j]
-            owner[j] = owner[p] if p >= 0 else -1
-    lost = (owner < 0) & (joint_w.sum(axis=0) > 0)
-    if lost.any():
-        raise InputError(f"joint {int(np.flatnonzero(lost)[0])} carries skin weight but neither it nor "
-                         "an ancestor drives a bone")
-    jw = np.zeros_like(joint_w)
-    np.add.at(jw.T, owner[owner >= 0], joint_w.T[owner >= 0])
-    d2 = point_segment_distances(V, bones.segments)[0] ** 2
-    share = 1.0 / np.maximum(d2, 1e-12)
-    per_joint = np.zeros((len(V), jw.shape[1]))
-    np.add.at(per_joint.T, bones.joints, share.T)
-    return jw[:, bones.joints] * share / per_joint[:, bones.joints]
-
-
 def _distinct(arrays: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
     """The distinct arrays of a list and, for each entry, the index of its distinct array."""
     distinct, index = [], []
@@ -291,22 +205,3 @@ def _compact(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     K = max(int(np.count_nonzero(W, axis=1).max()), 1)
     joints = np.argsort(-W, axis=1, kind="stable")[:, :K]
     return joints, np.take_along_axis(W, joints, axis=1)
-
-
-def _bone_distances(V: np.ndarray, faces: np.ndarray, segments: np.ndarray, method: str) -> np.ndarray:
-    """(V, B) distances from vertices to bones: Euclidean, or over the surface (cached)."""
-    from . import distances
-
-    if method == "euclidean":
-        return distances.point_segment_distances(V, segments)[0]
-    return surface_distances(V, faces, np.zeros((0, 3)), segments, method)
-
-
-def surface_distances(V: np.ndarray, faces, points: np.ndarray, segments: np.ndarray, method: str) -> np.ndarray:
-    """(V, P + S) handle distances over the surface (or a kNN graph of a point cloud),
-    :func:`nrpose.distances.distance_matrix`, cached on disk by content (:mod:`nrpose.bindcache`)."""
-    from . import distances
-    from .bindcache import binding_key_parts, cached
-
-    parts = binding_key_parts(V, faces, points, segments, {"distances": method})
-    return cached(parts, lambda: {"D": distances.distance_matrix(V, faces, points, segments, method=method)})["D"]

@@ -5,7 +5,7 @@
 
 The source and the target may differ in joint names, proportions, bone frames
 (rest local rotations) and rest posture (T- against A-pose, splayed legs).
-The result is a :class:`~nrpose.character.Clip` of the target: rotation tracks
+The result is a :class:`~nrpose.model.character.Clip` of the target: rotation tracks
 on the mapped joints and a translation track on the root-motion joint (the
 mapped joint nearest the root, normally the hips); every other local value is
 the target's rest value, so target bone lengths never change.
@@ -107,16 +107,16 @@ from __future__ import annotations
 import itertools
 import re
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from .character import Character, Clip, Track, sample_times
-from .errors import FileFormatError, InputError
-from .rotation import Rotation, kabsch, minimal_rotvec
-from .skeleton import LocalPose, Skeleton, _match_hint, polar_rotation
+from ..errors import InputError
+from ..model.character import Character, Clip, Track
+from ..model.rotation import Rotation, kabsch, minimal_rotvec
+from ..model.skeleton import LocalPose, Skeleton, match_hint, polar_rotation
+from ..model.timing import sample_times
 
-__all__ = ["joint_map", "load_map", "format_map", "normalize_name", "joint_slots", "mapped_bones",
+__all__ = ["joint_map", "format_map", "normalize_name", "joint_slots", "mapped_bones",
            "leg_length", "sole_heights", "sample_times", "RetargetPlan", "retarget", "retarget_pose", "make_clip"]
 
 UP = 1  # +Y is up in both rigs (glTF; BVH as conventionally recorded)
@@ -291,10 +291,10 @@ def joint_map(source_skel: Skeleton, target_skel: Skeleton, user_map: dict | Non
     for t, s in user_map.items():
         if t not in target_skel.names:
             raise InputError(f"joint map: target joint {t!r} does not exist; "
-                             f"{_match_hint(str(t), target_skel.names)}")
+                             f"{match_hint(str(t), target_skel.names)}")
         if s is not None and s not in source_skel.names:
             raise InputError(f"joint map: source joint {s!r} (for {t!r}) does not exist; "
-                             f"{_match_hint(str(s), source_skel.names)}")
+                             f"{match_hint(str(s), source_skel.names)}")
     ss, ts = joint_slots(source_skel), joint_slots(target_skel)
     mapping: dict[int, int] = {}
     used: set[int] = set()
@@ -325,17 +325,6 @@ def joint_map(source_skel: Skeleton, target_skel: Skeleton, user_map: dict | Non
         else:
             out[t] = s
     return {n: out[n] for n in target_skel.names if n in out}
-
-
-def load_map(path: str | Path) -> dict:
-    """A joint map file: JSON object {"TargetJoint": "SourceJoint" or null}."""
-    from .jsonfile import read_json
-    path = Path(path)
-    doc = read_json(path, "joint map")
-    if not isinstance(doc, dict) or not all(isinstance(v, str) or v is None for v in doc.values()):
-        raise FileFormatError(f"{path}: a joint map is a JSON object {{\"TargetJoint\": \"SourceJoint\"}} "
-                              "(null unmaps a target joint)")
-    return doc
 
 
 def format_map(mapping: dict[str, str], source_skel: Skeleton, target_skel: Skeleton) -> str:
@@ -475,9 +464,9 @@ def _index_map(source_skel: Skeleton, target_skel: Skeleton, mapping: dict[str, 
     m = {}
     for t, s in mapping.items():
         if t not in target_skel.names:
-            raise InputError(f"joint map: target joint {t!r} does not exist; {_match_hint(t, target_skel.names)}")
+            raise InputError(f"joint map: target joint {t!r} does not exist; {match_hint(t, target_skel.names)}")
         if s not in source_skel.names:
-            raise InputError(f"joint map: source joint {s!r} does not exist; {_match_hint(s, source_skel.names)}")
+            raise InputError(f"joint map: source joint {s!r} does not exist; {match_hint(s, source_skel.names)}")
         m[target_skel.names.index(t)] = source_skel.names.index(s)
     return m
 
@@ -543,7 +532,7 @@ class RetargetPlan:
         m = _index_map(source_skel, target_skel, mapping)
         if not m:
             raise InputError("no target joint is mapped to a source joint: the rigs share no known joint "
-                             "names; give a joint map (--map MAP.json, {\"TargetJoint\": \"SourceJoint\"})")
+                             "names; give a joint map (user_map= {\"TargetJoint\": \"SourceJoint\"})")
         self.mapping = m
         Gs0, Gt0 = source_skel.rest_globals(), target_skel.rest_globals()
         ps, pt = Gs0[:, :3, 3], Gt0[:, :3, 3]
@@ -675,7 +664,7 @@ def _check_motion(source: Character, clip: Clip, m: dict[int, int]) -> None:
     if not moving & set(m.values()):
         names = ", ".join(sorted(source.skeleton.names[j] for j in moving)[:6])
         raise InputError(f"source clip {clip.name!r} moves no mapped source joint (it moves {names}); "
-                         "check the joint map (--show-map)")
+                         "check the joint map (see format_map())")
 
 
 def retarget_pose(source: Character, clip: Clip, target: Character, mapping: dict[str, str],

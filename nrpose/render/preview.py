@@ -23,23 +23,23 @@ from typing import Sequence
 
 import numpy as np
 
-from .checks import real_rows, triangles
-from .errors import InputError
-from .meshio import atomic_path
+from ..checks import real_rows, triangles
+from ..errors import InputError
+from ..io.files import atomic_path
 
-__all__ = ["save_preview", "render_figure", "MAX_FACES", "MAX_POINTS"]
+__all__ = ["save_preview", "render_figure", "spread", "MAX_FACES", "MAX_POINTS", "LIGHT", "MESH_RGB", "UP"]
 
 MAX_FACES = 60_000
 MAX_POINTS = 60_000
-_LIGHT = np.array([-0.4, -0.6, 0.7])       # in plot coordinates (x right, y depth, z up)
-_MESH_RGB = np.array([0.62, 0.70, 0.86])
+LIGHT = np.array([-0.4, -0.6, 0.7])       # in plot coordinates (x right, y depth, z up)
+MESH_RGB = np.array([0.62, 0.70, 0.86])
 # data axis -> plot axes (right-handed relabelling, the up axis becomes plot z)
-_UP = {"y": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
-       "z": np.eye(3),
-       "x": np.array([[0, 1.0, 0], [0, 0, 1.0], [1.0, 0, 0]])}
+UP = {"y": np.array([[1.0, 0, 0], [0, 0, -1.0], [0, 1.0, 0]]),
+      "z": np.eye(3),
+      "x": np.array([[0, 1.0, 0], [0, 0, 1.0], [1.0, 0, 0]])}
 
 
-def _spread(n: int, keep: int) -> np.ndarray:
+def spread(n: int, keep: int) -> np.ndarray:
     """Indices of an evenly spread subset of ``keep`` out of ``n``."""
     return np.unique(np.linspace(0, n - 1, keep).round().astype(np.int64))
 
@@ -83,7 +83,7 @@ def render_figure(panels: Sequence[tuple], handles: Sequence | None = None, *,
     from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-    if up not in _UP:
+    if up not in UP:
         raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
     panels = list(panels)
     if not panels:
@@ -91,7 +91,7 @@ def render_figure(panels: Sequence[tuple], handles: Sequence | None = None, *,
     if handles is not None and len(handles) != len(panels):
         raise InputError(f"handles must have one entry per panel ({len(panels)}), "
                          f"got {len(handles)}")
-    to_plot = _UP[up].T                      # rows: X_plot = X_data @ M.T
+    to_plot = UP[up].T                      # rows: X_plot = X_data @ M.T
 
     prepared = []
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -125,7 +125,7 @@ def render_figure(panels: Sequence[tuple], handles: Sequence | None = None, *,
     n = len(prepared)
     fig = Figure(figsize=(panel_inches * n, panel_inches), dpi=dpi)
     fig.subplots_adjust(left=0, right=1, bottom=0, top=0.92, wspace=0.02)
-    light = _LIGHT / np.linalg.norm(_LIGHT)
+    light = LIGHT / np.linalg.norm(LIGHT)
     for k, (title, V, F, pts, segs) in enumerate(prepared):
         ax = fig.add_subplot(1, n, k + 1, projection="3d", computed_zorder=False)
         ax.set_xlim(lo[0], hi[0])
@@ -141,17 +141,17 @@ def render_figure(panels: Sequence[tuple], handles: Sequence | None = None, *,
             if len(F) > MAX_FACES:
                 keep = _front_faces(tri, nrm, elev, azim)
                 if len(keep) > MAX_FACES:
-                    keep = keep[_spread(len(keep), MAX_FACES)]
+                    keep = keep[spread(len(keep), MAX_FACES)]
                 tri, nrm = tri[keep], nrm[keep]
             length = np.linalg.norm(nrm, axis=1, keepdims=True)
             nrm = np.divide(nrm, length, out=np.zeros_like(nrm), where=length > 0)
             shade = 0.35 + 0.65 * np.abs(nrm @ light)       # two-sided Lambert
-            colors = np.clip(shade[:, None] * _MESH_RGB, 0, 1)
+            colors = np.clip(shade[:, None] * MESH_RGB, 0, 1)
             coll = Poly3DCollection(tri, facecolors=colors, edgecolors="none",
                                     linewidths=0, antialiaseds=False, zorder=1)
             ax.add_collection3d(coll)
         else:
-            P = V if len(V) <= MAX_POINTS else V[_spread(len(V), MAX_POINTS)]
+            P = V if len(V) <= MAX_POINTS else V[spread(len(V), MAX_POINTS)]
             size = float(np.clip(3000.0 / len(P), 0.3, 12.0))
             ax.scatter(P[:, 0], P[:, 1], P[:, 2], s=size, c=P[:, 2], cmap="viridis",
                        vmin=up_lo, vmax=up_hi, depthshade=False, linewidths=0, zorder=1)

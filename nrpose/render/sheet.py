@@ -30,10 +30,10 @@ from typing import Sequence
 
 import numpy as np
 
-from .checks import real_rows, triangles
-from .errors import InputError
-from .meshio import atomic_path
-from .preview import _LIGHT, _MESH_RGB, _UP, _spread
+from ..checks import real_rows, triangles
+from ..errors import InputError
+from ..io.files import atomic_path
+from .preview import LIGHT, MESH_RGB, UP, spread
 
 __all__ = ["save_contact_sheet", "view_matrix", "rasterize", "draw_mesh", "draw_points",
            "draw_segments"]
@@ -48,24 +48,24 @@ def view_matrix(up: str = "y", elev: float = 15.0, azim: float = -60.0) -> np.nd
     the data axis drawn vertically, ``elev``/``azim`` in degrees; depth grows
     towards the viewer.
     """
-    if up not in _UP:
+    if up not in UP:
         raise InputError(f"up must be 'x', 'y' or 'z', got {up!r}")
     el, az = math.radians(float(elev)), math.radians(float(azim))
     right = [-math.sin(az), math.cos(az), 0.0]
     screen_up = [-math.sin(el) * math.cos(az), -math.sin(el) * math.sin(az), math.cos(el)]
     eye = [math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)]
-    return np.array([right, screen_up, eye]) @ _UP[up]
+    return np.array([right, screen_up, eye]) @ UP[up]
 
 
 def _light(up: str, elev: float, azim: float) -> np.ndarray:
     """Preview's light direction (given in plot coordinates) in screen coordinates."""
-    cam = view_matrix(up, elev, azim) @ _UP[up].T          # plot -> screen
-    light = cam @ _LIGHT
+    cam = view_matrix(up, elev, azim) @ UP[up].T          # plot -> screen
+    light = cam @ LIGHT
     return light / np.linalg.norm(light)
 
 
 def rasterize(screen: np.ndarray, faces: np.ndarray, light: np.ndarray, bounds, size, *,
-              color=_MESH_RGB) -> tuple[np.ndarray, int]:
+              color=MESH_RGB) -> tuple[np.ndarray, int]:
     """Flat-shaded RGBA image (H, W, 4) float of a mesh in screen coordinates, and faces drawn.
 
     screen: (N, 3) (x, y, depth towards the viewer); faces: (M, 3) int;
@@ -126,7 +126,7 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, light: np.ndarray, bounds, 
 
 
 def draw_mesh(ax, screen: np.ndarray, faces: np.ndarray, light: np.ndarray, bounds, size, *,
-              color=_MESH_RGB, zorder: float = 1) -> int:
+              color=MESH_RGB, zorder: float = 1) -> int:
     """Draw :func:`rasterize`'s image on a 2D axis over ``bounds`` (x0, x1, y0, y1); returns faces drawn.
 
     ``size`` (W, H) should be about twice the axis' size in pixels: the image
@@ -142,7 +142,7 @@ def draw_mesh(ax, screen: np.ndarray, faces: np.ndarray, light: np.ndarray, boun
 def draw_points(ax, screen: np.ndarray, heights: np.ndarray, vmin: float, vmax: float, *,
                 max_points: int = 60_000, zorder: float = 1) -> None:
     """Dots (far to near) coloured by ``heights`` (viridis between vmin and vmax)."""
-    idx = np.arange(len(screen)) if len(screen) <= max_points else _spread(len(screen), max_points)
+    idx = np.arange(len(screen)) if len(screen) <= max_points else spread(len(screen), max_points)
     idx = idx[np.argsort(screen[idx, 2], kind="stable")]
     size = float(np.clip(1500.0 / len(idx), 0.2, 10.0))
     ax.scatter(screen[idx, 0], screen[idx, 1], s=size, c=heights[idx], cmap="viridis",
@@ -225,7 +225,7 @@ def save_contact_sheet(path, positions, faces=None, times=None, title: str = "",
     P, F, T = _check(positions, faces, times, handles_per_frame, max_panels)
     M = view_matrix(up, elev, azim)
     light = _light(up, elev, azim)
-    frames = [int(f) for f in (np.arange(len(P)) if len(P) <= max_panels else _spread(len(P), max_panels))]
+    frames = [int(f) for f in (np.arange(len(P)) if len(P) <= max_panels else spread(len(P), max_panels))]
     screens, segs = [], []
     lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
     for f in frames:

@@ -15,8 +15,8 @@ from typing import Mapping
 
 import numpy as np
 
-from .checks import real_rows, triangles
-from .errors import InputError
+from ..checks import real_rows, triangles
+from ..errors import InputError
 
 __all__ = ["save_weight_map", "save_weight_maps"]
 
@@ -61,7 +61,7 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
         checked = [(label, V[:, [0, 2, 1]] * [1.0, -1.0, 1.0], F, w) for label, V, F, w in checked]
     V = checked[0][1]
     lo, hi = V.min(axis=0), V.max(axis=0)
-    centre, half = (lo + hi) / 2, (hi - lo).max() / 2
+    half = (hi - lo).max() / 2
     top = vmax if vmax is not None else max(1e-12, max(float(c[3].max()) for c in checked))
     norm = (matplotlib.colors.Normalize(0.0, top) if gamma == 1.0
             else matplotlib.colors.PowerNorm(gamma, 0.0, top))
