@@ -1,6 +1,6 @@
 """The embedded default character: a capsule humanoid with a skeleton, skin weights and a walk.
 
-:func:`humanoid` builds a :class:`nrpose.character.Character` the same way a
+:func:`humanoid` builds a :class:`nrpose.model.character.Character` the same way a
 glTF loader would describe one, from scratch and deterministically (no file,
 no cache):
 

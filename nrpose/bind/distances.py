@@ -59,15 +59,14 @@ segment), and the exact quantity we approximate is::
   approximation.
 * Heat from a *region*: a bone's sources cover a patch of surface (a whole
   finger). The heat method is poor there (inside the patch the normalised
-  heat gradient is noise; measured on the fingers shape: 57 % mean relative
-  error). Outside a patch the distance to it is the distance to its border,
+  heat gradient is noise: about 57 % mean relative error on the fingers shape). Outside a patch the distance to it is the distance to its border,
   so heat is solved from the *front*: the sources that have a non-source
   neighbour; the sources themselves get 0. libigl's normalisation (minus the
-  mean over the front) is kept and negatives are clipped to 0. Measured
-  heat-vs-exact on the fingers shape (2.6k vertices): bones max 8.3 %, a
+  mean over the front) is kept and negatives are clipped to 0. Heat against
+  exact on the fingers shape (2.6k vertices): bones max 8.3 %, a
   point handle max 13 % (right next to it), mean 0.8 % relative error; unit
   icosphere (2.6k vertices, point sources) vs great circles: max 1.9 %.
-* Time step: ``t = m·h²``. Measured max relative error vs ``m`` = 0.25,
+* Time step: ``t = m·h²``. Max relative error for ``m`` = 0.25,
   0.5, 1, 2, 4: icosphere point sources 3.4, 2.5, 1.9, 1.6, 1.4 %; fingers
   bones 7.7, 4.7, 8.3, 15.8, 25.2 % (mean 0.88, 0.43, 0.84, 1.7, 2.8 %:
   a large t blurs a region's front). m = 1 (libigl's and

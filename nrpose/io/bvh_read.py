@@ -9,7 +9,7 @@ Position channels replace the corresponding offset components (the usual
 reading: the root's positions are absolute). An ``End Site`` becomes its
 joint's tip. Units are the file's; no axis conversion.
 
-The motion is a :class:`~nrpose.character.Clip` named after the file, with
+The motion is a :class:`~nrpose.model.character.Clip` named after the file, with
 LINEAR tracks (slerp for rotations) keyed at ``frame * frame_time`` seconds,
 so its duration is ``(frames - 1) * frame_time``.
 """

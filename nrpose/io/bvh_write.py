@@ -1,4 +1,4 @@
-"""Writing BVH motion: any :class:`~nrpose.skeleton.Skeleton` and a batch of local poses.
+"""Writing BVH motion: any :class:`~nrpose.model.skeleton.Skeleton` and a batch of local poses.
 
 BVH joints have identity rest rotations and offsets in their parent's frame,
 so the skeleton is written in its rest pose *in world space*: a joint's
@@ -9,7 +9,7 @@ written depth first; a joint's BVH rotation at a frame is its world rotation
 relative to its rest world rotation, ``B_j = W_j(t) · W_j(rest)⁻¹``, and the
 channel values are the local ``B_parent⁻¹ · B_j`` as intrinsic ``Zrotation
 Xrotation Yrotation`` degrees (``R = Rz @ Rx @ Ry``, as
-:mod:`nrpose.formats.bvh` reads them). Roots, and joints listed in
+:mod:`nrpose.io.bvh_read` reads them). Roots, and joints listed in
 ``position_joints``, also get ``Xposition Yposition Zposition``: their
 position in the parent's BVH frame (a root's world position). Leaves get an
 ``End Site``: the skeleton's tip if it has one, else half the joint's distance
@@ -17,7 +17,7 @@ from its nearest ancestor at another position, along that direction.
 
 Rotations are taken as polar parts of the global matrices: a rig with
 non-uniform scales is written without them. Whitespace in joint names becomes
-``_``. Written through :func:`nrpose.meshio.atomic_path`.
+``_``. Written through :func:`nrpose.io.files.atomic_path`.
 """
 from __future__ import annotations
 

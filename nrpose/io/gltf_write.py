@@ -151,8 +151,8 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
                        *, animation_name: str = "baked") -> None:
     """Write the meshes with the posed frames baked as morph targets and one animation.
 
-    character_or_meshes: a :class:`~nrpose.character.Character` (its
-    ``meshes``), or a sequence of :class:`~nrpose.character.Mesh` or
+    character_or_meshes: a :class:`~nrpose.model.character.Character` (its
+    ``meshes``), or a sequence of :class:`~nrpose.model.character.Mesh` or
     ``(vertices, faces)`` / ``(name, vertices, faces)``; their vertices are
     the rest geometry. positions: (F, V, 3) posed vertices of all meshes
     concatenated; times: (F,) seconds, non-negative, strictly increasing;

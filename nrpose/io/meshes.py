@@ -41,8 +41,7 @@ Formats, and what a round trip keeps:
           with faces as ``.xyz`` is refused (it would drop the faces).
 ========  =================================================================
 
-Why not pymeshlab / libigl for reading (measured, pymeshlab 2025.7.post1,
-libigl 2.6.3): on clean files pymeshlab keeps OBJ/PLY/OFF vertex order (and
+Why not pymeshlab / libigl for reading: on clean files pymeshlab keeps OBJ/PLY/OFF vertex order (and
 merges STL corners in first-appearance order), but it silently **deletes
 vertices with NaN/inf coordinates and renumbers the rest** (OBJ, PLY, OFF),
 silently drops OBJ faces whose index is out of range and faces with a

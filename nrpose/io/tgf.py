@@ -6,7 +6,7 @@ second ``#``; anything after it is ignored.
 
 libigl's handles are the *bones* (edges), not the joints: weights, poses and
 forward kinematics (``igl::forward_kinematics``) are per bone, each bone
-rotating about its first endpoint. So the :class:`~nrpose.skeleton.Skeleton`
+rotating about its first endpoint. So the :class:`~nrpose.model.skeleton.Skeleton`
 made from a TGF has **one joint per bone**, named ``bone<e>`` where ``e`` is
 the bone's 0-based line order in the file (= DMAT pose and weight column
 order). A joint sits at its bone's first endpoint with identity rest rotation,
@@ -149,7 +149,7 @@ def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
 def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     """Triangle mesh: vertices (N, 3) float64 and faces (M, 3) int64.
 
-    OBJ/OFF/PLY/STL through :func:`nrpose.meshio.read_geometry` (order-preserving;
+    OBJ/OFF/PLY/STL through :func:`nrpose.io.meshes.read_geometry` (order-preserving;
     ``igl.read_triangle_mesh`` can abort the interpreter on some PLYs). A tetrahedral Medit
     ``.mesh`` gives its boundary triangles (``igl.boundary_facets``, oriented
     like the tets) and only the vertices they use, in file order; other

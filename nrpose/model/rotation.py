@@ -125,9 +125,9 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     count as optimal (collinear pairs leave a circle of optimal rotations, one
     pair a sphere), and the one nearest the identity is taken: the identity
     quaternion projected onto their eigenspace (when all of them are half turns,
-    the one whose axis is nearest x, else y, else z). That is exact, where the old
-    regularised SVD (C + εI) resolved it only to ~1e-5. One 4×4 ``eigh``
-    instead of an SVD and two determinants (~70 µs against ~120 µs per call).
+    the one whose axis is nearest x, else y, else z). That is exact, where a
+    regularised SVD (C + εI) resolves it only to ~1e-5, and one 4×4 ``eigh`` costs
+    less than an SVD and two determinants.
     kernels/global_fit.h is its device twin for the OpenCL deformer's R_g.
     """
     scale = max(np.abs(C).max(), p_scale2, 1e-300)

@@ -119,9 +119,9 @@ def polar_components(C: np.ndarray, flat: np.ndarray | None = None) -> np.ndarra
     character, float32 data included) take a fast path: Newton–Schulz steps
     ``X ← X (3I − XᵀX) / 2`` from X = A / s, which take δ = max |σ² − 1| to ~(3/4) δ²
     (1e-3 → ~1e-6 → ~1e-12 → rounding), as many as :data:`POLAR_TOLERANCE` needs: float32
-    data (δ ~1e-6) two, float64 rotations none. The others take an SVD. (The batched SVD
-    was ~40 % of posing a Mannequin clip.) Component-major (3, 3, n) arrays because numpy's
-    stacked 3x3 ``@`` and ``det`` cost ~14x more than these element-wise products.
+    data (δ ~1e-6) two, float64 rotations none. The others take an SVD (a batched SVD for
+    every joint would dominate posing a clip). Component-major (3, 3, n) arrays because
+    numpy's stacked 3x3 ``@`` and ``det`` cost far more than these element-wise products.
     """
     s2 = np.einsum("ijn,ijn->n", C, C) / 3.0                           # mean squared column norm
     X = C / np.sqrt(np.where(s2 > 0, s2, 1.0))

@@ -2,7 +2,7 @@
 
 ``save_preview(path, panels, handles)`` draws one 3D view per panel with
 matplotlib's Agg renderer (no screen, no pyplot state: safe in scripts and
-threads) and writes the PNG through :func:`nrpose.meshio.atomic_path`.
+threads) and writes the PNG through :func:`nrpose.io.files.atomic_path`.
 
 * All panels share one bounding box and camera, with equal scale on the
   three axes, so "before" and "after" line up.

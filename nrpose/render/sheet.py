@@ -16,12 +16,12 @@ vertices take about 2 s (plus matplotlib's import on first use). Without
 faces the vertices are drawn as dots coloured by height.
 Skeleton segments (``handles_per_frame``) are drawn on top.
 
-The camera, light and colours are those of :mod:`nrpose.preview` (same
+The camera, light and colours are those of :mod:`nrpose.render.preview` (same
 ``up``/``elev``/``azim`` meaning, same constants), so the two kinds of
 picture look alike. The helpers :func:`view_matrix`, :func:`rasterize`,
 :func:`draw_mesh`, :func:`draw_points` and :func:`draw_segments` work on any 2D matplotlib axis
 and can be reused by other pictures. The PNG is written through
-:func:`nrpose.meshio.atomic_path`.
+:func:`nrpose.io.files.atomic_path`.
 """
 from __future__ import annotations
 
@@ -44,7 +44,7 @@ _SEGMENT_RGB = "#d62728"
 def view_matrix(up: str = "y", elev: float = 15.0, azim: float = -60.0) -> np.ndarray:
     """Rotation (3, 3) taking data points (rows: ``X @ M.T``) to (screen x, screen y, depth).
 
-    Same camera as matplotlib's 3D axes in :mod:`nrpose.preview`: ``up`` is
+    Same camera as matplotlib's 3D axes in :mod:`nrpose.render.preview`: ``up`` is
     the data axis drawn vertically, ``elev``/``azim`` in degrees; depth grows
     towards the viewer.
     """
@@ -217,7 +217,7 @@ def save_contact_sheet(path, positions, faces=None, times=None, title: str = "",
     numbers); title: line over the grid; max_panels: at most this many
     frames, evenly spread (first and last included); handles_per_frame: None
     or one entry per frame, None or segments (S, 2, 3) drawn on top.
-    up / elev / azim: camera as in :func:`nrpose.preview.save_preview`;
+    up / elev / azim: camera as in :func:`nrpose.render.preview.save_preview`;
     panel_inches: panel height.
     """
     from matplotlib.figure import Figure

@@ -3,10 +3,8 @@
 ``save_weight_map(V, F, w, path, title)`` draws two views (front and
 oblique) of the mesh with every face coloured by the mean weight of its
 vertices (viridis, 0..1). ``save_weight_maps`` stacks several labelled
-weight columns (e.g. Euclidean vs heat) as rows. ``python -m
-nrpose.weightmap [out.png]`` renders the seed paper's Figure-2 comparison on
-the palm-and-two-fingers shape (default ``bench/results/fingers_weights.png``).
-Matplotlib's Agg backend: no display needed.
+weight columns (e.g. Euclidean vs heat) as rows. Matplotlib's Agg backend:
+no display needed.
 """
 from __future__ import annotations
 
