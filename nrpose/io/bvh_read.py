@@ -19,11 +19,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.character import Clip, Track
 from ..errors import FileFormatError, InputError
-from .files import read_input_text
+from ..model.character import Clip, Track
 from ..model.rotation import Rotation
 from ..model.skeleton import Skeleton
+from .files import read_input_text
 
 __all__ = ["read_bvh"]
 

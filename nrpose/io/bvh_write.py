@@ -26,9 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InputError
-from .files import atomic_path
 from ..model.rotation import Rotation
 from ..model.skeleton import LocalPose, Skeleton, polar_rotation
+from .files import atomic_path
 
 __all__ = ["write_bvh", "bvh_text"]
 

@@ -38,11 +38,11 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
-from ..model.character import Character, Clip, Mesh, Track
 from ..errors import FileFormatError, InputError
-from .files import read_input
+from ..model.character import Character, Clip, Mesh, Track
 from ..model.rotation import Rotation
 from ..model.skeleton import Skeleton, local_matrices, polar_rotation
+from .files import read_input
 
 __all__ = ["load_gltf"]
 

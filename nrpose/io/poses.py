@@ -28,8 +28,8 @@ import numpy as np
 
 from ..errors import FileFormatError, HandleError, InputError
 from ..model.handles import HandleSet, Pose, check_alpha
-from ..model.skeleton import LocalPose, Skeleton, match_hint
 from ..model.rotation import unit_quaternions
+from ..model.skeleton import LocalPose, Skeleton, match_hint
 from .jsonfile import read_json
 from .tgf import read_dmat_pose
 

@@ -27,9 +27,9 @@ import numpy as np
 
 from ..checks import real_rows, triangles
 from ..errors import FileFormatError, InputError
-from .files import read_input_text
 from ..model.rotation import unit_quaternions
 from ..model.skeleton import LocalPose, Skeleton
+from .files import read_input_text
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
 
