@@ -125,3 +125,14 @@ def test_no_private_name_from_another_module():
                     and node.attr.startswith("_") and not node.attr.startswith("__")):
                 taken.append(f"{path.relative_to(ROOT)}:{node.lineno}: {node.value.id}.{node.attr}")
     assert not taken, "private names used across modules:\n" + "\n".join(taken)
+
+
+def test_layers():
+    """The data model reads no file and poses nothing; only the command line (and ``python -m nrpose``) imports the command line."""
+    edges = graph()
+    for name, targets in edges.items():
+        if name.startswith("nrpose.model."):
+            assert all(t in ("nrpose.errors", "nrpose.checks") or t.startswith("nrpose.model") for t in targets), \
+                f"{name} imports {sorted(targets)}"
+        if not name.startswith("nrpose.cli") and name != "nrpose.__main__":
+            assert not any(t.startswith("nrpose.cli") for t in targets), f"{name} imports the CLI"

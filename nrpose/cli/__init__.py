@@ -78,7 +78,3 @@ def fail(message: str) -> int:
     """The message on stderr as one line (a path may hold a newline), exit status 2."""
     print(message.replace("\r", "\\r").replace("\n", "\\n"), file=sys.stderr)
     return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
