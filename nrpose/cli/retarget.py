@@ -14,10 +14,8 @@ The retargeting itself is :mod:`nrpose.pose.retarget`. Outputs:
   kept). Pose it with ``nrpose pose OUT.glb --clip NAME``.
 * ``OUT.bvh``: the target skeleton and the clip as BVH
   (:mod:`nrpose.io.bvh_write`), frame time ``1 / fps``.
-* ``--png``: a contact sheet of the retargeted character (linear blend
-  skinning of its meshes in numpy) with the source skeleton, scaled by the
-  root-motion scale, drawn beside it; every panel is centred horizontally on
-  the hips.
+* ``--png``: a contact sheet of the retargeted character with the source
+  skeleton beside it (:func:`nrpose.render.retarget_sheet.save_retarget_sheet`).
 * ``--show-map``: prints the joint mapping and the joints left unmapped
   (alone, or with ``-o``).
 
@@ -37,13 +35,10 @@ from ..io.bvh_write import write_bvh
 from ..io.files import check_writable
 from ..io.gltf_write import write_glb_with_clip
 from ..io.poses import load_map
-from ..model.skeleton import LocalPose
 from ..pose.retarget import format_map, joint_map, make_clip, retarget_pose
-from ..render.preview import spread
-from ..render.sheet import save_contact_sheet, view_matrix
-from ..skinning import lbs_reference
+from ..render.retarget_sheet import save_retarget_sheet
 
-__all__ = ["add_parser", "run", "save_retarget_sheet"]
+__all__ = ["add_parser", "run"]
 
 #: library argument name -> the flag users type
 FLAGS = {"user_map": "--map MAP.json,", "format_map": "--show-map", "in_place": "--in-place", "fps": "--fps"}
@@ -120,52 +115,3 @@ def run(args) -> None:
     print(f"{out}: animation {name!r}, {len(times)} frames at {args.fps:g} fps ({times[-1]:.2f} s), "
           f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped, root motion x{plan.scale:.4g}"
           f"{' in place' if args.in_place else ''}, lift {plan.lift:+.3g}")
-
-
-# --------------------------------------------------------------------------- contact sheet
-
-def _skinned_frames(character, G: np.ndarray):
-    """Posed vertices (F, V, 3) of all meshes by linear blend skinning, and the faces."""
-    mats = character.skin_matrices(G)
-    verts, faces, offset = [], [], 0
-    for mesh in character.meshes:
-        if mesh.joints is None:
-            continue
-        verts.append(np.stack([lbs_reference(mesh.vertices, mesh.joints, mesh.weights, M) for M in mats]))
-        faces.append(mesh.faces + offset)
-        offset += len(mesh.vertices)
-    if not verts:
-        return None, None
-    return np.concatenate(verts, axis=1), np.concatenate(faces)
-
-
-def save_retarget_sheet(path, source, clip, target, times, local, plan, title: str = "",
-                        max_panels: int = 8) -> list[int]:
-    """Contact sheet: retargeted target (mesh, or bones without one) with the source skeleton beside it."""
-    F = len(times)
-    pick = np.arange(F) if F <= max_panels else spread(F, max_panels)
-    Gt = target.skeleton.forward_kinematics(_take(local, pick))
-    Gs = source.skeleton.forward_kinematics(clip.sample(times[pick]))
-    hips_t = Gt[:, plan.root, :3, 3].copy()
-    hips_s = Gs[:, plan.mapping[plan.root], :3, 3].copy()
-    hips_t[:, 1] = 0.0
-    hips_s[:, 1] = 0.0
-    V, faces = _skinned_frames(target, Gt)
-    tb = target.skeleton.bones()
-    t_ends, _ = tb.pose(Gt)
-    if V is None:
-        V = t_ends.reshape(len(pick), -1, 3)
-    V = V - hips_t[:, None]
-    height = float(np.ptp(target.skeleton.rest_globals()[:, 1, 3])) or 1.0
-    right = view_matrix()[0].copy()
-    right[1] = 0.0
-    right /= np.linalg.norm(right) or 1.0
-    sb = source.skeleton.bones()
-    s_ends, _ = sb.pose(Gs)
-    s_ends = plan.scale * (s_ends - hips_s[:, None, None]) + 0.75 * height * right
-    return save_contact_sheet(path, V, faces, times[pick], title=title, max_panels=max_panels,
-                              handles_per_frame=list(s_ends))
-
-
-def _take(local, index):
-    return LocalPose(local.translation[index], local.rotation[index], local.scale[index])
