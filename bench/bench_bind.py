@@ -74,7 +74,7 @@ if str(PROJECT) not in sys.path:
 from nrpose import device  # noqa: E402
 from nrpose.io import load_character  # noqa: E402
 from nrpose.bind.distances import distance_matrix, handle_sources, weld_vertices  # noqa: E402
-from nrpose.io.files import atomic_path
+from nrpose.io.files import atomic_path  # noqa: E402
 from nrpose.io.meshes import read_geometry  # noqa: E402
 from nrpose.model.rotation import Rotation  # noqa: E402
 from nrpose.model.skeleton import LocalPose  # noqa: E402
