@@ -7,7 +7,7 @@ PY := $(VENV)/bin/python
 .PHONY: venv demo test bench
 venv:
 	@test -x $(PY) || { $(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip; }
-	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench]'
 
 demo: venv
 	$(VENV)/bin/nrpose demo
@@ -16,4 +16,4 @@ test: venv
 	$(PY) -m pytest -q
 
 bench: venv
-	$(VENV)/bin/nrpose bench --suite all
+	$(PY) -m bench --suite all

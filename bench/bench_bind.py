@@ -72,13 +72,14 @@ if str(PROJECT) not in sys.path:
     sys.path.insert(0, str(PROJECT))
 
 from nrpose import device  # noqa: E402
-from nrpose.character import load_character  # noqa: E402
-from nrpose.distances import distance_matrix, handle_sources, weld_vertices  # noqa: E402
-from nrpose.meshio import atomic_path, read_geometry  # noqa: E402
-from nrpose.rotation import Rotation  # noqa: E402
-from nrpose.skeleton import LocalPose  # noqa: E402
+from nrpose.io import load_character  # noqa: E402
+from nrpose.bind.distances import distance_matrix, handle_sources, weld_vertices  # noqa: E402
+from nrpose.io.files import atomic_path  # noqa: E402
+from nrpose.io.meshes import read_geometry  # noqa: E402
+from nrpose.model.rotation import Rotation  # noqa: E402
+from nrpose.model.skeleton import LocalPose  # noqa: E402
 from table1 import fps_handles  # noqa: E402  (bench/ is on sys.path as the script's folder)
-from nrpose.weights import dense_weights, deviation, keep_top_k  # noqa: E402
+from nrpose.bind.weights import dense_weights, deviation, keep_top_k  # noqa: E402
 
 SKELETON_K = 8
 
@@ -173,8 +174,8 @@ def stack_poses(poses: list[LocalPose]) -> LocalPose:
 
 # ---------------------------------------------------------------------------- parts
 def bench_bind(data: pathlib.Path, repeat: int, exact_repeat: int, exact_bones: int, skip_exact: bool) -> dict:
-    from nrpose import distances as dm
-    from nrpose.posing import CharacterPoser
+    from nrpose.bind import distances as dm
+    from nrpose.pose.poser import CharacterPoser
 
     out: dict = {}
     # -- Mannequin
@@ -258,7 +259,7 @@ def bench_bind(data: pathlib.Path, repeat: int, exact_repeat: int, exact_bones: 
 
 
 def bench_sparsity(data: pathlib.Path, ks=(4, 8), alphas=(1.0, 2.0)) -> dict:
-    from nrpose.posing import CharacterPoser
+    from nrpose.pose.poser import CharacterPoser
 
     out = {}
     with tempfile.TemporaryDirectory(prefix="nrpose-bench-cache-") as tmp:
@@ -364,8 +365,8 @@ def _rel(path: pathlib.Path) -> str:
 
 
 def weight_maps(data: pathlib.Path, out_dir: pathlib.Path) -> dict:
-    from nrpose.posing import CharacterPoser
-    from nrpose.weightmap import save_weight_maps
+    from nrpose.pose.poser import CharacterPoser
+    from nrpose.render.weightmap import save_weight_maps
 
     info = {}
     # Fox: left front lower leg; the right front leg is the vertices whose dominant authored joint is on it
@@ -412,10 +413,10 @@ def fingers_figure(path=ROOT / "results" / "fingers_weights.png", alpha: float =
     """Figure 2 of the seed paper on the palm-and-two-fingers shape: the blend
     weight of finger A's bone with Euclidean vs heat-geodesic distances.
     Returns a few numbers (max weight of bone A on finger B for both)."""
-    from nrpose.distances import distance_matrix
+    from nrpose.bind.distances import distance_matrix
     from nrpose.rigs.fingers import fingers_shape
-    from nrpose.weightmap import save_weight_maps
-    from nrpose.weights import dense_weights
+    from nrpose.render.weightmap import save_weight_maps
+    from nrpose.bind.weights import dense_weights
 
     s = fingers_shape()
     V, F = s.vertices, s.faces

@@ -27,8 +27,9 @@ import time
 import numpy as np
 
 import common
-from nrpose.character import Character, Mesh, load_character
-from nrpose.posing import CharacterPoser
+from nrpose.io import load_character
+from nrpose.model.character import Character, Mesh
+from nrpose.pose.poser import CharacterPoser
 
 METHODS = ("nrmls", "lbs", "dqs")
 FRAMES = 60

@@ -99,7 +99,7 @@ def table1_row(model: str, kind: str, data: pathlib.Path, poses: int = 1, seed: 
                quick: bool = False) -> tuple:
     """A Table-1 row as table1.py builds it: (points (N, 3) float64, rest HandleSet, bounding-box
     diagonal, ``poses`` Pose objects of the row's kind drawn from ``seed``); quick: 500 points."""
-    from nrpose.handles import Pose
+    from nrpose.model.handles import Pose
 
     name, count, handles, _, rel = next(r for r in table1.TABLE1 if r[0] == model)
     v, _ = table1.load_model(name, count, rel, pathlib.Path(data), quick)

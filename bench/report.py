@@ -28,7 +28,7 @@ HERE = pathlib.Path(__file__).resolve().parent
 if str(HERE.parent) not in sys.path:  # allow `python bench/report.py` from a checkout
     sys.path.insert(0, str(HERE.parent))
 
-from nrpose.meshio import atomic_path  # noqa: E402
+from nrpose.io.files import atomic_path  # noqa: E402
 
 
 def _ms(x: float) -> str:

@@ -487,7 +487,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
     rounds = 2 if quick else max(repeat, 3)
     before = roofs.measure(rounds)
     n_poses = 3 if quick else 10
-    from nrpose.handles import Pose
+    from nrpose.model.handles import Pose
     bound = []      # (model, kind, points, handles, source, deformer, poses), all bound at once
     for model, count, h, paper_ms, rel in table1.TABLE1:
         v, src = table1.load_model(model, count, rel, data, quick)

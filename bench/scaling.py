@@ -31,8 +31,8 @@ import numpy as np
 
 import common
 from nrpose.engine import Deformer
-from nrpose.handles import HandleSet, Pose
-from nrpose.rotation import Rotation
+from nrpose.model.handles import HandleSet, Pose
+from nrpose.model.rotation import Rotation
 
 POINTS = (10_000, 31_623, 100_000, 316_228, 1_000_000)
 HANDLES = (4, 16, 65, 128)

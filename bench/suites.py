@@ -138,7 +138,7 @@ def targets(doc: dict) -> list[dict]:
 def write_json(doc: dict, path) -> None:
     import json
 
-    from nrpose.meshio import atomic_path
+    from nrpose.io.files import atomic_path
     with atomic_path(path) as tmp:
         tmp.write_text(json.dumps(doc, indent=1) + "\n")
 
@@ -149,7 +149,7 @@ def write_png(doc: dict, path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from nrpose.meshio import atomic_path
+    from nrpose.io.files import atomic_path
     s = doc["suites"]
     names = [n for n in SUITES if n in s]
     fig, axes = plt.subplots(len(names), 1, figsize=(10, 4.6 * len(names)), squeeze=False)

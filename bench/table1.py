@@ -49,8 +49,8 @@ if str(PROJECT) not in sys.path:  # allow `python bench/table1.py` from a checko
 import nrpose  # noqa: E402
 from nrpose import device  # noqa: E402
 from nrpose.engine import Deformer  # noqa: E402
-from nrpose.handles import HandleSet, Pose  # noqa: E402
-from nrpose.rotation import Rotation  # noqa: E402
+from nrpose.model.handles import HandleSet, Pose  # noqa: E402
+from nrpose.model.rotation import Rotation  # noqa: E402
 
 SCHEMA = "nrpose-bench-table1/1"
 DEFAULT_DATA = PROJECT.parent / "shared" / "data"

@@ -1,7 +1,9 @@
 """nrpose: nearly rigid MLS deformation (Jeong & Kim) and skeletal posing on OpenCL.
 
-Data flow: load → bind (rest-only precompute) → pose (per-frame handle data)
-→ deform (kernel) → write. Conventions: :mod:`nrpose.rotation`.
+Data flow: load (:mod:`nrpose.io`) → bind (:mod:`nrpose.bind`, rest-only work)
+→ pose (:mod:`nrpose.pose`, per-frame handle data) → deform (kernel) → write
+(:mod:`nrpose.io`). Data types: :mod:`nrpose.model`; conventions:
+:mod:`nrpose.model.rotation`.
 
     from nrpose import Deformer, HandleSet, Pose
     rest = HandleSet.make(segments=[[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]])
@@ -10,7 +12,8 @@ Data flow: load → bind (rest-only precompute) → pose (per-frame handle data)
 """
 from .engine import Deformer
 from .errors import DeviceError, FileFormatError, HandleError, InputError, NrposeError
-from .handles import HandleSet, Pose, load_handles
+from .io.poses import load_handles
+from .model.handles import HandleSet, Pose
 
 __all__ = ["Deformer", "HandleSet", "Pose", "load_handles", "NrposeError", "InputError",
            "HandleError", "FileFormatError", "DeviceError"]

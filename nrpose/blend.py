@@ -74,9 +74,9 @@ import numpy as np
 
 from .checks import real_rows
 from .errors import InputError
-from .handles import HandleSet, Pose, check_alpha
-from .rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
-from .weights import dense_weights, keep_top_k
+from .model.handles import HandleSet, Pose, check_alpha
+from .model.rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
+from .bind.weights import dense_weights, keep_top_k
 
 BLENDS = ("relative", "paper", "quaternion")
 LEVERS = ("weight", "length", "paper")

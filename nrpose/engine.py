@@ -30,7 +30,7 @@ import numpy as np
 from . import device
 from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers
 from .errors import DeviceError, InputError
-from .handles import HandleSet, Pose
+from .model.handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
 #: points per block of work taken from the job mailbox (share.h): at least BLOCK_POINTS,

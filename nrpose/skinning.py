@@ -56,7 +56,7 @@ from scipy.spatial.transform import Rotation
 from . import device
 from .checks import real_rows
 from .errors import InputError
-from .skeleton import det_components, polar_components
+from .model.skeleton import det_components, polar_components
 
 __all__ = ["LbsDeformer", "DqsDeformer", "Deformer", "lbs_reference", "dqs_reference",
            "dqs_reference_dq", "dual_quaternions", "prepare_influences"]

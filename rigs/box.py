@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nrpose.handles import HandleSet, Pose
-from nrpose.rotation import Rotation
+from nrpose.model.handles import HandleSet, Pose
+from nrpose.model.rotation import Rotation
 
 SHAPE = (11, 42, 13)
 SIZE = (1.0, 4.1, 1.2)

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from nrpose.handles import HandleSet, Pose
-from nrpose.rotation import Rotation
+from nrpose.model.handles import HandleSet, Pose
+from nrpose.model.rotation import Rotation
 
 BONES = np.array([[[0.0, 0, 0], [1.0, 0, 0]], [[1.0, 0, 0], [2.0, 0, 0]]])
 

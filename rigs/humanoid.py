@@ -1,6 +1,6 @@
 """The embedded default character: a capsule humanoid with a skeleton, skin weights and a walk.
 
-:func:`humanoid` builds a :class:`nrpose.character.Character` the same way a
+:func:`humanoid` builds a :class:`nrpose.model.character.Character` the same way a
 glTF loader would describe one, from scratch and deterministically (no file,
 no cache):
 
@@ -43,10 +43,10 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from nrpose.character import Character, Clip, Mesh, Track
-from nrpose.distances import point_segment_distances
-from nrpose.rotation import Rotation
-from nrpose.skeleton import LocalPose, Skeleton
+from nrpose.model.character import Character, Clip, Mesh, Track
+from nrpose.bind.distances import point_segment_distances
+from nrpose.model.rotation import Rotation
+from nrpose.model.skeleton import LocalPose, Skeleton
 
 __all__ = ["humanoid", "JOINT_NAMES", "PARENTS", "REST_POSITIONS", "WALK_DURATION", "WALK_SAMPLES"]
 

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from nrpose import Deformer, DeviceError
-from nrpose.character import load_character
+from nrpose.io import load_character
 from nrpose.cli import main
-from nrpose.handles import handles_document
-from nrpose.meshio import read_geometry, write_geometry
-from nrpose.posing import CharacterPoser
+from nrpose.model.handles import handles_document
+from nrpose.io.meshes import read_geometry, write_geometry
+from nrpose.pose.poser import CharacterPoser
 from nrpose.rigs import box, cylinder
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -287,3 +287,21 @@ def test_pose_directory_output_replaces_previous_frames(tmp_path, capsys):
     assert run(["pose", fox, "--clip", "Run", "--frames", "0:1", "-o", frames], capsys)[0] == 0
     assert sorted(p.name for p in frames.iterdir()) == ["frame_0000.ply", "frame_0001.ply"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["frames"]      # no temporary left
+
+
+def test_library_argument_names_become_the_commands_flags():
+    """Library errors name arguments (``weights='euclidean'``, ``skeleton=``, ``format_map()``);
+    the CLI prints the flags of the command that ran."""
+    from nrpose.cli import flag_text
+    from nrpose.cli import pose as pose_cmd, retarget as retarget_cmd, weights as weights_cmd
+
+    msg = "mesh 'm' has no skin weights; use weights='euclidean' (or heat, exact, graph)"
+    assert flag_text(msg, pose_cmd.FLAGS) == "mesh 'm' has no skin weights; use --weights euclidean (or heat, exact, graph)"
+    assert flag_text(msg, weights_cmd.FLAGS) == "mesh 'm' has no skin weights; use --method euclidean (or heat, exact, graph)"
+    assert (flag_text("drop blend= or use method='nrmls'", pose_cmd.FLAGS)
+            == "drop --blend or use --method nrmls")
+    assert flag_text("pass the skeleton with skeleton=", pose_cmd.FLAGS) == "pass the skeleton with --skeleton"
+    assert (flag_text('give a joint map (user_map= {"T": "S"}); check it (see format_map())', retarget_cmd.FLAGS)
+            == 'give a joint map (--map MAP.json, {"T": "S"}); check it (see --show-map)')
+    # names a command does not know, and name=value pairs that are not arguments, stay as they are
+    assert flag_text("blend= in x=1, f(), alpha=2", {"blend": "--blend"}) == "--blend in x=1, f(), alpha=2"

@@ -11,7 +11,7 @@ from launches import relaunch, splits, standing_workers_or_skip
 from nrpose import Deformer, HandleError, HandleSet, InputError, Pose, device
 from nrpose.blend import deform_reference, rest_terms
 from nrpose.rigs import cylinder
-from nrpose.rotation import Rotation
+from nrpose.model.rotation import Rotation
 
 TOL = 1e-4  # of the bounding-box diagonal, kernel vs reference
 
@@ -1185,7 +1185,7 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
 
 
 def test_minimal_rotation_conventions():
-    from nrpose.rotation import minimal_rotvec
+    from nrpose.model.rotation import minimal_rotvec
 
     a = np.array([[1.0, 0, 0], [0, 2.0, 0], [0, 0, 1.0]])
     b = np.array([[0, 3.0, 0], [0, -1.0, 0], [0, 0, 5.0]])
@@ -1238,7 +1238,7 @@ def test_global_rotation_fit(shape):
     that is the mirror image (the best proper rotation, not the reflection); rest
     and pose far from the origin too (GlobalRotation does not centre the posed side)."""
     from nrpose.blend import GlobalRotation, global_rotation
-    from nrpose.rotation import kabsch
+    from nrpose.model.rotation import kabsch
 
     rng = np.random.default_rng(["general", "noisy", "coplanar", "mirrored"].index(shape))
     for trial in range(24):
@@ -1285,7 +1285,7 @@ def test_global_fit_on_device_ties():
     posed on one line what the float64 reference takes."""
     from nrpose.blend import GlobalRotation
     from nrpose.engine import GlobalFit
-    from nrpose.rotation import minimal_rotvec
+    from nrpose.model.rotation import minimal_rotvec
 
     rng = np.random.default_rng(6)
     for trial in range(20):
@@ -1316,7 +1316,7 @@ def test_global_rotation_ties():
     collinear handles (two point handles, one segment) the minimal rotation between
     the two lines, for a single point handle the identity; also far from the origin."""
     from nrpose.blend import GlobalRotation
-    from nrpose.rotation import kabsch, minimal_rotvec
+    from nrpose.model.rotation import kabsch, minimal_rotvec
 
     rng = np.random.default_rng(5)
     for trial in range(30):

@@ -6,7 +6,7 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from nrpose.character import Character, Clip
+from nrpose.model.character import Character, Clip
 from nrpose.rigs.humanoid import JOINT_NAMES, humanoid
 
 

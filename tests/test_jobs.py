@@ -301,7 +301,7 @@ def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
     (Jobs(owner=...)), for the NR-MLS and the skinning deformers."""
     standing_workers_or_skip()
     from nrpose.engine import Deformer
-    from nrpose.handles import HandleSet
+    from nrpose.model.handles import HandleSet
     from nrpose.skinning import LbsDeformer
 
     standby(10_000_000)
@@ -524,7 +524,7 @@ def test_deformers_posed_from_two_threads(standby, monkeypatch):
     import threading
 
     from nrpose.engine import Deformer
-    from nrpose.handles import HandleSet, Pose
+    from nrpose.model.handles import HandleSet, Pose
 
     standby(10_000_000)
     rng = np.random.default_rng(9)

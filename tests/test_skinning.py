@@ -10,7 +10,7 @@ from launches import relaunch, splits, standing_workers_or_skip
 from scipy.spatial.transform import Rotation
 
 from nrpose.errors import InputError
-from nrpose.rotation import quat_multiply
+from nrpose.model.rotation import quat_multiply
 from nrpose.skinning import (DqsDeformer, LbsDeformer, Deformer, dqs_reference,
                              dqs_reference_dq, dual_quaternions, lbs_reference)
 

@@ -1,0 +1,155 @@
+"""Bone weights of a character: the one place posing and ``nrpose weights`` get them from.
+
+:func:`bone_weights` turns a character and a weights method into (V, B) weights
+of all its vertices (meshes concatenated in file order,
+:func:`nrpose.model.meshset.concatenate_meshes`) on the bones of
+:meth:`nrpose.model.skeleton.Skeleton.bones`:
+
+* ``authored``: the file's skin weights. A vertex's weight on joint j becomes
+  weight on j's bones, shared between them by inverse squared distance (a
+  joint's bones all move with its rigid transform, so any split keeps that
+  motion exact); a weighted joint that drives no bone hands its weight to its
+  nearest ancestor that does.
+* ``euclidean``: straight-line distance ``d`` to the bone segments, then
+  ``w = 1/d^(2α)`` normalised per vertex (:func:`nrpose.bind.weights.dense_weights`).
+* ``heat``, ``exact``, ``graph``: the same with distances over the surface of
+  the deforming meshes together (:func:`nrpose.bind.distances.distance_matrix`,
+  cached on disk by content, :func:`nrpose.bind.distances.surface_distances`).
+
+Then each vertex keeps its ``k`` most influential bones (renormalised; the
+others are 0). Default: all bones up to :data:`SKELETON_K`, else ``SKELETON_K``.
+
+A mesh attached rigidly to a joint does not deform: its vertices get weight 1
+on the first bone of that joint (or of its nearest ancestor that drives a bone)
+and their Euclidean bone distances.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from ..model.handles import check_alpha
+from ..model.meshset import MeshSet, concatenate_meshes, submesh_faces
+from ..model.skeleton import Bones
+from .distances import point_segment_distances, surface_distances
+from .weights import dense_weights, keep_top_k
+
+__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights"]
+
+WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
+SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
+
+
+@dataclass(frozen=True)
+class BoneWeights:
+    """weights (V, B) float64 rows summing to 1 (at most ``k`` non-zero); distances (V, B)
+    float64 vertex-to-bone distances (over the surface for deforming vertices with heat,
+    exact, graph; else straight-line); bones; k (bones kept per vertex, B when dense);
+    alpha; meshes: the concatenated meshes the rows belong to."""
+
+    weights: np.ndarray
+    distances: np.ndarray
+    bones: Bones
+    k: int
+    alpha: float
+    meshes: MeshSet
+
+
+def bone_weights(character, weights: str = "authored", k: int | str | None = None,
+                 alpha: float = 1.0) -> BoneWeights:
+    """Weights of a character's vertices on its bones (see the module docstring).
+
+    weights: one of :data:`WEIGHTS`; k: bones kept per vertex (a positive integer, "all",
+    or None for the default); alpha: the exponent of distance weights.
+    """
+    if weights not in WEIGHTS:
+        raise InputError(f"weights must be one of {', '.join(WEIGHTS)}, got {weights!r}")
+    alpha = check_alpha(alpha)
+    if not character.meshes:
+        raise InputError("the character has no mesh (a skeleton-only file); give a mesh and pass the "
+                         "skeleton with skeleton=")
+    skel = character.skeleton
+    bones = skel.bones()
+    B = len(bones)
+    if B == 0:
+        raise InputError("the skeleton has no bones to weight")
+    if k is None:
+        k_eff = SKELETON_K if B > SKELETON_K else B
+    elif k == "all":
+        k_eff = B
+    else:
+        if isinstance(k, bool) or int(k) != k or k < 1:
+            raise InputError(f"k must be a positive integer or 'all', got {k!r}")
+        k_eff = min(int(k), B)
+    geo = concatenate_meshes(character.meshes)
+    V, rigid = geo.vertices, geo.rigid
+    deform = np.flatnonzero(rigid < 0)
+    D = point_segment_distances(V, bones.segments)[0] if len(V) else np.zeros((0, B))
+    W = np.zeros((len(V), B))
+    if len(deform):
+        if weights == "authored":
+            joint_w = authored_joint_weights([m for m in character.meshes if m.rigid_joint is None],
+                                             skel.num_joints)
+            dense = _joint_to_bone_weights(joint_w, D[deform], bones, skel.parents)
+        else:
+            if weights != "euclidean":
+                faces = submesh_faces(geo.faces, deform, len(V))
+                if len(faces) == 0:
+                    raise InputError(f"the character's deforming meshes have no faces: {weights!r} distances "
+                                     "run over a surface; use weights='euclidean'")
+                D[deform] = surface_distances(V[deform], faces, np.zeros((0, 3)), bones.segments, weights)
+            dense = dense_weights(D[deform], alpha)
+        W[deform] = keep_top_k(dense, k_eff if k_eff < B else None)
+    for j in np.unique(rigid[rigid >= 0]):
+        W[rigid == j, _rigid_owner_bone(int(j), bones, skel.parents)] = 1.0
+    return BoneWeights(W, D, bones, k_eff, alpha, geo)
+
+
+def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
+    """Dense (V, J) skin weights of the meshes (concatenated), rows summing to 1."""
+    missing = [m.name for m in meshes if m.joints is None or m.weights is None]
+    if missing:
+        raise InputError(f"mesh {missing[0]!r} has no skin weights; use weights='euclidean' "
+                         "(or heat, exact, graph)")
+    rows = []
+    for m in meshes:
+        W = np.zeros((len(m.vertices), n_joints))
+        np.add.at(W, (np.repeat(np.arange(len(m.vertices)), m.joints.shape[1]), m.joints.ravel()),
+                  m.weights.ravel())
+        rows.append(W)
+    W = np.concatenate(rows)
+    return W / W.sum(axis=1, keepdims=True)
+
+
+def _joint_to_bone_weights(joint_w: np.ndarray, D: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
+    """(V, B) bone weights from (V, J) joint weights and (V, B) bone distances (module docstring)."""
+    owner = np.arange(joint_w.shape[1])
+    driven = np.zeros(joint_w.shape[1], bool)
+    driven[bones.joints] = True
+    for j in range(len(owner)):                      # parents come first: resolve in order
+        if not driven[j]:
+            p = parents[j]
+            owner[j] = owner[p] if p >= 0 else -1
+    lost = (owner < 0) & (joint_w.sum(axis=0) > 0)
+    if lost.any():
+        raise InputError(f"joint {int(np.flatnonzero(lost)[0])} carries skin weight but neither it nor "
+                         "an ancestor drives a bone")
+    jw = np.zeros_like(joint_w)
+    np.add.at(jw.T, owner[owner >= 0], joint_w.T[owner >= 0])
+    share = 1.0 / np.maximum(D ** 2, 1e-12)
+    per_joint = np.zeros((len(D), jw.shape[1]))
+    np.add.at(per_joint.T, bones.joints, share.T)
+    return jw[:, bones.joints] * share / per_joint[:, bones.joints]
+
+
+def _rigid_owner_bone(j: int, bones: Bones, parents: np.ndarray) -> int:
+    """First bone of joint j or of its nearest ancestor that drives one."""
+    a = j
+    while a >= 0:
+        own = np.flatnonzero(bones.joints == a)
+        if len(own):
+            return int(own[0])
+        a = int(parents[a])
+    raise InputError(f"rigid mesh on joint {j}: neither it nor an ancestor drives a bone")

@@ -1,0 +1,80 @@
+"""Command line: ``nrpose deform | pose | info | weights | retarget | demo``.
+
+One module per command, each with ``add_parser(subparsers)`` and ``run(args)``.
+Every user mistake (bad file, bad option, no OpenCL platform) ends with one
+line on stderr and exit status 2; outputs are written to a temporary name
+and renamed, so a failed run leaves no output behind.
+
+Library errors name arguments as Python spells them (``weights='euclidean'``,
+``skeleton=``, ``format_map()``); :func:`flag_text` rewrites them with the
+flags of the command that ran (each command module's ``FLAGS``).
+"""
+from __future__ import annotations
+
+import argparse
+import re
+import sys
+
+import numpy as np
+
+from ..errors import NrposeError
+from . import deform, demo, info, pose, retarget, weights
+
+__all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
+
+COMMANDS = (deform, pose, weights, retarget, info, demo)
+
+# name='value' | name= (before a space, punctuation or the end) | name()
+_ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
+
+
+class UsageError(Exception):
+    """A command line argparse refused (the message is already one line)."""
+
+
+class Parser(argparse.ArgumentParser):
+    def error(self, message):  # one line, status 2 (argparse's default prints usage too)
+        raise UsageError(f"{self.prog}: {message}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = Parser(prog="nrpose", description="Nearly rigid MLS deformation and skeletal posing on OpenCL.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
+    for command in COMMANDS:
+        command.add_parser(sub)
+    return parser
+
+
+def flag_text(message: str, flags: dict[str, str]) -> str:
+    """``message`` with the library's argument names (``name='v'``, ``name=``, ``name()``)
+    that ``flags`` knows replaced by the command's flags (``--flag v``, ``--flag``)."""
+    def replace(m: re.Match) -> str:
+        flag = flags.get(m.group(1))
+        if flag is None:
+            return m.group(0)
+        return flag if m.group(2) is None else f"{flag} {m.group(2)}"
+    return _ARGUMENT.sub(replace, message)
+
+
+def main(argv=None) -> int:
+    args = None
+    try:
+        args = build_parser().parse_args(argv)
+        # the commands check their inputs and results for NaN and infinity themselves and say
+        # so in one line; numpy's floating-point warnings on the way would add lines to stderr
+        # (nrpose's own warnings, e.g. a binding cache not written, still show)
+        with np.errstate(all="ignore"):
+            args.func(args)
+    except UsageError as exc:
+        return fail(str(exc))
+    except NrposeError as exc:
+        return fail(f"nrpose: error: {flag_text(str(exc), getattr(args, 'flags', {}))}")
+    except OSError as exc:
+        return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
+    return 0
+
+
+def fail(message: str) -> int:
+    """The message on stderr as one line (a path may hold a newline), exit status 2."""
+    print(message.replace("\r", "\\r").replace("\n", "\\n"), file=sys.stderr)
+    return 2

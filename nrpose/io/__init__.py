@@ -1,0 +1,63 @@
+"""Every reader and writer of nrpose's files; :func:`load_character` picks a reader by suffix.
+
+Characters: glTF 2.0 (:mod:`.gltf_read`, written by :mod:`.gltf_write`), BVH
+(:mod:`.bvh_read`, :mod:`.bvh_write`), libigl TGF skeletons and OBJ/OFF/PLY/STL/.mesh
+meshes (:mod:`.tgf`). Deformable geometry: :mod:`.meshes`. Pose, handle and
+joint-map JSON: :mod:`.poses`. Input checks and atomic writes: :mod:`.files`.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..errors import FileFormatError, InputError
+from ..model.character import Character, Mesh
+from .bvh_read import read_bvh
+from .gltf_read import load_gltf
+from .tgf import MESH_SUFFIXES, read_mesh, read_tgf
+
+__all__ = ["load_character", "READERS"]
+
+
+def _bvh_character(path: Path) -> Character:
+    skeleton, clip = read_bvh(path)
+    return Character(skeleton, clips=(clip,))
+
+
+def _tgf_character(path: Path) -> Character:
+    return Character(read_tgf(path))
+
+
+def _mesh(path: Path) -> Mesh:
+    vertices, faces = read_mesh(path)
+    return Mesh(path.stem, vertices, faces)
+
+
+#: suffix -> (reader of a Path, what it gives: "character" with its own skeleton, "skeleton"
+#: (a Character without meshes), or "mesh" (a Mesh, needing a skeleton file beside it))
+READERS = {".glb": (load_gltf, "character"), ".gltf": (load_gltf, "character"),
+           ".bvh": (_bvh_character, "skeleton"), ".tgf": (_tgf_character, "skeleton"),
+           **{suffix: (_mesh, "mesh") for suffix in MESH_SUFFIXES}}
+
+
+def load_character(path: str | Path, skeleton: str | Path | None = None) -> Character:
+    """Load a character by extension (:data:`READERS`).
+
+    ``.glb``/``.gltf``: meshes, skin, clips. ``.bvh``: skeleton and its motion
+    clip, no mesh. ``.tgf``: skeleton only. A mesh (``.obj .off .ply .stl
+    .mesh``) needs ``skeleton`` (a ``.tgf`` or ``.bvh``); it gets no skin weights.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in READERS:
+        raise FileFormatError(f"{path}: unknown character extension {suffix!r}; use .glb, .gltf, .bvh, "
+                              f".tgf or a mesh ({', '.join(MESH_SUFFIXES)}) with a skeleton")
+    reader, kind = READERS[suffix]
+    if kind == "mesh":
+        if skeleton is None:
+            raise InputError(f"{path}: a mesh needs a skeleton (a .tgf or .bvh file)")
+        base = load_character(skeleton)
+        return Character(base.skeleton, (reader(path),), base.clips)
+    if skeleton is not None:
+        raise InputError(f"{path}: a glTF file carries its own skeleton; do not pass one" if kind == "character"
+                         else f"{path}: is already a skeleton; pass a mesh with it instead")
+    return reader(path)

@@ -1,0 +1,187 @@
+"""libigl skeletons (TGF), poses (DMAT) and meshes (OBJ/OFF/PLY/STL, Medit .mesh).
+
+TGF: joint lines ``index x y z ...`` up to a ``#`` line, then bone lines
+``parent child ...`` (1-based joint indices, extra columns ignored) up to a
+second ``#``; anything after it is ignored.
+
+libigl's handles are the *bones* (edges), not the joints: weights, poses and
+forward kinematics (``igl::forward_kinematics``) are per bone, each bone
+rotating about its first endpoint. So the :class:`~nrpose.model.skeleton.Skeleton`
+made from a TGF has **one joint per bone**, named ``bone<e>`` where ``e`` is
+the bone's 0-based line order in the file (= DMAT pose and weight column
+order). A joint sits at its bone's first endpoint with identity rest rotation,
+its parent is the bone ending where it starts, and its tip is the bone's
+other endpoint (so ``bones()`` gives back exactly the TGF segments).
+
+DMAT pose (libigl tutorial 403, ``hand-pose.dmat``): a column of 4·B values,
+one quaternion per bone in file order, ``(x, y, z, w)`` (``igl::column_to_quats``).
+Each is the bone's rotation relative to its parent in rest coordinates
+(``vQ[b] = vQ[p] * dQ[b]``), which with identity rest rotations is exactly
+this skeleton's local rotation.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ..checks import real_rows, triangles
+from ..errors import FileFormatError, InputError
+from ..model.rotation import unit_quaternions
+from ..model.skeleton import LocalPose, Skeleton
+from .files import read_input_text
+
+__all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
+
+#: mesh file suffixes read by :func:`read_mesh`
+MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
+
+
+def _tgf_sections(path: Path) -> tuple[list[tuple[int, list[str]]], list[tuple[int, list[str]]]]:
+    """Joint and bone lines as (line number, fields)."""
+    text = read_input_text(path, "TGF file")
+    sections: list[list[tuple[int, list[str]]]] = [[]]
+    for number, line in enumerate(text.splitlines(), start=1):
+        fields = line.split()
+        if not fields:
+            continue
+        if fields[0] == "#":
+            sections.append([])
+            if len(sections) == 3:
+                break
+            continue
+        sections[-1].append((number, fields))
+    if len(sections) < 2:
+        raise FileFormatError(f"{path}: TGF has no '#' line separating joints from bones")
+    return sections[0], sections[1]
+
+
+def read_tgf(path: str | Path) -> Skeleton:
+    """Skeleton with one joint per TGF bone (see the module docstring)."""
+    path = Path(path)
+    joint_lines, bone_lines = _tgf_sections(path)
+    C = np.empty((len(joint_lines), 3))
+    for row, (number, fields) in enumerate(joint_lines):
+        try:
+            C[row] = [float(v) for v in fields[1:4]]
+        except ValueError:
+            raise FileFormatError(f"{path}:{number}: joint line needs 'index x y z', "
+                                  f"got {' '.join(fields)!r}") from None
+        if not np.isfinite(C[row]).all():
+            raise FileFormatError(f"{path}:{number}: joint coordinates contain NaN or infinity")
+    edges = []
+    for number, fields in bone_lines:
+        try:
+            a, b = int(fields[0]), int(fields[1])
+        except (ValueError, IndexError):
+            raise FileFormatError(f"{path}:{number}: bone line needs 'parent child' joint indices, "
+                                  f"got {' '.join(fields)!r}") from None
+        if not (1 <= a <= len(C) and 1 <= b <= len(C)) or a == b:
+            raise FileFormatError(f"{path}:{number}: bone {a} {b} must join two different joints "
+                                  f"among 1..{len(C)}")
+        edges.append((a - 1, b - 1))
+    if not edges:
+        raise FileFormatError(f"{path}: TGF has no bones (point handles are not supported)")
+    BE = np.array(edges, dtype=np.int64)
+    heads = np.bincount(BE[:, 1], minlength=len(C))
+    if (heads > 1).any():
+        raise FileFormatError(f"{path}: joint {int(np.argmax(heads)) + 1} ends several bones; "
+                              "the bones must form a forest")
+    parent_bone = np.full(len(C), -1, np.int64)
+    parent_bone[BE[:, 1]] = np.arange(len(BE))
+    bone_parent = parent_bone[BE[:, 0]]  # parent bone of each bone, -1 for roots
+    order, stack = [], [int(e) for e in np.flatnonzero(bone_parent < 0)[::-1]]
+    while stack:
+        e = stack.pop()
+        order.append(e)
+        stack.extend(int(c) for c in np.flatnonzero(bone_parent == e)[::-1])
+    if len(order) != len(BE):
+        raise FileFormatError(f"{path}: TGF bones contain a cycle")
+    order = np.array(order, dtype=np.int64)
+    position = np.empty(len(BE), np.int64)
+    position[order] = np.arange(len(BE))
+    parents = np.where(bone_parent[order] < 0, -1, position[np.maximum(bone_parent[order], 0)])
+    start = C[BE[order, 0]]
+    translation = start - np.where(parents[:, None] < 0, 0.0, start[np.maximum(parents, 0)])
+    J = len(order)
+    return Skeleton(names=tuple(f"bone{e}" for e in order), parents=parents, translation=translation,
+                    rotation=np.tile([0.0, 0.0, 0.0, 1.0], (J, 1)), scale=np.ones((J, 3)),
+                    tips=C[BE[order, 1]] - start)
+
+
+def _read_dmat(path: Path) -> np.ndarray:
+    import igl
+
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such DMAT file")
+    try:
+        return np.asarray(igl.readDMAT(str(path)), dtype=np.float64)
+    except RuntimeError as exc:
+        raise FileFormatError(f"{path}: not a DMAT matrix ({exc})") from None
+
+
+def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
+    """Local pose (J, ...) from a libigl per-bone quaternion DMAT for a TGF skeleton.
+
+    Bone e's quaternion drives joint ``bone<e>``; translations and scales stay at rest.
+    """
+    path = Path(path)
+    Q = _read_dmat(path)
+    J = skeleton.num_joints
+    if Q.size != 4 * J or not (1 in Q.shape or Q.shape == (J, 4)):
+        raise FileFormatError(f"{path}: expected {J} quaternions (a column of {4 * J} values), "
+                              f"got a {Q.shape} matrix")
+    quats = Q.reshape(J, 4)
+    if not np.isfinite(quats).all():
+        raise FileFormatError(f"{path}: quaternions must be finite")
+    quats = unit_quaternions(quats, [f"{path}: quaternion {k}" for k in range(J)], FileFormatError)
+    try:
+        bone_of_joint = [int(n[4:]) for n in skeleton.names if n.startswith("bone")]
+    except ValueError:
+        bone_of_joint = []
+    if sorted(bone_of_joint) != list(range(J)):
+        raise InputError("a DMAT pose needs a skeleton read from TGF (joints named bone0, bone1, ...)")
+    pose = skeleton.rest_pose
+    pose.rotation[:] = quats[bone_of_joint]
+    return pose
+
+
+def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Triangle mesh: vertices (N, 3) float64 and faces (M, 3) int64.
+
+    OBJ/OFF/PLY/STL through :func:`nrpose.io.meshes.read_geometry` (order-preserving;
+    ``igl.read_triangle_mesh`` can abort the interpreter on some PLYs). A tetrahedral Medit
+    ``.mesh`` gives its boundary triangles (``igl.boundary_facets``, oriented
+    like the tets) and only the vertices they use, in file order; other
+    formats keep every vertex (so per-vertex data such as DMAT weights align).
+    """
+    import igl
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in MESH_SUFFIXES:
+        raise FileFormatError(f"{path}: unknown mesh extension {suffix!r}; use one of {', '.join(MESH_SUFFIXES)}")
+    if not path.is_file():
+        raise FileFormatError(f"{path}: no such mesh file")
+    try:
+        if suffix == ".mesh":
+            V, T, F = igl.readMESH(str(path))
+            if len(T):
+                F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
+        else:
+            from .meshes import read_geometry
+            V, F = read_geometry(path)
+    except RuntimeError as exc:
+        raise FileFormatError(f"{path}: cannot read mesh ({exc})") from None
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F, dtype=np.int64)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
+        raise FileFormatError(f"{path}: no triangles read (vertices {V.shape}, faces {F.shape})")
+    V = real_rows(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
+    F = triangles(F, len(V), f"{path}: faces", FileFormatError, "the file is inconsistent, re-export it")
+    used = np.unique(F)
+    if suffix == ".mesh" and len(used) < len(V):
+        remap = np.full(len(V), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        V, F = V[used], remap[F]
+    return V, F

@@ -1,0 +1,166 @@
+"""Characters (meshes + skeleton + clips) and animation clips; readers are :mod:`nrpose.io`.
+
+A :class:`Character` is what every loader returns: meshes whose rest vertices
+are in world space at the skeleton's rest pose, the :class:`Skeleton`, the
+inverse bind matrices, and :class:`Clip` animations. Deforming a rest vertex
+``v`` by linear blend skinning at a pose with global joint matrices ``G`` is
+``sum_i w_i (G[j_i] @ G_rest[j_i]^-1) @ v`` (:meth:`Character.skin_matrices`).
+
+Clips are sets of keyframe :class:`Track` s (one joint, one of translation /
+rotation / scale) with glTF's samplers: ``STEP``; ``LINEAR`` (quaternion
+slerp along the shortest arc for rotations); ``CUBICSPLINE`` (Hermite, per the
+glTF 2.0 spec, tangents scaled by the key interval, quaternions normalised).
+Before its first key a track holds its first value, after its last key its
+last value; a joint without a track keeps its rest value.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError
+from .rotation import Rotation
+from .skeleton import LocalPose, Skeleton
+
+__all__ = ["Track", "Clip", "Mesh", "Character"]
+
+PATH_WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
+INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
+
+
+@dataclass(frozen=True, eq=False)
+class Track:
+    """Keyframes of one joint property.
+
+    joint: joint index; path: "translation" | "rotation" | "scale";
+    times: (K,) float64 strictly increasing seconds; values: (K, C) float64,
+    or (K, 3, C) (in-tangent, value, out-tangent) for CUBICSPLINE; C = 4 for
+    rotations (x, y, z, w), else 3.
+    """
+
+    joint: int
+    path: str
+    times: np.ndarray
+    values: np.ndarray
+    interpolation: str = "LINEAR"
+
+    def __post_init__(self):
+        if self.path not in PATH_WIDTH or self.interpolation not in INTERPOLATIONS:
+            raise InputError(f"track: unknown path {self.path!r} or interpolation {self.interpolation!r}")
+        times = np.asarray(self.times, dtype=np.float64).reshape(-1)
+        values = np.asarray(self.values, dtype=np.float64)
+        tail = (3, PATH_WIDTH[self.path]) if self.interpolation == "CUBICSPLINE" else (PATH_WIDTH[self.path],)
+        if len(times) == 0 or values.shape != (len(times),) + tail:
+            raise InputError(f"track of joint {self.joint} {self.path}: {len(times)} key times need "
+                             f"values of shape {(len(times),) + tail}, got {values.shape}")
+        if not (np.isfinite(times).all() and np.isfinite(values).all()):
+            raise InputError(f"track of joint {self.joint} {self.path}: NaN or infinite keys")
+        if (np.diff(times) <= 0).any():
+            raise InputError(f"track of joint {self.joint} {self.path}: key times must increase strictly")
+        object.__setattr__(self, "times", times)
+        object.__setattr__(self, "values", values)
+
+    def sample(self, t: np.ndarray) -> np.ndarray:
+        """Values at times t (F,) seconds: (F, C) float64 (unit quaternions for rotations)."""
+        t = np.asarray(t, dtype=np.float64)
+        K, times, v = len(self.times), self.times, self.values
+        k = np.searchsorted(times, t, side="right") - 1
+        if self.interpolation == "STEP" or K == 1:
+            out = v[np.clip(k, 0, K - 1)]
+            return out[:, 1] if self.interpolation == "CUBICSPLINE" else out
+        k = np.clip(k, 0, K - 2)
+        dt = times[k + 1] - times[k]
+        s = np.clip((t - times[k]) / dt, 0.0, 1.0)[:, None]
+        if self.interpolation == "CUBICSPLINE":
+            s2, s3 = s * s, s * s * s
+            out = ((2 * s3 - 3 * s2 + 1) * v[k, 1] + (s3 - 2 * s2 + s) * dt[:, None] * v[k, 2]
+                   + (-2 * s3 + 3 * s2) * v[k + 1, 1] + (s3 - s2) * dt[:, None] * v[k + 1, 0])
+            if self.path == "rotation":
+                out = out / np.linalg.norm(out, axis=1, keepdims=True)
+            return out
+        if self.path == "rotation":
+            r0 = Rotation.from_quat(v[k])
+            step = (r0.inv() * Rotation.from_quat(v[k + 1])).as_rotvec()
+            return (r0 * Rotation.from_rotvec(s * step)).as_quat()
+        return (1 - s) * v[k] + s * v[k + 1]
+
+
+@dataclass(frozen=True, eq=False)
+class Clip:
+    """An animation: tracks over a rest pose. duration: seconds (last key time)."""
+
+    name: str
+    duration: float
+    rest: LocalPose
+    tracks: tuple[Track, ...]
+
+    def sample(self, t) -> LocalPose:
+        """Local pose at time(s) t in [0, duration] seconds.
+
+        A scalar t gives arrays (J, ...); an array of F times gives (F, J, ...).
+        Times outside the clip raise InputError.
+        """
+        times = np.asarray(t, dtype=np.float64)
+        flat = times.reshape(-1)
+        tol = 1e-9 * max(self.duration, 1.0)
+        if not np.isfinite(flat).all() or (flat < -tol).any() or (flat > self.duration + tol).any():
+            bad = flat[~(np.isfinite(flat) & (flat >= -tol) & (flat <= self.duration + tol))][0]
+            raise InputError(f"clip {self.name!r}: time {bad} is outside [0, {self.duration:g}] seconds")
+        out = {p: np.repeat(getattr(self.rest, p)[None], len(flat), axis=0) for p in PATH_WIDTH}
+        for track in self.tracks:
+            out[track.path][:, track.joint] = track.sample(flat)
+        if times.ndim == 0:
+            return LocalPose(*(out[p][0] for p in PATH_WIDTH))
+        return LocalPose(*(out[p].reshape(times.shape + out[p].shape[1:]) for p in PATH_WIDTH))
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """One mesh of a character.
+
+    vertices: (N, 3) float64 rest positions in world space; faces: (M, 3) int64;
+    joints: (N, K) int64 skeleton joint indices and weights: (N, K) float64
+    (rows summing to 1), or None when the file has no skin weights;
+    rigid_joint: the joint a rigidly attached mesh follows (its joints/weights
+    are then that joint with weight 1), else None;
+    bind_vertices: (N, 3) float64 the skinned mesh's own POSITION data (glTF
+    bind space, transformed by ``G_j @ inverse_bind_j`` in the glTF skinning
+    formula), else None; inverse_bind: (J, 4, 4) its skin's inverse bind
+    matrices by skeleton joint (skins may differ), else None.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    joints: np.ndarray | None = None
+    weights: np.ndarray | None = None
+    rigid_joint: int | None = None
+    bind_vertices: np.ndarray | None = None
+    inverse_bind: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class Character:
+    """Meshes, skeleton, inverse bind matrices (J, 4, 4) float64 and clips."""
+
+    skeleton: Skeleton
+    meshes: tuple[Mesh, ...] = ()
+    clips: tuple[Clip, ...] = ()
+    inverse_bind: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.inverse_bind is None:
+            object.__setattr__(self, "inverse_bind", np.linalg.inv(self.skeleton.rest_globals()))
+
+    def clip(self, name: str) -> Clip:
+        """The clip called ``name``; InputError naming the available clips otherwise."""
+        for clip in self.clips:
+            if clip.name == name:
+                return clip
+        names = [c.name for c in self.clips]
+        raise InputError(f"no clip {name!r}; available clips: {', '.join(map(repr, names)) or 'none'}")
+
+    def skin_matrices(self, globals_: np.ndarray) -> np.ndarray:
+        """Skinning matrices ``G @ G_rest^-1`` (..., J, 4, 4) for world-space rest vertices."""
+        return np.asarray(globals_, dtype=np.float64) @ np.linalg.inv(self.skeleton.rest_globals())

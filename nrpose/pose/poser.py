@@ -1,0 +1,207 @@
+"""Characters posed on the device: bind once, then frames from joint rotations.
+
+    poser = CharacterPoser(character, method="nrmls", weights="authored")
+    frames = poser.pose(local_pose)           # LocalPose (J, ...) or (F, J, ...)
+    frames.positions                          # (F, V, 3) float32, world space
+
+Vertices of all the character's meshes are concatenated in file order
+(``mesh_offsets`` tells where each mesh starts). Methods:
+
+* ``nrmls``: the engine's near-rigid blend (:mod:`nrpose.blend`) with the
+  skeleton's bones (:meth:`nrpose.model.skeleton.Skeleton.bones`) as segment
+  handles carrying their full rotation, weighted by
+  :func:`nrpose.bind.bone_weights.bone_weights`.
+* ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.skinning`).
+  With authored weights a glTF mesh is skinned from its own bind-space
+  POSITION data with ``G_j @ inverse_bind_j`` of its own skin: the glTF
+  specification's formula.
+
+Weights (:data:`nrpose.bind.bone_weights.WEIGHTS`): ``authored`` (the file's
+skin weights), ``euclidean`` (distance to the bone segments, ``1/d^(2α)``), or
+a topological distance over the surface (``heat``, ``exact``, ``graph``). For
+lbs/dqs the distance weights keep each vertex's 4 nearest bones, summed per
+driving joint.
+
+Meshes attached rigidly to a joint follow that joint's transform exactly,
+whatever the method.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import skinning
+from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
+from ..blend import BLENDS
+from ..engine import Deformer
+from ..errors import InputError
+from ..model.character import Character
+from ..model.handles import HandleSet, Pose
+from ..model.meshset import concatenate_meshes
+from ..model.skeleton import LocalPose
+
+__all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames"]
+
+METHODS = ("nrmls", "lbs", "dqs")
+SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
+BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
+
+
+@dataclass(frozen=True)
+class Frames:
+    """Posed frames: positions (F, V, 3) float32 (each frame C-contiguous; posed on
+    OpenCL, a few padding points lie between frames, :meth:`nrpose.engine.Deformer.frames_array`),
+    faces (M, 3) int64 (indices into the concatenated vertices), mesh_names,
+    mesh_offsets (len(meshes),) int64, and per-frame pose times in milliseconds (F,)."""
+
+    positions: np.ndarray
+    faces: np.ndarray
+    mesh_names: tuple[str, ...]
+    mesh_offsets: np.ndarray
+    frame_ms: np.ndarray
+
+
+class CharacterPoser:
+    """A character bound for posing. See the module docstring for the options.
+
+    k: segment slots per vertex for nrmls (default: all bones up to 8, else 8).
+    blend: the nrmls rotation blend (:data:`nrpose.blend.BLENDS`; "quaternion" is
+    continuous where the dominant bone changes, at hips and shoulders).
+    """
+
+    def __init__(self, character: Character, method: str = "nrmls", weights: str = "authored",
+                 alpha: float = 1.0, k: int | None = None, backend: str = "opencl", blend: str = "relative"):
+        if method not in METHODS:
+            raise InputError(f"method must be one of {METHODS}, got {method!r}")
+        if weights not in WEIGHTS:
+            raise InputError(f"weights must be one of {WEIGHTS}, got {weights!r}")
+        if blend not in BLENDS:
+            raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
+        if blend != "relative" and method != "nrmls":
+            raise InputError(f"blend {blend!r} applies to the nrmls method only; drop blend= or use method='nrmls'")
+        if not character.meshes:
+            raise InputError("the character has no mesh to pose (a skeleton-only file); "
+                             "give a mesh and pass the skeleton with skeleton=")
+        t0 = time.perf_counter()
+        self.character, self.method = character, method
+        skel = character.skeleton
+        meshes = character.meshes
+        geo = concatenate_meshes(meshes)
+        self.mesh_offsets, self.mesh_names, self.faces = geo.offsets, geo.names, geo.faces
+        self.n = len(geo.vertices)
+        self._rigid_idx = np.flatnonzero(geo.rigid >= 0)
+        self._rigid_joint = geo.rigid[self._rigid_idx]
+        self._deform_idx = np.flatnonzero(geo.rigid < 0)
+        self._rest_world = geo.vertices
+        self._rest_inv = np.linalg.inv(skel.rest_globals())
+        self.bones = skel.bones()
+        deform_meshes = [m for m in meshes if m.rigid_joint is None]
+        self._deformer, self._bind_space = None, False
+        if deform_meshes:
+            V = self._rest_world[self._deform_idx]
+            if method == "nrmls":
+                rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
+                kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
+                W = bone_weights(character, weights, kk, alpha).weights[self._deform_idx]
+                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
+            else:
+                offset = np.zeros(len(V), np.int64)
+                if weights == "authored":
+                    joint_w = authored_joint_weights(deform_meshes, skel.num_joints)
+                    self._bind_space = all(m.bind_vertices is not None and m.inverse_bind is not None
+                                           for m in deform_meshes)
+                    src = (np.concatenate([m.bind_vertices for m in deform_meshes]) if self._bind_space else V)
+                    if self._bind_space:
+                        # each distinct skin's inverse binds get their own block of J matrices
+                        self._ibms, group = _distinct([m.inverse_bind for m in deform_meshes])
+                        offset = np.repeat(group * skel.num_joints, [len(m.vertices) for m in deform_meshes])
+                else:
+                    bone_w = bone_weights(character, weights, SKIN_INFLUENCES, alpha).weights[self._deform_idx]
+                    joint_w = np.zeros((len(V), skel.num_joints))
+                    np.add.at(joint_w.T, self.bones.joints, bone_w.T)
+                    self._bind_space, src = False, V
+                joints, wts = _compact(joint_w)
+                joints = joints + offset[:, None]
+                cls = skinning.LbsDeformer if method == "lbs" else skinning.DqsDeformer
+                self._deformer = cls(src, joints, wts) if backend == "opencl" else None
+                self._skin_ref = (src, joints, wts)
+        self._backend = backend
+        self.bind_ms = 1e3 * (time.perf_counter() - t0)
+
+    # ------------------------------------------------------------------ posing
+    def pose(self, local: LocalPose, progress=None) -> Frames:
+        """Posed frames for a local pose (J, ...) or a batch (F, J, ...).
+
+        progress: optional callable(done, total) called after each frame.
+        """
+        skel = self.character.skeleton
+        if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
+            raise InputError("no frames to pose: give at least one time")
+        G = skel.forward_kinematics(local)
+        if G.ndim == 3:
+            G = G[None]
+        F = len(G)
+        whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
+        # on OpenCL: the frames in memory the deformer's kernel writes directly (no copy per frame)
+        out = (self._deformer.frames_array(F) if whole and self._backend == "opencl"
+               else np.empty((F, self.n, 3), np.float32))
+        frame_ms = np.empty(F)
+        # (F, J, 4, 4): skinning matrices, for rigidly attached meshes and for LBS/DQS of rest-space
+        # vertices (bind-space vertices take their skins' own inverse binds instead)
+        skin_rest = (G @ self._rest_inv
+                     if self._rigid_idx.size or (self.method != "nrmls" and not self._bind_space) else None)
+        # per-frame handle data for all frames at once (vectorised host work)
+        if self.method == "nrmls":
+            segs, rots = self.bones.pose(G)
+            empty = np.zeros((0, 3))
+        else:
+            mats = (np.concatenate([G @ ibm for ibm in self._ibms], axis=1) if self._bind_space
+                    else skin_rest)
+        for a in range(0, F, BATCH):
+            b = min(a + BATCH, F)
+            t0 = time.perf_counter()
+            if self._rigid_idx.size:
+                M = skin_rest[a:b, self._rigid_joint]                     # (f, n, 4, 4)
+                V = self._rest_world[self._rigid_idx]
+                out[a:b, self._rigid_idx] = np.einsum("fnij,nj->fni", M[..., :3, :3], V) + M[..., :3, 3]
+            if self._deform_idx.size:
+                dst = out[a:b] if whole else np.empty((b - a, len(self._deform_idx), 3), np.float32)
+                if self.method == "nrmls":
+                    # FK output is consistent by construction: no Pose.make validation
+                    self._deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
+                                               out=dst)
+                elif self._deformer is not None:
+                    self._deformer.pose_frames(mats[a:b], out=dst)
+                else:
+                    ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
+                    dst[...] = [ref(*self._skin_ref, m) for m in mats[a:b]]
+                if not whole:
+                    out[a:b, self._deform_idx] = dst
+            frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
+            if progress:
+                progress(b, F)
+        if self._backend == "opencl" and self._deformer is not None:
+            self._deformer.release_frames()       # the Frames are the caller's: not kept by the poser
+        return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
+
+
+# ---------------------------------------------------------------------- helpers
+def _distinct(arrays: list[np.ndarray]) -> tuple[list[np.ndarray], np.ndarray]:
+    """The distinct arrays of a list and, for each entry, the index of its distinct array."""
+    distinct, index = [], []
+    for a in arrays:
+        k = next((i for i, d in enumerate(distinct) if np.array_equal(d, a)), None)
+        if k is None:
+            distinct.append(a)
+            k = len(distinct) - 1
+        index.append(k)
+    return distinct, np.array(index, np.int64)
+
+
+def _compact(W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Dense (V, J) weights → (joints (V, K), weights (V, K)), K = most non-zeros in a row."""
+    K = max(int(np.count_nonzero(W, axis=1).max()), 1)
+    joints = np.argsort(-W, axis=1, kind="stable")[:, :K]
+    return joints, np.take_along_axis(W, joints, axis=1)

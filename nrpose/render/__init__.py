@@ -1,0 +1,1 @@
+"""Pictures (PNG, matplotlib): before/after previews, contact sheets of frames, weight maps."""
