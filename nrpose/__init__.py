@@ -8,7 +8,7 @@ Data flow: load → bind (rest-only precompute) → pose (per-frame handle data)
     deformer = Deformer(points, rest, alpha=1.0)          # bind once
     posed = deformer.pose(Pose.make(rest, segments=posed_segments, rotations=rotations))
 """
-from .engine import Deformer
+from .pose.mls import Deformer
 from .errors import DeviceError, FileFormatError, HandleError, InputError, NrposeError
 from .handles import HandleSet, Pose, load_handles
 

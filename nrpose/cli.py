@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .blend import BLENDS, LEVERS
-from .engine import BACKENDS, Deformer
+from .pose.blend import BLENDS, LEVERS
+from .pose.mls import BACKENDS, Deformer
 from .character import check_frame_count
 from .errors import NrposeError
 

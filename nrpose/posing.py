@@ -35,9 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .blend import BLENDS
+from .pose.blend import BLENDS
 from .character import Character
-from .engine import Deformer
+from .pose.mls import Deformer
 from .errors import InputError
 from .handles import HandleSet, Pose
 from .skeleton import LocalPose
@@ -117,7 +117,7 @@ class CharacterPoser:
                     self._deformer = Deformer(V, rest, alpha=alpha, distances=D, k=kk, backend=backend,
                                               blend=blend)
             else:
-                from . import skinning
+                from .pose import skinning
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
                     self._bind_space = all(m.bind_vertices is not None and m.inverse_bind is not None
@@ -134,7 +134,7 @@ class CharacterPoser:
                     self._bind_space, src = False, V
                 joints, wts = _compact(joint_w)
                 joints = joints + offset[:, None]
-                cls = skinning.LbsDeformer if method == "lbs" else skinning.DqsDeformer
+                cls = skinning.LbsSkinner if method == "lbs" else skinning.DqsSkinner
                 self._deformer = cls(src, joints, wts) if backend == "opencl" else None
                 self._skin_ref = (src, joints, wts)
         self._backend = backend
@@ -185,7 +185,7 @@ class CharacterPoser:
                 elif self._deformer is not None:
                     self._deformer.pose_frames(mats[a:b], out=dst)
                 else:
-                    from . import skinning
+                    from .pose import skinning
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
                     dst[...] = [ref(*self._skin_ref, m) for m in mats[a:b]]
                 if not whole:

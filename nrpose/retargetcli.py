@@ -201,7 +201,7 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
 
 def _skinned_frames(character, G: np.ndarray):
     """Posed vertices (F, V, 3) of all meshes by linear blend skinning, and the faces."""
-    from .skinning import lbs_reference
+    from .pose.skinning import lbs_reference
 
     mats = character.skin_matrices(G)
     verts, faces, offset = [], [], 0

@@ -258,8 +258,8 @@ def test_standby_ab(tmp_path, monkeypatch, capfd):
 
     if not device.standing_workers_possible():
         pytest.skip("standing workers only on x86 hosts")
-    monkeypatch.setattr(device, "_STANDBY", [750e-6])
-    monkeypatch.setattr(device, "STANDING_MIN_BLOCKS", 1)      # the quick rows have 2 blocks
+    monkeypatch.setattr(device.policy, "_STANDBY", [750e-6])
+    monkeypatch.setattr(device.mailbox, "STANDING_MIN_BLOCKS", 1)      # the quick rows have 2 blocks
     standby_ab = importlib.import_module("standby_ab")
     out, png = tmp_path / "ab.json", tmp_path / "ab.png"
     assert standby_ab.main(["--rows", "box/segments,box/points", "--rounds", "2", "--poses", "5", "--quick",
@@ -336,7 +336,7 @@ def test_pose_kernel_timing_falls_back_to_woken_events(monkeypatch):
     ceilings = {"launch": {"event_ms": 0.04, "wall_ms": 0.1},
                 "launch_standing": {"span_ms": 0.003, "wall_ms": 0.01}}
     assert roofs.launch_floor(ceilings)["event_ms"] == 0.003
-    monkeypatch.setattr(device, "EVENT_CLOCK", None)
+    monkeypatch.setattr(device.timing, "EVENT_CLOCK", None)
     t, stood = roofs.pose_kernel_once(d)
     assert math.isfinite(t) and t > 0 and not stood and roofs.timing == roofline.TIMING_WOKEN
     assert roofs.launch_floor(ceilings)["event_ms"] == 0.04
