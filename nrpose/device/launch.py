@@ -12,6 +12,7 @@ launch (:meth:`nrpose.device.Jobs.mode`, :mod:`nrpose.device.policy`).
 from __future__ import annotations
 
 from . import policy
+from .policy import LAUNCH_LOCK
 from .env import context, pyopencl, work_items, worker_device
 from .mailbox import Jobs
 from .timing import timing_queue
@@ -42,7 +43,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
     (:func:`nrpose.device.timing_queue`): its event, the last returned, ends when every
     block is done (:func:`nrpose.device.published_span_s`).
     """
-    with policy.LAUNCH_LOCK:
+    with LAUNCH_LOCK:
         return _launch_shared(kernel, jobs, blocks, frames, prologue, queues, workers, timed)
 
 
