@@ -25,7 +25,7 @@ def run_coded_rows(rows: np.ndarray, lanes: int) -> np.ndarray:
 
 class BoundKernel:
     """A kernel bound once to a deformer's rest data that poses F frames per launch
-    (:func:`nrpose.device.launch_shared`), writing (F, n, 3) float32 frames.
+    (:func:`nrpose.device.launch_shared`), writing (F, n, 3) float32 frames on the device.
 
     The user API it gives its subclasses: :meth:`frames_array` (frames the kernel writes
     into directly), :meth:`release_frames`; each subclass validates its own inputs in
