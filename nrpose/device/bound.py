@@ -40,7 +40,8 @@ class BoundKernel:
     frames: the caller's own array where ``owned``, else a view of the launch's output;
     None where ``direct``, (memory, first frame) of a :meth:`frames_array`, received them),
     ``_own_output()`` (the next launch writes into the deformer's own output) and
-    ``_unbind_frames()`` (:meth:`release_frames`); :meth:`_direct_frames` where launches
+    ``_unbind_frames()`` (:meth:`release_frames`); ``_reference(inputs)`` where it may have
+    no device; :meth:`_direct_frames` where launches
     may not write into frame arrays. :mod:`nrpose.diagnostics` runs launches again through
     :meth:`_relaunch`.
 
@@ -81,13 +82,15 @@ class BoundKernel:
     def _posed(self, inputs, count: int, out: np.ndarray | None) -> np.ndarray:
         """Frames (count, n, 3) of validated ``inputs`` (what ``_run`` takes), in one launch:
         written into ``out`` (shape checked by the caller) and returned, directly where it
-        lies in a :meth:`frames_array`, else copied; without it, a new array."""
-        direct = (frames_in(out, self._frame_floats)
-                  if out is not None and count and self._frame_floats is not None and self._direct_frames()
-                  else None)
-        result = self._run(inputs, out is None, direct)
-        if direct is not None:        # shared memory: launch_shared has waited for the frames
-            return out
+        lies in a :meth:`frames_array`, else copied; without it, a new array. Without a
+        device (``_frame_floats`` None), ``_reference(inputs)`` computes them."""
+        if self._frame_floats is None:
+            result = self._reference(inputs)
+        else:
+            direct = frames_in(out, self._frame_floats) if out is not None and count and self._direct_frames() else None
+            result = self._run(inputs, out is None, direct)
+            if direct is not None:    # shared memory: launch_shared has waited for the frames
+                return out
         if out is None:
             return result
         out[...] = result

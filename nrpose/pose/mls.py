@@ -277,6 +277,13 @@ class Deformer(device.BoundKernel):
         device.check_out_writable(out)
         return self._posed(poses, F, out)
 
+    def _reference(self, poses: list) -> np.ndarray:
+        """The numpy backend's frames (F, N, 3) float64: :func:`nrpose.pose.blend.pose_reference`
+        of each pose."""
+        if not poses:
+            return np.zeros((0, self.n, 3))
+        return np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses])
+
     def _own_output(self) -> None:
         """The next launch writes into its own output slots (not into a caller's frames)."""
         self._slots[: self._batch] = self._own_slots[: self._batch]
@@ -308,12 +315,8 @@ class Deformer(device.BoundKernel):
         the caller's own (owned: a single frame is written into a free handed-off slot,
         :class:`nrpose.device.Handoff`, else copied) or a view of the launch's slots;
         direct: (memory, first frame) of a :func:`nrpose.device.frame_array` the frames
-        are written into instead (:func:`nrpose.device.frames_in`; returns None). The
-        numpy backend: :func:`nrpose.pose.blend.pose_reference` of each pose."""
+        are written into instead (:func:`nrpose.device.frames_in`; returns None)."""
         F = len(poses)
-        if self.backend == "numpy":
-            return (np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses]) if F
-                    else np.zeros((0, self.n, 3)))
         if F > self._frames:            # (a pose's path: no call where they are reserved)
             self._reserve(F)
         for (points, segments, rotations), pose in zip(self._frame_rows, poses):
