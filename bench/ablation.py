@@ -2,7 +2,7 @@
 ``bound_by``).
 
 Each ablation is the shipped ``kernels/nrmls.cl`` with one edit, built with the bound
-deformer's options (:meth:`nrpose.engine.Deformer.pose_kernel_variant`) and launched in
+deformer's options (:func:`nrpose.diagnostics.kernel_variant`) and launched in
 turn with the shipped kernel on the calling thread alone
 (:func:`kernel_ab.paired_launches`; both built as variants, by the same path), so that
 both see the same machine. Its ``share`` is
@@ -27,7 +27,7 @@ import numpy as np
 
 import common
 import kernel_ab
-from nrpose import device
+from nrpose import device, diagnostics
 from nrpose.errors import NrposeError
 
 WINDOW = 16       # chunks whose records the memory ablation cycles through
@@ -58,9 +58,9 @@ def measure(deformer, launches: int = LAUNCHES) -> dict:
     "shipped_ms", "variant_ms" (medians)}}."""
     names = [n for n in ABLATIONS if n != "stores" or len(deformer.rest.segments)]
     # the shipped source built as a variant too, so that both sides come from the same build
-    # path (a variant's arguments are bound once, Deformer._args_version)
-    kernels = {"shipped": deformer.pose_kernel_variant(device.kernel_source("nrmls.cl")),
-               **{n: deformer.pose_kernel_variant(variant_source(n)) for n in names}}
+    # path (a variant's arguments are bound again only after they change)
+    kernels = {"shipped": diagnostics.kernel_variant(deformer, device.kernel_source("nrmls.cl")),
+               **{n: diagnostics.kernel_variant(deformer, variant_source(n)) for n in names}}
     times = kernel_ab.paired_launches(deformer, kernels, launches)
     out = {}
     for n in names:
@@ -69,5 +69,5 @@ def measure(deformer, launches: int = LAUNCHES) -> dict:
                   "paired_ratio": common.quantiles(ratio),
                   "shipped_ms": float(np.median(times["shipped"]) * 1e3),
                   "variant_ms": float(np.median(times[n]) * 1e3)}
-    deformer.relaunch()       # the shipped kernel's output back in place
+    diagnostics.relaunch(deformer)       # the shipped kernel's output back in place
     return out

@@ -2,7 +2,7 @@
 
 Three parts, one record (``bench/results/bind.json``, written atomically):
 
-* ``bind``: bind time = distances (:func:`nrpose.distances.distance_matrix`)
+* ``bind``: bind time = distances (:func:`nrpose.bind.distances.distance_matrix`)
   + weights (:func:`nrpose.weights.dense_weights`, then the poser's top-k),
   uncached, median of ``--repeat`` runs (default 3):
 
@@ -201,7 +201,7 @@ def bench_bind(data: pathlib.Path, repeat: int, exact_repeat: int, exact_bones: 
         per = []
         for j in pick:
             t = time.perf_counter()
-            dm._exact_component(Vw, Fw, [(int(j), src[j][0], src[j][1])])
+            dm.exact_component(Vw, Fw, [(int(j), src[j][0], src[j][1])])
             per.append(time.perf_counter() - t)
         rec["methods"]["exact"] = {
             "estimated": True, "median_s": float(t_src + B * np.mean(per)),

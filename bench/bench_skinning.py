@@ -5,7 +5,7 @@ influences per vertex (the 4 nearest joints, inverse-square-distance weights,
 vertices ordered by dominant joint as mesh exporters tend to leave them).
 
 Reports medians (ms) of:
-  * ``pose``          -- the full ``Deformer.pose(mats)`` call: validation,
+  * ``pose``          -- the full ``Skinner.pose(mats)`` call: validation,
                          float32 upload, one kernel launch, read-back to float64;
   * ``pose_frames``   -- ``pose_frames`` of F frames in one launch, per frame;
   * ``kernel``        -- kernel execution alone for one frame, launched as ``pose``
@@ -27,8 +27,8 @@ import time
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from nrpose import device
-from nrpose.skinning import Deformer, dqs_reference, lbs_reference
+from nrpose import device, diagnostics
+from nrpose.pose.skinning import Skinner, dqs_reference, lbs_reference
 
 N, J, K, FRAMES = 15_882, 65, 4, 16
 ROOT = pathlib.Path(__file__).resolve().parent
@@ -58,7 +58,7 @@ def median_ms(fn, repeat: int) -> float:
     return float(np.median(times) * 1e3)
 
 
-def kernel_ms(deformer: Deformer, frame_mats, repeat: int) -> float:
+def kernel_ms(deformer: Skinner, frame_mats, repeat: int) -> float:
     """Kernel execution time of one frame, launched as a pose launches it (shared with the
     workers or not, device.launch_shared), from profiling events on private queues: the
     first start to the last end over the devices that ran it."""
@@ -66,7 +66,7 @@ def kernel_ms(deformer: Deformer, frame_mats, repeat: int) -> float:
     queues = device.profiling_queues()
     times = []
     for _ in range(repeat):
-        events = deformer.relaunch(queues=queues)
+        events = diagnostics.relaunch(deformer, queues=queues)
         times.append(device.events_span_s(events) * 1e3)
     return float(np.median(times))
 
@@ -90,7 +90,7 @@ def main() -> None:
     rest, joints, weights, mats = rig()
     results = {}
     for method, ref in (("lbs", lbs_reference), ("dqs", dqs_reference)):
-        d = Deformer(rest, joints, weights, method=method)
+        d = Skinner(rest, joints, weights, method=method)
         err = np.abs(d.pose(mats[0]) - ref(rest, joints, weights, mats[0])).max()
         frame = iter(range(10**9))
         results[method] = {

@@ -1,6 +1,6 @@
 """Clips suite: frames per second posing characters through their animation clips.
 
-Characters (each with nrmls, lbs and dqs through :class:`nrpose.posing.CharacterPoser`):
+Characters (each with nrmls, lbs and dqs through :class:`nrpose.pose.poser.CharacterPoser`):
 
 * the shared glTF characters ``gltf/Fox.glb`` (clip ``Walk``), ``gltf/Mannequin.glb`` and
   ``gltf/Ely.glb`` (their single Mixamo clip) with their authored skin weights;
@@ -108,7 +108,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, log=None) -> dict:
             rows.append({"character": name, "method": m, "weights": weights, "source": source,
                          "clip": clip.name, "clip_duration_s": float(clip.duration), "frames": frames,
                          "rounds": rounds, "vertices": int(p0.n), "joints": int(ch.skeleton.num_joints),
-                         "bones": int(len(p0.bones)), "nrmls_slots": getattr(p0._deformer, "slots", None),
+                         "bones": int(len(p0.bones)), "nrmls_slots": getattr(p0.deformer, "slots", None),
                          "bind_ms": bind[m], "frame_ms": st, "fps": 1e3 / st["median"],
                          "batch_ms": bt, "batch_fps": frames / (bt["median"] * 1e-3), "load": common.load()})
             if log:

@@ -20,8 +20,8 @@ Reported per row (and written with ``--json``): each side's median over all its 
 (ms), the per-round ratio base / this (median, min, max; > 1: this checkout is faster)
 and the largest difference between the two outputs of one pose relative to the bounding
 box diagonal (0 when the arithmetic is unchanged). The base must pose through the same
-API (``Deformer(points, rest)``, ``HandleSet.make``, ``Pose.make(rest, points, segments,
-rotations=)``). Errors (unknown commit, not a git checkout, unknown row): one line on
+API (``nrpose.Deformer(points, rest)``, ``nrpose.HandleSet.make``, ``nrpose.Pose.make(rest,
+points, segments, rotations=)``). Errors (unknown commit, not a git checkout, unknown row): one line on
 stderr, exit status 2.
 """
 from __future__ import annotations
@@ -43,7 +43,7 @@ import numpy as np
 import common
 import table1
 from nrpose import device
-from nrpose.engine import Deformer
+from nrpose import Deformer
 from nrpose.errors import NrposeError
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
@@ -81,11 +81,11 @@ def measure_row(base, model: str, kind: str, data: pathlib.Path, rounds: int, po
                 quick: bool) -> dict:
     """One row's record (see the module docstring); base: the imported base package."""
     v, rest, diag, row_poses = common.table1_row(model, kind, data, poses=20, seed=1, quick=quick)
-    handles = importlib.import_module(f"{base.__name__}.handles")
-    rest_b = handles.HandleSet.make(rest.points, rest.segments)
-    poses_b = [handles.Pose.make(rest_b, p.handles.points, p.handles.segments,
-                                 rotations=p.rotations if len(rest.segments) else None) for p in row_poses]
-    sides = {"base": (importlib.import_module(f"{base.__name__}.engine").Deformer(v, rest_b), poses_b),
+    # the package's public names, whatever its module layout
+    rest_b = base.HandleSet.make(rest.points, rest.segments)
+    poses_b = [base.Pose.make(rest_b, p.handles.points, p.handles.segments,
+                              rotations=p.rotations if len(rest.segments) else None) for p in row_poses]
+    sides = {"base": (base.Deformer(v, rest_b), poses_b),
              "this": (Deformer(v, rest), row_poses)}
     diff = float(np.abs(sides["base"][0].pose(poses_b[3]) - sides["this"][0].pose(row_poses[3])).max()) / diag
     pause = 2 * device.standby_s() + 1e-3

@@ -21,8 +21,8 @@ if str(HERE.parent) not in sys.path:
 
 import table1  # noqa: E402  (bench/table1.py: the colleague's Table-1 benchmark and helpers)
 
-stats = table1._stats           # seconds -> {"median", "p10", "p90", "min", "max", "n"} in ms
-git = table1._git
+stats = table1.stats           # seconds -> {"median", "p10", "p90", "min", "max", "n"} in ms
+git = table1.git
 
 
 def quantiles(x) -> dict[str, float]:

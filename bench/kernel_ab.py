@@ -3,16 +3,14 @@
     python bench/kernel_ab.py VARIANT.cl [--base BASE.cl] [--model box] [--kind points]
                               [--launches 400] [--json OUT.json]
 
-Why: on the shared 2-core VM a single thread's speed differs by up to ~1.4x between
-processes and drifts within one (the box's segment kernel alone: 33 µs in some
-processes, 45-47 µs in others, same CPU), so comparing old and new code in alternated
-processes resolves only large changes. Here one deformer is bound for a Table-1 row
+Why: on a shared VM a single thread's speed differs between processes and drifts within
+one, so comparing old and new code in alternated processes resolves only large changes. Here one deformer is bound for a Table-1 row
 (bench/table1.py's model, handles and a pose of that row), both kernels are built with
-its build options and bound to its arrays (``Deformer.pose_kernel_variant``), each
-one's output is checked against the deformer's own, and they are launched alternately,
-``--launches`` times each, on the calling thread alone (``relaunch(workers=False,
-pose_kernel=...)``: the variant, its prologue included; no worker wake-up), so
-that both see the same machine. A 2-5 % difference between kernels shows up reliably.
+its build options and bound to its arrays (:func:`nrpose.diagnostics.kernel_variant`),
+each one's output is checked against the deformer's own, and they are launched
+alternately, ``--launches`` times each, on the calling thread alone
+(``diagnostics.relaunch(deformer, workers=False, kernel=...)``: the variant, its prologue
+included; no worker wake-up), so that both see the same machine.
 
 Reported (and written with ``--json``): for base and variant, the median, p10, p90 of
 the launches in ms, the ratio of the medians base / variant (> 1: the variant is
@@ -35,7 +33,8 @@ import numpy as np
 
 import common
 import table1
-from nrpose.engine import Deformer
+from nrpose import diagnostics
+from nrpose.pose.mls import Deformer
 from nrpose.errors import NrposeError
 
 SHIPPED = pathlib.Path(str(resources.files("nrpose.kernels").joinpath("nrmls.cl")))
@@ -65,14 +64,15 @@ def row_deformer(model: str, kind: str, data: pathlib.Path) -> tuple[Deformer, n
 
 def paired_launches(deformer: Deformer, kernels: dict, launches: int) -> dict[str, list[float]]:
     """Seconds of each of ``launches`` rounds of ``kernels`` (name -> pose kernel variant,
-    :meth:`Deformer.pose_kernel_variant`), launched in turn on the calling thread alone
-    (``relaunch(workers=False, pose_kernel=...)``, prologue and enqueue/wait included):
+    :func:`nrpose.diagnostics.kernel_variant`), launched in turn on the calling thread alone
+    (``diagnostics.relaunch(deformer, workers=False, kernel=...)``, prologue and enqueue/wait
+    included):
     round i's times of two kernels were taken side by side."""
     times: dict[str, list[float]] = {which: [] for which in kernels}
     for _ in range(launches):
         for which, kernel in kernels.items():
             t = time.perf_counter()
-            deformer.relaunch(workers=False, pose_kernel=kernel)
+            diagnostics.relaunch(deformer, workers=False, kernel=kernel)
             times[which].append(time.perf_counter() - t)
     return times
 
@@ -85,10 +85,9 @@ def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box",
     kernels, max_diff = {}, {}
     for which, path in files.items():
         with compiler_quiet():
-            kernels[which] = deformer.pose_kernel_variant(path.read_text())
-        deformer.relaunch(workers=False, pose_kernel=kernels[which])
-        deformer._out.download()
-        got = deformer._out.host[: 3 * deformer._npad].reshape(-1, 3)[: deformer.n]
+            kernels[which] = diagnostics.kernel_variant(deformer, path.read_text())
+        diagnostics.relaunch(deformer, workers=False, kernel=kernels[which])
+        got = diagnostics.launch_output(deformer)[0]
         max_diff[which] = float(np.abs(got - want).max() / diag)
     times = paired_launches(deformer, kernels, launches)
     ms = {which: common.stats(t) for which, t in times.items()}
@@ -98,11 +97,11 @@ def run(variant: pathlib.Path, base: pathlib.Path = SHIPPED, model: str = "box",
         "timestamp": common.now(), "git_commit": common.git("rev-parse", "HEAD"),
         "environment": common.environment(),
         "row": {"model": model, "kind": kind, "points": deformer.n,
-                "handles": deformer.rest.count, "build_options": list(deformer._options)},
+                "handles": deformer.rest.count, "build_options": list(diagnostics.build_options(deformer))},
         "files": {which: {"path": str(p), "sha256": hashlib.sha256(p.read_bytes()).hexdigest()}
                   for which, p in files.items()},
         "launches": launches,
-        "timing": "relaunch(workers=False, pose_kernel=...) on the calling thread, base and variant "
+        "timing": "diagnostics.relaunch(deformer, workers=False, kernel=...) on the calling thread, base and variant "
                   "alternated; ms per launch (pose kernel with its prologue + enqueue/wait)",
         "base_ms": ms["base"], "variant_ms": ms["variant"],
         "base_over_variant": ms["base"]["median"] / ms["variant"]["median"],

@@ -17,8 +17,9 @@ time of a launch is from the first device's start to the last one's end):
 
 The pose kernel's work is counted from ``kernels/nrmls.cl`` (:func:`pose_flops`,
 :func:`pose_bytes`); its time is that of the ``nrmls_pose`` launch of a bound
-:class:`nrpose.engine.Deformer`, re-run on the private queues
-(:meth:`nrpose.engine.Deformer.relaunch`), shared or not as the deformer decides.
+:class:`nrpose.Deformer`, re-run as a frame loop runs it
+(:func:`nrpose.diagnostics.time_launch`), or on the private queues
+(:func:`nrpose.diagnostics.relaunch`), shared or not as the deformer decides.
 """
 from __future__ import annotations
 
@@ -27,22 +28,19 @@ import time
 import numpy as np
 
 import ablation
-from nrpose import device
-from nrpose.engine import levers_stored
+from nrpose import device, diagnostics
+from nrpose.pose.mls import levers_stored
 
 ACCS = 8          # independent float8 accumulators per work-item
 #: a kernel near the copy bandwidth is called memory bound only if taking its memory
 #: traffic away (ablation.py "memory") saves at least this share of its time
 MEMORY_BOUND_SHARE = 0.3
 #: ... and launch bound if its time is within this factor of an empty kernel's (the
-#: launch is then at least half of it; 4 until the thirteenth session, which called
-#: segment rows of 0.11-0.12 ms launch bound beside an empty kernel of 30-45 us)
+#: launch is then at least half of it)
 LAUNCH_BOUND_RATIO = 2
 #: ... and held under the target by the host's slow phases if its median is at least this
-#: factor over its best round's and that round reached the target (twentieth session: in a
-#: slow phase of the shared VM every part of a launch runs ~2x slower for hundreds of ms:
-#: medians over best rounds, segment rows' kernels up to 2.1x, point rows' 1.1-1.4x, the
-#: FMA-only ceiling kernel's samples 1.04-1.19x)
+#: factor over its best round's and that round reached the target (in a slow phase of a
+#: shared VM every part of a launch runs slower for hundreds of ms)
 PHASE_RATIO = 1.25
 ITERS = 2048      # updates of each accumulator
 PEAK_ITEMS = 4096  # work-items of the arithmetic kernel (many work-groups for both cores)
@@ -65,8 +63,8 @@ COPY_BLOCK = 4096  # float8 elements (128 KB) per block of the copy kernel
 STANDING_EMPTY_BLOCKS = 2   # empty blocks of the job timed with a standing worker polling
 #: how the pose kernels are timed (Roofs.timing): as a frame loop runs them, or (where PoCL's
 #: event clock is not the host's, so that a span cannot start at the job's publication) on
-#: the profiling queues with the workers woken for each launch, as until the fifteenth session
-TIMING_STANDING = ("as a frame loop runs them (Deformer.time_launch): a standing worker serving, from "
+#: the profiling queues with the workers woken for each launch
+TIMING_STANDING = ("as a frame loop runs them (diagnostics.time_launch): a standing worker serving, from "
                    "the job's publication to the end of the calling thread's kernel, which returns "
                    "once every block is done")
 TIMING_WOKEN = ("OpenCL profiling events on private queues, PoCL's worker woken for each launch, first "
@@ -141,7 +139,7 @@ FLOP_COUNT = {
 #: of the totals above: divisions (counted 1 each; the kernel makes no out-of-line calls)
 DIVISIONS = {"1 / h in angle_per_sine": (1, 0, 0, 0)}
 #: what a build reading the levers from the bound record (not DERIVED_LEVER: the "paper"
-#: rule, and rigs without segments, nrpose.engine.levers_stored) does not count above
+#: rule, and rigs without segments, nrpose.pose.mls.levers_stored) does not count above
 STORED_LEVERS_SKIP = {"point handle: lever coef*|phat|^2 (3 mul + 2 add + 1 mul; the *k remains)": (6, 0, 0, 0),
                       "normalise r: 3 mul": (0, 0, 3, 0)}
 
@@ -197,7 +195,7 @@ def pose_work(deformer) -> dict:
     by = pose_bytes(P, K, sparse, not stored)
     # the frame's pose block (positions, rotations, slot) and derived block (refs, table,
     # quats, ploc, dirs), as the deformer lays them out
-    per_pose_bytes = 4 * (deformer._pose_stride + deformer._derived_at["stride"])
+    per_pose_bytes = diagnostics.frame_bytes(deformer)
     return {"P": P, "S": S, "K": K, "sparse": sparse, "points": n,
             "flops_per_point": fl["per_point"], "bytes_per_point": by["per_point"],
             "flops_per_pose": fl["per_point"] * n,
@@ -325,12 +323,12 @@ class Roofs:
     def pose_kernel_once(self, deformer) -> tuple[float, bool]:
         """(seconds, stood): the pose kernel's time (its prologue, the R_g fit and rotation
         tables, included), re-running the deformer's last posing as a frame loop runs it
-        (:meth:`nrpose.engine.Deformer.time_launch`): from the job's publication, where a
+        (:func:`nrpose.diagnostics.time_launch`): from the job's publication, where a
         standing worker starts on it, to the end of the calling thread's kernel, which
         returns once every block is done; stood: whether a standing worker served it. Where
         the event clock is not the host's, :meth:`pose_kernel_woken` instead (and
         :attr:`timing` says so)."""
-        span, stood = deformer.time_launch()
+        span, stood = diagnostics.time_launch(deformer)
         if span is None:
             self.timing = TIMING_WOKEN
             return self.pose_kernel_woken(deformer), False
@@ -338,9 +336,9 @@ class Roofs:
 
     def pose_kernel_woken(self, deformer) -> float:
         """The pose kernel's time in seconds re-running the deformer's last posing on the
-        profiling queues, PoCL's worker woken for the launch (it starts 20-40 us late): from
+        profiling queues, PoCL's worker woken for the launch (it starts late): from
         the first device's start to the last one's end."""
-        return device.events_span_s(deformer.relaunch(queues=self.queues))
+        return device.events_span_s(diagnostics.relaunch(deformer, queues=self.queues))
 
     def launch_floor(self, ceilings: dict) -> dict:
         """An empty kernel's time measured as :meth:`pose_kernel_once` measures the pose
@@ -361,7 +359,7 @@ def lane_divergence(deformer) -> dict:
     A chunk of points (``deformer.lanes``) whose reference rotations differ, or (sparse) a
     segment slot whose segment indices differ, takes the gathered path (a scalar load per
     lane of each vector value instead of broadcasts)."""
-    ref, slots = deformer.bound_indices()
+    ref, slots = diagnostics.bound_indices(deformer)
     K = deformer.slots
     chunks = ref.reshape(-1, deformer.lanes)
     uni = (chunks == chunks[:, :1]).all(axis=1)
@@ -480,7 +478,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, roofs: "Roofs | None" =
 
     import common
     from common import table1
-    from nrpose.engine import Deformer
+    from nrpose.pose.mls import Deformer
 
     data = pathlib.Path(data) if data is not None else table1.DEFAULT_DATA
     roofs = roofs or Roofs(quick)

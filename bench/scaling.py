@@ -30,7 +30,7 @@ import time
 import numpy as np
 
 import common
-from nrpose.engine import Deformer
+from nrpose.pose.mls import Deformer
 from nrpose.model.handles import HandleSet, Pose
 from nrpose.model.rotation import Rotation
 

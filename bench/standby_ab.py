@@ -37,8 +37,8 @@ import numpy as np
 
 import common
 import table1
-from nrpose import device
-from nrpose.engine import Deformer
+from nrpose import device, diagnostics
+from nrpose.pose.mls import Deformer
 from nrpose.errors import NrposeError
 
 POLICIES = {"standing": device.STANDBY_S, "woken": 0.0}     # standby, seconds
@@ -64,14 +64,14 @@ def measure_row(model: str, kind: str, data: pathlib.Path, rounds: int, poses: i
                 t = time.perf_counter()
                 d.pose(row_poses[i % len(row_poses)], out=out)
                 ts.append(time.perf_counter() - t)
-                stood += name == "standing" and d._jobs.standing(d._kernel)
+                stood += name == "standing" and diagnostics.worker_standing(d)
             medians[name] = float(np.median(ts))
             times[name] += ts
             last[name] = d.pose(row_poses[0]).copy()
         ratios.append(medians["woken"] / medians["standing"])
     ms = {name: common.stats(t) for name, t in times.items()}
     return {"model": model, "kind": kind, "points": int(len(v)), "handles": rest.count,
-            "alone_ms": d._jobs.alone_s * 1e3, **{f"{name}_ms": ms[name] for name in POLICIES},
+            "alone_ms": diagnostics.alone_s(d) * 1e3, **{f"{name}_ms": ms[name] for name in POLICIES},
             "woken_over_standing": {"median": float(np.median(ratios)), "min": float(min(ratios)),
                                     "max": float(max(ratios)), "rounds": len(ratios)},
             "stood_fraction": stood / (rounds * poses),

@@ -1,9 +1,10 @@
 """Benchmark suites: the paper's Table 1 on PoCL, roofline, scaling, character clips.
 
-    python bench/suites.py [--suite table1|scaling|clips|roofline|all] [--repeat N]
-                           [--quick] [--json OUT.json] [--png PLOT.png] [--data DIR]
+    python -m bench [--suite table1|scaling|clips|roofline|all] [--repeat N]
+                    [--quick] [--json OUT.json] [--png PLOT.png] [--data DIR]
 
-(``nrpose bench`` runs the same through :mod:`nrpose.benchcli`.) One JSON document
+(from the checkout's root; ``python bench/suites.py`` and ``make bench`` run the same.)
+Bad options: one line on stderr, exit status 2. One JSON document
 (schema ``nrpose-bench-suites/1``, bench/README.md) with the device, the git commit,
 the options, the load average, every suite's figures and the targets; one PNG with a
 panel per suite run. Not a test: no assertions.
@@ -23,6 +24,7 @@ if str(HERE) not in sys.path:
 
 import common  # noqa: E402
 from common import table1  # noqa: E402
+from nrpose.errors import InputError, NrposeError  # noqa: E402
 
 SCHEMA = "nrpose-bench-suites/1"
 SUITES = ("table1", "roofline", "scaling", "clips")
@@ -276,14 +278,35 @@ def add_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder")
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parser(prog: str | None = None) -> argparse.ArgumentParser:
+    """The suites' command line (options as in bench/README.md); ``func``: :func:`execute`."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     add_arguments(ap)
-    a = ap.parse_args(argv)
-    return execute(a)
+    ap.set_defaults(func=execute)
+    return ap
+
+
+def main(argv=None, prog: str | None = None) -> int:
+    """Parse ``argv`` and run the chosen suites; exit status (2 with one line on stderr for
+    bad options)."""
+    a = parser(prog).parse_args(argv)
+    try:
+        return a.func(a)
+    except NrposeError as exc:
+        print(f"{prog or 'suites'}: {exc}", file=sys.stderr)
+        return 2
 
 
 def execute(a) -> int:
+    """Run the suites ``a`` (from :func:`parser`) names; write a.json (atomically) and
+    a.png. Returns 0; InputError for a repeat below 1 or an output folder that does not
+    exist."""
+    if a.repeat < 1:
+        raise InputError(f"--repeat must be at least 1, got {a.repeat}")
+    for opt in ("json", "png"):
+        path = getattr(a, opt)
+        if path and not pathlib.Path(path).parent.is_dir():
+            raise InputError(f"--{opt} {path}: directory {pathlib.Path(path).parent} does not exist")
     doc = run(a.suite or ["all"], a.repeat, a.quick, a.data, log=lambda s: print(s, flush=True))
     write_json(doc, a.json)
     if a.png:

@@ -48,7 +48,7 @@ if str(PROJECT) not in sys.path:  # allow `python bench/table1.py` from a checko
 
 import nrpose  # noqa: E402
 from nrpose import device  # noqa: E402
-from nrpose.engine import Deformer  # noqa: E402
+from nrpose.pose.mls import Deformer  # noqa: E402
 from nrpose.model.handles import HandleSet, Pose  # noqa: E402
 from nrpose.model.rotation import Rotation  # noqa: E402
 
@@ -71,24 +71,15 @@ MAX_BEND = np.radians(60.0)        # per-segment rotation of the chain poses
 ALPHA, BLEND, LEVER = 1.0, "relative", "weight"
 QUICK_POINTS = 500
 WARMUP = 10                        # untimed PoCL poses before timing a cell
-#: passes over a cell's poses in each round's timed PoCL block: the rounds follow the
-#: reference's poses (10-400 ms of one core's work, the other idle), after which the VM
-#: takes two poses to wake its second CPU (box points: 0.29 and 0.17 ms) and ~30 more to
-#: reach the loop's steady speed (0.079 -> 0.060 ms); 3 x 20 poses per block time mostly
-#: the frame loop, and each block's first pose is reported apart (pocl_pose_after_pause_ms)
+#: passes over a cell's poses in each round's timed PoCL block: after the reference's poses
+#: (one core busy, the other idle) the VM takes a few poses to wake its second CPU and more
+#: to reach the loop's steady speed; each block's first pose is reported apart
+#: (pocl_pose_after_pause_ms)
 LOOP_PASSES = 3
-#: ... and at least this long a block (seconds of posing): after the reference's poses the
-#: warm-up lasts 30-50 ms whatever the row (medians by position over 8 rounds: box points
-#: 0.60, 0.32, 0.11, ~0.07 ms until ~6 ms in, then 0.055; armadillo points 0.81, 0.59, 0.44,
-#: ~0.36 ms until ~35 ms in, then 0.325), and 3 x 20 poses took the box ~3 ms, the armadillo
-#: ~20 ms: their medians had measured the warm-up (a run's armadillo points 0.377 ms in Table
-#: 1, 0.298 ms in the roofline suite's loop a minute later). Every row now poses in a loop
-#: for as long, so that its median is the frame loop's; the warm-up's first pose is
-#: reported apart (pocl_pose_after_pause_ms). 60 ms (eleventh session) left the warm-up
-#: half of a block: its median still sat between warm-up and loop (a run's armadillo
-#: segments 0.121 ms in Table 1, 0.104 ms in the roofline suite's loop); since the twelfth
-#: session 250 ms, and the warm-up is reported by elapsed time (pocl_pose_warmup_ms,
-#: WARMUP_BINS_MS), so that it is seen, not folded into the median
+#: ... and at least this long a block (seconds of posing), longer than the warm-up after the
+#: reference's poses, so that a row's median is the frame loop's; the warm-up is reported
+#: by elapsed time (pocl_pose_warmup_ms, WARMUP_BINS_MS), so that it is seen, not folded
+#: into the median
 MIN_BLOCK_S = 0.25
 #: bin edges (ms since a block's start) of pocl_pose_warmup_ms, the last bin open
 WARMUP_BINS_MS = (0.0, 2.0, 5.0, 10.0, 20.0, 40.0, 80.0, 160.0)
@@ -335,7 +326,7 @@ def point_pose_args(rest: HandleSet, rng, scale: float) -> dict:
 
 # --------------------------------------------------------------------------- timing
 
-def _stats(samples_s: list[float]) -> dict:
+def stats(samples_s: list[float]) -> dict:
     a = np.asarray(samples_s) * 1e3
     return {"median": float(np.median(a)), "p10": float(np.percentile(a, 10)),
             "p90": float(np.percentile(a, 90)), "min": float(a.min()), "max": float(a.max()),
@@ -438,12 +429,12 @@ class Cell:
     def result(self) -> dict:
         """The cell's figures (bench/README.md, the rows of table1.json)."""
         n, h = len(self.v), self.rest.count
-        pose_cl, pose_np = _stats(self.cl_s), _stats(self.np_s)
-        batch = _stats(self.batch_s)
-        return {"bbox_diagonal": self.diag, "bind_ms": _stats(self.bind_cl), "bind_numpy_ms": _stats(self.bind_np),
+        pose_cl, pose_np = stats(self.cl_s), stats(self.np_s)
+        batch = stats(self.batch_s)
+        return {"bbox_diagonal": self.diag, "bind_ms": stats(self.bind_cl), "bind_numpy_ms": stats(self.bind_np),
                 "bind_first_ms": self.first_s * 1e3,
-                "pose_make_ms": _stats(self.make_s), "pocl_pose_ms": pose_cl,
-                "pocl_pose_into_ms": _stats(self.into_s), "pocl_pose_after_pause_ms": _stats(self.after_pause_s),
+                "pose_make_ms": stats(self.make_s), "pocl_pose_ms": pose_cl,
+                "pocl_pose_into_ms": stats(self.into_s), "pocl_pose_after_pause_ms": stats(self.after_pause_s),
                 "pocl_pose_warmup_ms": warmup_profile(self.cl_start_ms, self.cl_s),
                 "numpy_pose_ms": pose_np,
                 "speedup_vs_numpy": pose_np["median"] / pose_cl["median"],
@@ -457,7 +448,7 @@ class Cell:
 
 # --------------------------------------------------------------------------- run
 
-def _git(*args) -> str:
+def git(*args) -> str:
     try:
         return subprocess.run(["git", *args], cwd=PROJECT, capture_output=True, text=True,
                               check=True).stdout.strip()
@@ -505,7 +496,7 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
     n_ref = 1 if quick else 3
     min_block_s = 0.0 if quick else MIN_BLOCK_S    # quick timings mean nothing
     bind_repeat = 1 if quick else max(repeat, 3)
-    commit_start = _git("rev-parse", "HEAD")
+    commit_start = git("rev-parse", "HEAD")
     # one-time device set-up (context, first PoCL build) kept out of the bind figures; each
     # handle configuration builds its own program at its first bind (bind_first_ms)
     t0 = time.perf_counter()
@@ -554,8 +545,8 @@ def run(repeat: int = 5, quick: bool = False, data: str | os.PathLike | None = N
     del cells
     source = {"mesh": "meshes", "synthetic": "synthetic"}[sources.pop()] if len(sources) == 1 else "mixed"
     dragon = next(r for r in rows if r["model"] == "dragon" and r["kind"] == "segments")
-    dirty = _git("diff", "--name-only", "HEAD", "--", "nrpose", "kernels", "rigs")
-    commit_end = _git("rev-parse", "HEAD")
+    dirty = git("diff", "--name-only", "HEAD", "--", "nrpose", "kernels", "rigs")
+    commit_end = git("rev-parse", "HEAD")
     doc = {
         "schema": SCHEMA,
         "timestamp": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),

@@ -10,7 +10,7 @@ Data flow: load (:mod:`nrpose.io`) → bind (:mod:`nrpose.bind`, rest-only work)
     deformer = Deformer(points, rest, alpha=1.0)          # bind once
     posed = deformer.pose(Pose.make(rest, segments=posed_segments, rotations=rotations))
 """
-from .engine import Deformer
+from .pose.mls import Deformer
 from .errors import DeviceError, FileFormatError, HandleError, InputError, NrposeError
 from .io.poses import load_handles
 from .model.handles import HandleSet, Pose

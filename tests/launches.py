@@ -3,7 +3,7 @@ that check every split gives the same result, and the skip of tests that need a
 standing worker."""
 import pytest
 
-from nrpose import device
+from nrpose import device, diagnostics
 
 
 def standing_workers_or_skip() -> None:
@@ -31,10 +31,10 @@ def splits() -> dict[str, dict]:
 
 
 def relaunch(deformer, split: dict, monkeypatch) -> None:
-    """``deformer.relaunch`` as ``split`` (a value of :func:`splits`) says, twice: a
+    """``diagnostics.relaunch(deformer)`` as ``split`` (a value of :func:`splits`) says, twice: a
     standing worker started by the first launch serves the second."""
     kw = dict(split)
-    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    monkeypatch.setattr(device.policy, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(float(kw.pop("standby_us", "1000")) * 1e-6)
-    deformer.relaunch(**kw)
-    deformer.relaunch(**kw)
+    diagnostics.relaunch(deformer, **kw)
+    diagnostics.relaunch(deformer, **kw)

@@ -1,4 +1,4 @@
-"""Smoke tests of the benchmark suites (bench/suites.py via nrpose.benchcli) at tiny sizes.
+"""Smoke tests of the benchmark suites (bench/suites.py, ``python -m bench``) at tiny sizes.
 
 One --quick run of every suite (seconds): the JSON document's fields are present
 and its figures positive and finite, the PNG is written. No timing assertions.
@@ -15,16 +15,14 @@ import pytest
 pytest.importorskip("pyopencl")
 pytest.importorskip("matplotlib")
 
-from nrpose import benchcli  # noqa: E402
 from nrpose.errors import InputError  # noqa: E402
 
 DATA = pathlib.Path(__file__).resolve().parent.parent.parent / "shared" / "data"
+BENCH = pathlib.Path(__file__).resolve().parent.parent / "bench"
 
 
-def _parser():
-    ap = argparse.ArgumentParser(prog="nrpose")
-    benchcli.add_bench_parser(ap.add_subparsers(dest="command"))
-    return ap
+def _parser() -> argparse.ArgumentParser:
+    return _bench_module("suites").parser("python -m bench")
 
 
 def _finite_positive(x) -> bool:
@@ -38,9 +36,9 @@ def _stats_ok(s) -> bool:
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     out = tmp_path_factory.mktemp("suites")
-    args = _parser().parse_args(["bench", "--quick", "--repeat", "1", "--json", str(out / "s.json"),
+    args = _parser().parse_args(["--quick", "--repeat", "1", "--json", str(out / "s.json"),
                                  "--png", str(out / "s.png"), "--data", str(DATA)])
-    assert args.func is benchcli.cmd_bench
+    assert args.func is _bench_module("suites").execute
     assert args.func(args) == 0
     return json.loads((out / "s.json").read_text()), out
 
@@ -149,14 +147,14 @@ def test_clips(quick):
 
 
 def test_bad_options(tmp_path):
-    args = _parser().parse_args(["bench", "--repeat", "0", "--json", str(tmp_path / "x.json")])
+    args = _parser().parse_args(["--repeat", "0", "--json", str(tmp_path / "x.json")])
     with pytest.raises(InputError):
-        benchcli.cmd_bench(args)
-    args = _parser().parse_args(["bench", "--json", str(tmp_path / "missing" / "x.json")])
+        args.func(args)
+    args = _parser().parse_args(["--json", str(tmp_path / "missing" / "x.json")])
     with pytest.raises(InputError):
-        benchcli.cmd_bench(args)
+        args.func(args)
     with pytest.raises(SystemExit):
-        _parser().parse_args(["bench", "--suite", "nope"])
+        _parser().parse_args(["--suite", "nope"])
 
 
 def _bench_module(name: str):
@@ -164,8 +162,8 @@ def _bench_module(name: str):
     import importlib
     import sys
 
-    if str(benchcli.bench_dir()) not in sys.path:
-        sys.path.insert(0, str(benchcli.bench_dir()))
+    if str(BENCH) not in sys.path:
+        sys.path.insert(0, str(BENCH))
     return importlib.import_module(name)
 
 
@@ -258,8 +256,8 @@ def test_standby_ab(tmp_path, monkeypatch, capfd):
 
     if not device.standing_workers_possible():
         pytest.skip("standing workers only on x86 hosts")
-    monkeypatch.setattr(device, "_STANDBY", [750e-6])
-    monkeypatch.setattr(device, "STANDING_MIN_BLOCKS", 1)      # the quick rows have 2 blocks
+    monkeypatch.setattr(device.policy, "_STANDBY", [750e-6])
+    monkeypatch.setattr(device.mailbox, "STANDING_MIN_BLOCKS", 1)      # the quick rows have 2 blocks
     standby_ab = importlib.import_module("standby_ab")
     out, png = tmp_path / "ab.json", tmp_path / "ab.png"
     assert standby_ab.main(["--rows", "box/segments,box/points", "--rounds", "2", "--poses", "5", "--quick",
@@ -336,7 +334,7 @@ def test_pose_kernel_timing_falls_back_to_woken_events(monkeypatch):
     ceilings = {"launch": {"event_ms": 0.04, "wall_ms": 0.1},
                 "launch_standing": {"span_ms": 0.003, "wall_ms": 0.01}}
     assert roofs.launch_floor(ceilings)["event_ms"] == 0.003
-    monkeypatch.setattr(device, "EVENT_CLOCK", None)
+    monkeypatch.setattr(device.timing, "EVENT_CLOCK", None)
     t, stood = roofs.pose_kernel_once(d)
     assert math.isfinite(t) and t > 0 and not stood and roofs.timing == roofline.TIMING_WOKEN
     assert roofs.launch_floor(ceilings)["event_ms"] == 0.04
@@ -364,3 +362,19 @@ def test_assess_names_the_bound():
     assert bound(50.0)["kernel_bound"] == "instructions"                     # no best round measured
     near = roofline.assess(work, 34.5, 34.5, roofs, {**launch, "event_ms": 8.0}, best_round_ms=33.0)
     assert near["kernel_bound"] == "launch"                                   # 29 %, 37 % net
+
+
+def test_python_m_bench_from_the_checkout(tmp_path):
+    """``python -m bench`` from the checkout's root runs bench/suites.py's command line: a bad
+    option is one line on stderr and exit status 2."""
+    import subprocess
+    import sys
+
+    root = BENCH.parent
+    run = subprocess.run([sys.executable, "-m", "bench", "--repeat", "0", "--json", str(tmp_path / "x.json")],
+                         cwd=root, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and run.stdout == ""
+    assert run.stderr.strip().splitlines() == ["python -m bench: --repeat must be at least 1, got 0"]
+    helped = subprocess.run([sys.executable, "-m", "bench", "--help"], cwd=root, capture_output=True,
+                            text=True, timeout=120)
+    assert helped.returncode == 0 and "--suite" in helped.stdout

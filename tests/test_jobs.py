@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from launches import standing_workers_or_skip
 
-from nrpose import device
+from nrpose import device, diagnostics
 from nrpose.errors import DeviceError, InputError
 
 pytest.importorskip("pyopencl")
@@ -58,7 +58,7 @@ class Marker:
 @pytest.fixture
 def standby(monkeypatch):
     """Set the standby (microseconds) for the test; any standing worker is stopped after it."""
-    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    monkeypatch.setattr(device.policy, "_STANDBY", [None])           # restored after the test
     yield lambda us: device.set_standby_s(us * 1e-6)
     device.stop_standing()
 
@@ -129,7 +129,7 @@ def test_timed_launch_spans_from_the_jobs_publication(standby, monkeypatch):
     assert all(stood)
     m.jobs.publish(0, 1)                    # an empty job: the event is older now
     assert device.published_span_s(m.jobs, events[-1]) is None
-    monkeypatch.setattr(device, "EVENT_CLOCK", None)      # a Python without CLOCK_MONOTONIC_RAW
+    monkeypatch.setattr(device.timing, "EVENT_CLOCK", None)      # a Python without CLOCK_MONOTONIC_RAW
     events = device.launch_shared(m.kernel, m.jobs, 16, timed=True)
     assert device.published_span_s(m.jobs, events[-1]) is None
 
@@ -160,11 +160,11 @@ def test_stop_ends_a_polling_worker_at_once(standby):
     standby(10_000_000)
     m = Marker()
     m.launch(4, workers=True)
-    assert m.jobs.standing(m.kernel) and device._standing is m.jobs
+    assert m.jobs.standing(m.kernel) and device.standing_mailbox() is m.jobs
     t = time.perf_counter()
     m.jobs.stop()
     assert time.perf_counter() - t < 0.5
-    assert m.jobs.box.host[device.JOB_STANDING] == 0 and device._standing is None
+    assert m.jobs.box.host[device.JOB_STANDING] == 0 and device.standing_mailbox() is None
 
 
 def test_standing_workers_give_way(standby):
@@ -181,7 +181,7 @@ def test_standing_workers_give_way(standby):
     assert (a.launch(16, workers=False)[:16] == CALLER + 1).all()
     assert b.jobs.standing(b.kernel)
     who = a.launch(16, queues=(None, device.worker_queue()))
-    assert (who[:16] == CALLER + 1).all() and device._standing is None
+    assert (who[:16] == CALLER + 1).all() and device.standing_mailbox() is None
 
 
 def test_alternating_mailboxes_do_not_hand_the_worker_back_and_forth(standby):
@@ -207,7 +207,7 @@ def test_alternating_mailboxes_do_not_hand_the_worker_back_and_forth(standby):
     a.launch(48)                                      # in a loop again: stands
     assert a.jobs.standing(a.kernel)
     device.set_standby_s(1e-3)                        # lower than the 10 s it stands with
-    assert device._standing is None and not a.jobs.standing(a.kernel)
+    assert device.standing_mailbox() is None and not a.jobs.standing(a.kernel)
 
 
 def test_mailboxes_launched_in_blocks_in_turn_each_stand_again(standby):
@@ -240,10 +240,10 @@ def test_standby_setting(standby, monkeypatch):
     standby(0)
     m = Marker()
     who = m.launch(64, 3, workers=True)
-    assert np.all(np.isin(who[:64], (CALLER + 3,))) and device._standing is None
+    assert np.all(np.isin(who[:64], (CALLER + 3,))) and device.standing_mailbox() is None
     for bad in ("fast", "-5", "nan", "inf", "2e7"):
         monkeypatch.setenv("NRPOSE_STANDBY_US", bad)
-        monkeypatch.setattr(device, "_STANDBY", [None])          # not read yet
+        monkeypatch.setattr(device.policy, "_STANDBY", [None])          # not read yet
         with pytest.raises(DeviceError, match="NRPOSE_STANDBY_US must be a number of microseconds"):
             m.launch(4, workers=True)
     monkeypatch.setenv("NRPOSE_STANDBY_US", " 10000000 ")        # the longest: its polls fit an int
@@ -272,7 +272,7 @@ def test_forked_child_forgets_the_standing_worker(standby):
     if pid == 0:                                           # the child: must not hang
         try:
             device.stop_standing()
-            os._exit(0 if device._standing is None else 1)
+            os._exit(0 if device.standing_mailbox() is None else 1)
         finally:
             os._exit(2)
     deadline = time.perf_counter() + 20
@@ -300,9 +300,9 @@ def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
     """A deformer's standing worker reads its arrays: deleting the deformer ends it
     (Jobs(owner=...)), for the NR-MLS and the skinning deformers."""
     standing_workers_or_skip()
-    from nrpose.engine import Deformer
+    from nrpose.pose.mls import Deformer
     from nrpose.model.handles import HandleSet
-    from nrpose.skinning import LbsDeformer
+    from nrpose.pose.skinning import LbsSkinner
 
     standby(10_000_000)
     rng = np.random.default_rng(5)
@@ -311,14 +311,14 @@ def test_deleted_deformer_leaves_no_standing_worker(standby, kind):
         rest = HandleSet.make(segments=np.array([[[0, 0, 0], [1, 0, 0]], [[1, 0, 0], [2, 0, 0]]], float))
         dev = Deformer(points, rest)
     else:
-        dev = LbsDeformer(points, rng.integers(0, 3, (5000, 2)), rng.uniform(0.1, 1, (5000, 2)))
+        dev = LbsSkinner(points, rng.integers(0, 3, (5000, 2)), rng.uniform(0.1, 1, (5000, 2)))
         dev.pose(np.repeat(np.eye(4)[None], 3, axis=0))
-    dev.relaunch(workers=True)
+    diagnostics.relaunch(dev, workers=True)
     assert dev._jobs.standing(dev._kernel)
     jobs = dev._jobs
     del dev
     gc.collect()
-    assert device._standing is None and jobs.box.host[device.JOB_STANDING] == 0
+    assert device.standing_mailbox() is None and jobs.box.host[device.JOB_STANDING] == 0
 
 
 CLAIM = """#include "share.h"
@@ -386,7 +386,7 @@ def test_publish_opens_the_job_in_one_write_after_its_descriptor(monkeypatch):
             writes.append((i, int(v)))
             super().__setitem__(i, v)
 
-    monkeypatch.setattr(device, "event_clock_ns", lambda: writes.append("clock") or 1)
+    monkeypatch.setattr(device.mailbox, "event_clock_ns", lambda: writes.append("clock") or 1)
     jobs.box.host = jobs.box.host.view(Recorder)
     tags = []
     for blocks in (7, 3000):
@@ -523,7 +523,7 @@ def test_deformers_posed_from_two_threads(standby, monkeypatch):
     worker is left polling once the standing one is stopped."""
     import threading
 
-    from nrpose.engine import Deformer
+    from nrpose.pose.mls import Deformer
     from nrpose.model.handles import HandleSet, Pose
 
     standby(10_000_000)
@@ -538,7 +538,7 @@ def test_deformers_posed_from_two_threads(standby, monkeypatch):
                                rotations=[np.eye(3), R]))
     want = [[d.pose(p).copy() for p in poses] for d in deformers]
     errors, spans = [], []
-    inner = device._launch_shared
+    inner = device.launch._launch_shared
 
     def timed(*args):          # each launch's span, widened by a sleep that releases the GIL
         start = time.perf_counter()
@@ -547,7 +547,7 @@ def test_deformers_posed_from_two_threads(standby, monkeypatch):
         spans.append((start, time.perf_counter()))
         return events
 
-    monkeypatch.setattr(device, "_launch_shared", timed)
+    monkeypatch.setattr(device.launch, "_launch_shared", timed)
 
     def run(i):
         try:

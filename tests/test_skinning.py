@@ -9,9 +9,10 @@ import pytest
 from launches import relaunch, splits, standing_workers_or_skip
 from scipy.spatial.transform import Rotation
 
+from nrpose import diagnostics
 from nrpose.errors import InputError
 from nrpose.model.rotation import quat_multiply
-from nrpose.skinning import (DqsDeformer, LbsDeformer, Deformer, dqs_reference,
+from nrpose.pose.skinning import (DqsSkinner, LbsSkinner, Skinner, dqs_reference,
                              dqs_reference_dq, dual_quaternions, lbs_reference)
 
 
@@ -67,7 +68,7 @@ def assert_close(got, want, rel=1e-5):
 def test_lbs_matches_reference(k, n):
     rng = np.random.default_rng(100 * k + n)
     rest, joints, weights = make_rig(rng, n, 17, k)
-    d = LbsDeformer(rest, joints, weights)
+    d = LbsSkinner(rest, joints, weights)
     for mats in (rigid(rng, 17), affine(rng, 17)):
         got = d.pose(mats)
         assert got.shape == (n, 3) and got.dtype == np.float64
@@ -79,7 +80,7 @@ def test_lbs_matches_reference(k, n):
 def test_dqs_matches_reference(k, n):
     rng = np.random.default_rng(200 * k + n)
     rest, joints, weights = make_rig(rng, n, 17, k)
-    d = DqsDeformer(rest, joints, weights)
+    d = DqsSkinner(rest, joints, weights)
     for _ in range(2):
         mats = rigid(rng, 17)
         got = d.pose(mats)
@@ -91,7 +92,7 @@ def test_dqs_matches_reference(k, n):
 def test_pose_frames_matches_pose(method):
     rng = np.random.default_rng(5)
     rest, joints, weights = make_rig(rng, 203, 9, 4)
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     frames = np.stack([rigid(rng, 9) for _ in range(5)])
     got = d.pose_frames(frames)
     assert got.shape == (5, 203, 3)
@@ -110,7 +111,7 @@ def test_out_takes_the_posed_vertices(method):
     array is an InputError naming the expected shape."""
     rng = np.random.default_rng(6)
     rest, joints, weights = make_rig(rng, 150, 7, 4)
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     frames = np.stack([rigid(rng, 7) for _ in range(3)])
     want = d.pose_frames(frames)
     for dtype in (np.float32, np.float64):
@@ -137,7 +138,7 @@ def test_pose_frames_into_frames_array_directly(method):
 
     rng = np.random.default_rng(12)
     rest, joints, weights = make_rig(rng, 203, 9, 4)          # 203: a padded last group
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     mats = np.stack([rigid(rng, 9) for _ in range(6)])
     want = np.empty((6, 203, 3), np.float32)
     d.pose_frames(mats, out=want)
@@ -151,7 +152,7 @@ def test_pose_frames_into_frames_array_directly(method):
     assert np.array_equal(frames[2:5], want[:3]) and (frames[:2] == -7).all() and (frames[5:] == -7).all()
     assert np.isnan(d._out.host).all() == device.fine_grain_svm()
     frames[2:5] = 0.0                         # relaunch writes its own output, not the caller's frames
-    d.relaunch()
+    diagnostics.relaunch(d)
     assert (frames[2:5] == 0).all()
     d._out.download()
     assert np.array_equal(d._out.host[: 3 * 3 * 8 * d.n_groups].reshape(3, -1, 3)[:, :203], want[:3])
@@ -171,7 +172,7 @@ def test_pose_frames_into_frames_array_directly(method):
     for bad in (-1, 2.5, "3", None):
         with pytest.raises(InputError, match="frames must be a whole number"):
             d.frames_array(bad)
-    fewer = Deformer(rest[:-1], joints[:-1], weights[:-1], method=method)   # the same padding
+    fewer = Skinner(rest[:-1], joints[:-1], weights[:-1], method=method)   # the same padding
     view = frames[:2, :-1]
     assert fewer.n_groups == d.n_groups and device.frames_in(view, 3 * 8 * fewer.n_groups) is None
     frames[...] = -7.0
@@ -189,14 +190,14 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
     Jobs.set_argument), the clone takes it too: every frame lands where it should (the
     jobs taken from both ends, device.ENDS_MAX_BOUND_BYTES)."""
     from nrpose import device
-    from nrpose.skinning import BLOCK, LANES
+    from nrpose.pose.skinning import BLOCK, LANES
 
     standing_workers_or_skip()
-    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    monkeypatch.setattr(device.policy, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(0.5)
     rng = np.random.default_rng(5)
     n = (device.STANDING_MIN_BLOCKS + 2) * BLOCK * LANES - 5
-    d = LbsDeformer(*make_rig(rng, n, 9, 4))
+    d = LbsSkinner(*make_rig(rng, n, 9, 4))
     mats = np.stack([rigid(rng, 9) for _ in range(4)])
     want = np.stack([d.pose(m) for m in mats]).astype(np.float32)
     assert d._jobs.ends               # its bound data fits two cores' L2: taken from both ends
@@ -230,7 +231,7 @@ def test_shared_and_mixed_joint_groups(method):
     rest, joints, weights = make_rig(rng, n, j, k, pad=False)
     mats = rigid(rng, j) if method == "dqs" else affine(rng, j)
     ref = lbs_reference if method == "lbs" else dqs_reference
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     stored = np.empty(d.n_groups * k * 8, np.int32)
     cl.enqueue_copy(d._queue, stored, d._joints)
     groups = stored.reshape(d.n_groups, k, 8)
@@ -255,7 +256,7 @@ def test_groups_of_consecutive_rows_are_stored_whole(method):
     joints[rng.random(n) < 0.1, 1] = j - 1        # some runs broken up
     rest = rng.normal(size=(n, 3))
     weights = np.stack([rng.uniform(0.6, 1.0, n), rng.uniform(0.0, 0.4, n)], 1)   # influence 0 dominant
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     rows = np.empty(d.n_groups * 8, np.int32)
     cl.enqueue_copy(d._queue, rows, d._rows)
     first = rows[::8]
@@ -282,8 +283,8 @@ def test_padded_influences_and_buffer_fallback(method):
     ref = lbs_reference if method == "lbs" else dqs_reference
     mats = rigid(rng, 7)
     want = ref(rest, joints, weights, mats)
-    assert_close(Deformer(rest, joints8, weights8, method=method).pose(mats), want)
-    d = Deformer(rest, joints8, weights8, method=method)
+    assert_close(Skinner(rest, joints8, weights8, method=method).pose(mats), want)
+    d = Skinner(rest, joints8, weights8, method=method)
     replaced = weakref.ref(d._jobs)
     d._svm = False
     assert_close(d.pose(mats), want)
@@ -300,12 +301,12 @@ def test_shared_launch_any_split_same_vertices(method, monkeypatch):
     bitwise the same result each way for a batch of frames, equal to the reference; a
     last block that is partly filled and a padded last group included."""
     from nrpose import device
-    from nrpose.skinning import BLOCK, LANES
+    from nrpose.pose.skinning import BLOCK, LANES
 
     rng = np.random.default_rng(31)
     n, j, frames = 3 * BLOCK * LANES + 5, 11, 3
     rest, joints, weights = make_rig(rng, n, j, 4)
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     assert 0 < d._jobs.alone_s < float("inf")
     mats = np.stack([rigid(rng, j) if method == "dqs" else affine(rng, j) for _ in range(frames)])
     shared = d.pose_frames(mats)
@@ -332,7 +333,7 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
 
     rng = np.random.default_rng(32)
     rest, joints, weights = make_rig(rng, 40, 5, 2)
-    d = LbsDeformer(rest, joints, weights)
+    d = LbsSkinner(rest, joints, weights)
     decided = []
     real = device.Jobs.mode
     monkeypatch.setattr(device.Jobs, "mode", lambda self, *a: decided.append(real(self, *a)) or decided[-1])
@@ -351,19 +352,19 @@ def test_joint_count_change_under_a_standing_worker(method, monkeypatch):
     more (or fewer) joints than the last one, within the standby time and fitting the
     same arrays, ends it first (else its frames would be read with the old stride)."""
     from nrpose import device
-    from nrpose.skinning import BLOCK, LANES
+    from nrpose.pose.skinning import BLOCK, LANES
 
     standing_workers_or_skip()
-    monkeypatch.setattr(device, "_STANDBY", [10.0])
+    monkeypatch.setattr(device.policy, "_STANDBY", [10.0])
     rng = np.random.default_rng(33)
     n = 8 * BLOCK * LANES
     rest, joints, weights = make_rig(rng, n, 10, 4)
-    d = Deformer(rest, joints, weights, method=method)
+    d = Skinner(rest, joints, weights, method=method)
     ref = lbs_reference if method == "lbs" else dqs_reference
     make = rigid if method == "dqs" else affine
     for count, frames in ((10, 4), (12, 3), (11, 3), (10, 2)):
         mats = np.stack([make(rng, count) for _ in range(frames)])
-        d.relaunch(workers=True)                       # a worker stands with the last arguments
+        diagnostics.relaunch(d, workers=True)                       # a worker stands with the last arguments
         assert d._jobs.standing(d._kernel)
         got = d.pose_frames(mats)
         for f in range(frames):
@@ -377,26 +378,26 @@ def test_lbs_scale_is_honoured_dqs_ignores_it():
     mats = rigid(rng, 3)
     scaled = mats.copy()
     scaled[:, :3, :3] *= 2.0
-    assert_close(DqsDeformer(rest, joints, weights).pose(scaled),
+    assert_close(DqsSkinner(rest, joints, weights).pose(scaled),
                  dqs_reference(rest, joints, weights, mats))
     one = np.zeros((40, 1), int)
-    assert_close(LbsDeformer(rest, one, np.ones((40, 1))).pose(scaled),
+    assert_close(LbsSkinner(rest, one, np.ones((40, 1))).pose(scaled),
                  rest @ scaled[0, :3, :3].T + scaled[0, :3, 3])
 
 
 # --------------------------------------------------------------------------- properties
 
-@pytest.mark.parametrize("cls", [LbsDeformer, DqsDeformer])
+@pytest.mark.parametrize("cls", [LbsSkinner, DqsSkinner])
 def test_identity_gives_rest(cls):
     rng = np.random.default_rng(1)
     rest, joints, weights = make_rig(rng, 77, 6, 4)
     eye = np.tile(np.eye(4), (6, 1, 1))
     assert_close(cls(rest, joints, weights).pose(eye), rest)
-    ref = lbs_reference if cls is LbsDeformer else dqs_reference
+    ref = lbs_reference if cls is LbsSkinner else dqs_reference
     np.testing.assert_allclose(ref(rest, joints, weights, eye), rest, atol=1e-12)
 
 
-@pytest.mark.parametrize("cls", [LbsDeformer, DqsDeformer])
+@pytest.mark.parametrize("cls", [LbsSkinner, DqsSkinner])
 def test_common_rigid_motion(cls):
     rng = np.random.default_rng(2)
     rest, joints, weights = make_rig(rng, 77, 6, 8)
@@ -404,7 +405,7 @@ def test_common_rigid_motion(cls):
     mats = np.tile(m, (6, 1, 1))
     want = rest @ m[:3, :3].T + m[:3, 3]
     assert_close(cls(rest, joints, weights).pose(mats), want)
-    ref = lbs_reference if cls is LbsDeformer else dqs_reference
+    ref = lbs_reference if cls is LbsSkinner else dqs_reference
     np.testing.assert_allclose(ref(rest, joints, weights, mats), want, atol=1e-12)
 
 
@@ -412,8 +413,8 @@ def test_weight_rows_are_normalised():
     rng = np.random.default_rng(3)
     rest, joints, weights = make_rig(rng, 30, 5, 4)
     mats = affine(rng, 5)
-    a = LbsDeformer(rest, joints, weights).pose(mats)
-    b = LbsDeformer(rest, joints, 7.0 * weights).pose(mats)
+    a = LbsSkinner(rest, joints, weights).pose(mats)
+    b = LbsSkinner(rest, joints, 7.0 * weights).pose(mats)
     assert_close(a, b)
     np.testing.assert_allclose(lbs_reference(rest, joints, 7.0 * weights, mats),
                                lbs_reference(rest, joints, weights, mats), atol=1e-12)
@@ -429,14 +430,14 @@ def test_dqs_rigidity_about_a_shared_centre():
                      rotation_about(c, rng.normal(size=3))])
     # single joint per vertex
     single = np.full((n, 1), 1)
-    got = DqsDeformer(rest, single, np.ones((n, 1))).pose(mats)
+    got = DqsSkinner(rest, single, np.ones((n, 1))).pose(mats)
     np.testing.assert_allclose(np.linalg.norm(got - c, axis=1),
                                np.linalg.norm(rest - c, axis=1), rtol=1e-5)
     # blended between the three joints (the candy-wrapper set-up)
     joints = np.tile([0, 1, 2], (n, 1))
     weights = rng.random((n, 3))
     r0 = np.linalg.norm(rest - c, axis=1)
-    got = DqsDeformer(rest, joints, weights).pose(mats)
+    got = DqsSkinner(rest, joints, weights).pose(mats)
     np.testing.assert_allclose(np.linalg.norm(got - c, axis=1), r0, rtol=1e-5)
     ref = dqs_reference(rest, joints, weights, mats)
     np.testing.assert_allclose(np.linalg.norm(ref - c, axis=1), r0, rtol=1e-12)
@@ -450,7 +451,7 @@ def test_dqs_antipodal_quaternions_agree():
     dq = dual_quaternions(rigid(rng, 11))
     flipped = dq * np.where(rng.random(11) < 0.5, -1.0, 1.0)[:, None]
     flipped[0] = -dq[0]
-    d = DqsDeformer(rest, joints, weights)
+    d = DqsSkinner(rest, joints, weights)
     a = d.pose_dual_quaternions(dq)
     b = d.pose_dual_quaternions(flipped)
     assert_close(a, b)
@@ -508,7 +509,7 @@ def _raises(match, fn, *args, **kw):
         fn(*args, **kw)
 
 
-@pytest.mark.parametrize("fn", [LbsDeformer, DqsDeformer,
+@pytest.mark.parametrize("fn", [LbsSkinner, DqsSkinner,
                                 lambda r, j, w: lbs_reference(r, j, w, np.tile(np.eye(4), (4, 1, 1)))])
 def test_bad_bind_inputs(fn, good):
     rest, joints, weights = good
@@ -534,7 +535,7 @@ def test_bad_bind_inputs(fn, good):
     _raises(r"joint indices must be >= 0.*vertex 5", fn, rest, j, weights)
 
 
-@pytest.mark.parametrize("cls", [LbsDeformer, DqsDeformer])
+@pytest.mark.parametrize("cls", [LbsSkinner, DqsSkinner])
 def test_bad_pose_inputs(cls, good):
     rest, joints, weights = good
     d = cls(rest, joints, weights)
@@ -554,12 +555,12 @@ def test_bad_pose_inputs(cls, good):
 
 def test_dqs_rejects_reflections_and_bad_quaternions(good):
     rest, joints, weights = good
-    d = DqsDeformer(rest, joints, weights)
+    d = DqsSkinner(rest, joints, weights)
     m = np.tile(np.eye(4), (4, 1, 1))
     m[1, 0, 0] = -1.0
     _raises(r"non-positive determinant", d.pose, m)
     dq = np.zeros((4, 8))
     dq[:, 3] = 2.0
     _raises(r"unit real parts", d.pose_dual_quaternions, dq)
-    _raises(r"method='dqs'", LbsDeformer(rest, joints, weights).pose_dual_quaternions, dq)
-    _raises(r"'lbs' or 'dqs'", Deformer, rest, joints, weights, method="slerp")
+    _raises(r"method='dqs'", LbsSkinner(rest, joints, weights).pose_dual_quaternions, dq)
+    _raises(r"'lbs' or 'dqs'", Skinner, rest, joints, weights, method="slerp")

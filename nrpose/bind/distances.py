@@ -424,7 +424,10 @@ def _heat_component(t_factor: float):
     return solve
 
 
-def _exact_component(Vc, Fc, jobs):
+def exact_component(Vc, Fc, jobs):
+    """Exact geodesic distances (libigl) on one connected component: Vc (n, 3) float64,
+    Fc (m, 3) int64, jobs a list of (handle, source vertex indices, source offsets (s,)) ->
+    (n, len(jobs)) float64, each column offset by its sources' smallest offset."""
     import igl
 
     res = np.empty((len(Vc), len(jobs)))
@@ -528,7 +531,7 @@ def distance_matrix(
     else:
         sources = handle_sources(V, F, P, S, visibility=visibility, E=E)
         comp = mesh_components(len(V), F)
-        solver = {"heat": _heat_component(heat_t_factor), "exact": _exact_component,
+        solver = {"heat": _heat_component(heat_t_factor), "exact": exact_component,
                   "graph": _graph_component}[method]
         D = _per_component(V, F, comp, sources, solver)
     reached = np.isfinite(D)

@@ -6,8 +6,8 @@ import time
 import numpy as np
 
 from ..bind.distances import surface_distances
-from ..blend import BLENDS, LEVERS
-from ..engine import BACKENDS, Deformer
+from ..pose.blend import BLENDS, LEVERS
+from ..pose.mls import BACKENDS, Deformer
 from ..errors import NrposeError
 from ..io.meshes import SUFFIXES, read_geometry, write_geometry
 from ..io.poses import load_handles

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..engine import Deformer
+from ..pose.mls import Deformer
 from ..errors import NrposeError
 from ..io.meshes import write_geometry
 from ..pose.poser import CharacterPoser

@@ -5,8 +5,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..blend import BLENDS
-from ..engine import BACKENDS
+from ..pose.blend import BLENDS
+from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
 from ..io.poses import load_pose

@@ -7,11 +7,11 @@
 Vertices of all the character's meshes are concatenated in file order
 (``mesh_offsets`` tells where each mesh starts). Methods:
 
-* ``nrmls``: the engine's near-rigid blend (:mod:`nrpose.blend`) with the
+* ``nrmls``: the engine's near-rigid blend (:mod:`nrpose.pose.blend`) with the
   skeleton's bones (:meth:`nrpose.model.skeleton.Skeleton.bones`) as segment
   handles carrying their full rotation, weighted by
   :func:`nrpose.bind.bone_weights.bone_weights`.
-* ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.skinning`).
+* ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.pose.skinning`).
   With authored weights a glTF mesh is skinned from its own bind-space
   POSITION data with ``G_j @ inverse_bind_j`` of its own skin: the glTF
   specification's formula.
@@ -32,10 +32,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .. import skinning
+from . import skinning
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
-from ..blend import BLENDS
-from ..engine import Deformer
+from .blend import BLENDS
+from .mls import Deformer
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose
@@ -52,7 +52,7 @@ BATCH = 16            # frames posed per kernel launch (bound data read once per
 @dataclass(frozen=True)
 class Frames:
     """Posed frames: positions (F, V, 3) float32 (each frame C-contiguous; posed on
-    OpenCL, a few padding points lie between frames, :meth:`nrpose.engine.Deformer.frames_array`),
+    OpenCL, a few padding points lie between frames, :meth:`nrpose.device.BoundKernel.frames_array`),
     faces (M, 3) int64 (indices into the concatenated vertices), mesh_names,
     mesh_offsets (len(meshes),) int64, and per-frame pose times in milliseconds (F,)."""
 
@@ -67,7 +67,7 @@ class CharacterPoser:
     """A character bound for posing. See the module docstring for the options.
 
     k: segment slots per vertex for nrmls (default: all bones up to 8, else 8).
-    blend: the nrmls rotation blend (:data:`nrpose.blend.BLENDS`; "quaternion" is
+    blend: the nrmls rotation blend (:data:`nrpose.pose.blend.BLENDS`; "quaternion" is
     continuous where the dominant bone changes, at hips and shoulders).
     """
 
@@ -124,13 +124,19 @@ class CharacterPoser:
                     self._bind_space, src = False, V
                 joints, wts = _compact(joint_w)
                 joints = joints + offset[:, None]
-                cls = skinning.LbsDeformer if method == "lbs" else skinning.DqsDeformer
+                cls = skinning.LbsSkinner if method == "lbs" else skinning.DqsSkinner
                 self._deformer = cls(src, joints, wts) if backend == "opencl" else None
                 self._skin_ref = (src, joints, wts)
         self._backend = backend
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
 
     # ------------------------------------------------------------------ posing
+    @property
+    def deformer(self):
+        """The bound deformer on the device (NR-MLS :class:`~nrpose.pose.mls.Deformer` or a
+        :class:`~nrpose.pose.skinning.Skinner`), or None on the numpy backend."""
+        return self._deformer
+
     def pose(self, local: LocalPose, progress=None) -> Frames:
         """Posed frames for a local pose (J, ...) or a batch (F, J, ...).
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..model.skeleton import LocalPose
-from ..skinning import lbs_reference
+from ..pose.skinning import lbs_reference
 from .preview import spread
 from .sheet import save_contact_sheet, view_matrix
 

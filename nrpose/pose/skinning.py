@@ -30,8 +30,7 @@ Device side: float32, groups of 8 vertices in float8 lanes, bound data
 see ``kernels/skinning.cl``; each vertex's influences are sorted by
 decreasing weight at bind (influence 0 is the dominant joint), and the vertices
 by their joints, so that the 8 vertices of a group mostly share each influence's
-joint and read its parameters once (LBS 1.2-1.6x, DQS 1.1-1.2x per frame on a
-Mannequin-size rig, one process; the kernel writes each vertex to its own row). A launch
+joint and read its parameters once (the kernel writes each vertex to its own row). A launch
 (:func:`nrpose.device.launch_shared`) runs the kernel on PoCL's worker
 threads and the calling thread at once: each takes blocks of :data:`BLOCK`
 groups of the job published in the deformer's mailbox (:class:`nrpose.device.Jobs`)
@@ -41,9 +40,9 @@ stay on the calling thread unless a standing worker polls or frames come in
 a loop). Per-pose parameters, results and the mailbox live in
 fine-grained SVM when the device offers it (PoCL does): one pose is then a
 kernel enqueue plus ``finish`` per device; other devices get write + launch +
-read on one queue. :meth:`pose_frames` poses F frames in one
-launch. DQS converts matrices to dual quaternions on the host (scipy,
-~0.1-0.2 ms for 65 joints); :meth:`Deformer.pose_dual_quaternions` skips that.
+read on one queue. :meth:`Skinner.pose_frames` poses F frames in one
+launch. DQS converts matrices to dual quaternions on the host;
+:meth:`Skinner.pose_dual_quaternions` skips that.
 
 The numpy references :func:`lbs_reference` and :func:`dqs_reference` compute
 the same in float64 and apply the same validation and weight normalisation.
@@ -53,12 +52,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from . import device
-from .checks import real_rows
-from .errors import InputError
-from .model.skeleton import det_components, polar_components
+from .. import device
+from ..checks import real_rows
+from ..errors import InputError
+from ..model.skeleton import det_components, polar_components
 
-__all__ = ["LbsDeformer", "DqsDeformer", "Deformer", "lbs_reference", "dqs_reference",
+__all__ = ["LbsSkinner", "DqsSkinner", "Skinner", "lbs_reference", "dqs_reference",
            "dqs_reference_dq", "dual_quaternions", "prepare_influences"]
 
 LANES = 8          # vertices per group (float8 lanes)
@@ -145,8 +144,8 @@ def dual_quaternions(mats) -> np.ndarray:
 
     The rotation is the nearest rotation to the 3x3 block, scale and shear dropped: its
     polar factor (:func:`nrpose.skeleton.polar_components`; a few Newton–Schulz steps for
-    the near-conformal float32 matrices of glTF characters: scipy's orthogonalising
-    from_matrix was ~40 % of a Mannequin DQS frame). ``qd = 0.5 (t, 0) qr`` with t the
+    the near-conformal float32 matrices of glTF characters, cheaper than scipy's
+    orthogonalising from_matrix). ``qd = 0.5 (t, 0) qr`` with t the
     translation column. Reflections (det <= 0) are rejected.
     """
     mats = np.asarray(mats, dtype=np.float64)
@@ -234,8 +233,9 @@ def _dqs(rest, joints, weights, dq) -> np.ndarray:
 
 # --------------------------------------------------------------------------- device
 
-class Deformer:
-    """Skinning deformer bound once to a mesh's rest vertices and influences.
+class Skinner(device.BoundKernel):
+    """Skinning deformer bound once to a mesh's rest vertices and influences (a
+    :class:`nrpose.device.BoundKernel`).
 
     ``method`` is ``"lbs"`` or ``"dqs"``. Construction validates the inputs,
     normalises weights, sorts each vertex's influences by decreasing weight,
@@ -254,6 +254,7 @@ class Deformer:
         rest, joints, weights, self.max_joint = prepare_influences(rest, joints, weights)
         n, k = joints.shape
         self.n_vertices, self.n_influences = n, k
+        self.n = n              # points per frame (BoundKernel)
         order = np.argsort(-weights, axis=1, kind="stable")         # dominant first
         joints = np.take_along_axis(joints, order, axis=1)
         weights = np.take_along_axis(weights, order, axis=1)
@@ -266,6 +267,7 @@ class Deformer:
         g = -(-n // LANES)
         npad = g * LANES
         self.n_groups = g       # groups of 8 vertices (the last one padded)
+        self._frame_floats = 3 * npad
         r = np.zeros((npad, 3), np.float32)
         r[:n] = rest
         jj = np.zeros((npad, k), np.int32)
@@ -305,13 +307,7 @@ class Deformer:
         # deformer's own slab (_out, 0) or a frames_array's memory (frames_in)
         self._out_bound: tuple | None = None
         self._batch = 0       # frames of the last launch
-        # PoCL compiles a kernel's work-group function at its first launch on each
-        # device: pay that at bind (an identity pose, shared: the mailbox shares
-        # launches until alone_s is timed), not in the first frame
-        self.pose(np.tile(np.eye(4), (self.max_joint + 1, 1, 1)))
-        # one frame of the kernel on the calling thread alone (small launches are not
-        # shared) and the standby's calibration, once per process
-        self._jobs.time_kernel(self._kernel, self._blocks)
+        self._warm_up(lambda: self.pose(np.tile(np.eye(4), (self.max_joint + 1, 1, 1))))
 
     # -- per pose -------------------------------------------------------------
     def pose(self, mats, out: np.ndarray | None = None) -> np.ndarray:
@@ -319,26 +315,20 @@ class Deformer:
         (N, 3) float array to write them into instead (and return)."""
         mats = _check_mats(mats, self.max_joint)
         self._check_out(out, (self.n_vertices, 3))
-        result = self._run(self._params(mats[None]), None if out is None else out[None])
+        result = self._posed(self._params(mats[None]), 1, None if out is None else out[None])
         return result[0] if out is None else out
-
-    def frames_array(self, frames: int) -> np.ndarray:
-        """An uninitialised float32 (frames, N, 3) array for :meth:`pose_frames`' ``out``,
-        as :meth:`nrpose.engine.Deformer.frames_array`: with shared memory the kernel
-        writes into it, or into a run of its frames, directly (no copy); its frames are
-        3 Npad floats apart (Npad: N rounded up to groups of 8). After a launch into it the
-        deformer keeps its memory until a launch into another array or
-        :meth:`release_frames`."""
-        return device.frame_array(frames, 3 * self.n_groups * LANES, self.n_vertices, shared=self._svm)
 
     def pose_frames(self, mats, out: np.ndarray | None = None) -> np.ndarray:
         """Posed vertices (F, N, 3) float64 for F frames of matrices (F, J, 4, 4), one launch;
         out: optional (F, N, 3) float array to write them into instead (and return): a
         float32 one takes the device's values without the float64 array between (a
-        clip's frames, `nrpose.posing`), one from :meth:`frames_array` without a copy."""
+        clip's frames, `nrpose.pose.poser`), one from :meth:`frames_array` without a copy."""
         mats = _check_mats(mats, self.max_joint, frames=True)
         self._check_out(out, (len(mats), self.n_vertices, 3))
-        return self._run(self._params(mats), out)
+        return self._posed(self._params(mats), len(mats), out)
+
+    def _direct_frames(self) -> bool:
+        return self._svm
 
     @staticmethod
     def _check_out(out, shape: tuple) -> None:
@@ -369,13 +359,13 @@ class Deformer:
             setattr(self, which, cur)
         return cur
 
-    def _run(self, params: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-        """params (F, J, W) -> posed (F, N, 3): a new float64 array, or written into ``out``;
-        one launch (SVM) or write+launch+read."""
+    def _run(self, params: np.ndarray, owned: bool, direct: tuple | None) -> np.ndarray | None:
+        """params (F, J, W) -> posed (F, N, 3): a new float64 array (owned), else a view of
+        the output; None where ``direct``, (memory, first frame) of a :meth:`frames_array`,
+        received the frames. One launch (SVM) or write+launch+read."""
         f, j, width = params.shape
         npad = self.n_groups * LANES
         arr_in = self._array("_in", f * j * width, ARG_PARAMS)
-        direct = device.frames_in(out, 3 * npad) if out is not None and f and self._svm else None
         arr_out = self._array("_out", f * npad * 3, ARG_OUT) if direct is None else None
         if self._jobs is None or self._jobs.box.svm != self._svm:
             alone_s = float("inf") if self._jobs is None else self._jobs.alone_s
@@ -394,17 +384,13 @@ class Deformer:
         arr_in.upload()
         self._launch()
         if direct is not None:        # shared memory: launch_shared has waited for the frames
-            return out
+            return None
         arr_out.download()
         posed = arr_out.host[: f * npad * 3].reshape(f, npad, 3)[:, : self.n_vertices]
-        if out is None:
-            return posed.astype(np.float64)
-        out[...] = posed
-        return out
+        return posed.astype(np.float64) if owned else posed
 
-    def release_frames(self) -> None:
-        """Stop keeping the memory of the last :meth:`frames_array` posed into (the kernel's
-        output bound back to the deformer's own)."""
+    def _unbind_frames(self) -> None:
+        """The kernel's output bound back to the deformer's own."""
         if self._out is not None and self._out_bound is not None and self._out_bound[0] is not self._out:
             self._bind_out(self._out, 0)
 
@@ -419,37 +405,27 @@ class Deformer:
             self._out_bound = (memory, first)
         self._jobs.keep = (self._in, memory)
 
-    def relaunch(self, queues=None, workers: bool | None = None) -> list:
-        """Run the last posing's kernel again (same inputs, same result) and return its
-        events (:func:`nrpose.device.launch_shared`); queues: as there, e.g. profiling queues; workers: share the kernel with
-        PoCL's worker threads (True), run it on the calling thread alone (False) or let
-        launch_shared decide (None, default). The frames are written into the deformer's
-        own output (never into a caller's :meth:`frames_array`)."""
+    def _own_output(self) -> None:
+        """The next launch writes into the deformer's own output (not a caller's frames)."""
         self._bind_out(self._array("_out", self._batch * self.n_groups * LANES * 3, ARG_OUT), 0)
-        return self._launch(queues, workers)
-
-    def _launch(self, queues=None, workers: bool | None = None) -> list:
-        """:meth:`relaunch`, into the output the kernel is bound to."""
-        return device.launch_shared(self._kernel, self._jobs, self._blocks, self._batch,
-                                    queues=queues, workers=workers)
 
     def pose_dual_quaternions(self, dq) -> np.ndarray:
         """DQS only: posed vertices (N, 3) from per-joint unit dual quaternions dq (J, 8)."""
         if self.method != "dqs":
             raise InputError("pose_dual_quaternions needs a deformer built with method='dqs'")
         dq = _check_dq(dq, self.max_joint)
-        return self._run(dq[None])[0]
+        return self._run(dq[None], True, None)[0]
 
 
-class LbsDeformer(Deformer):
-    """Linear blend skinning deformer: ``LbsDeformer(rest, joints, weights).pose(mats)``."""
+class LbsSkinner(Skinner):
+    """Linear blend skinning deformer: ``LbsSkinner(rest, joints, weights).pose(mats)``."""
 
     def __init__(self, rest, joints, weights):
         super().__init__(rest, joints, weights, method="lbs")
 
 
-class DqsDeformer(Deformer):
-    """Dual quaternion skinning deformer: ``DqsDeformer(rest, joints, weights).pose(mats)``."""
+class DqsSkinner(Skinner):
+    """Dual quaternion skinning deformer: ``DqsSkinner(rest, joints, weights).pose(mats)``."""
 
     def __init__(self, rest, joints, weights):
         super().__init__(rest, joints, weights, method="dqs")

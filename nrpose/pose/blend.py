@@ -72,11 +72,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .checks import real_rows
-from .errors import InputError
-from .model.handles import HandleSet, Pose, check_alpha
-from .model.rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
-from .bind.weights import dense_weights, keep_top_k
+from ..checks import real_rows
+from ..errors import InputError
+from ..model.handles import HandleSet, Pose, check_alpha
+from ..model.rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
+from ..bind.weights import dense_weights, keep_top_k
 
 BLENDS = ("relative", "paper", "quaternion")
 LEVERS = ("weight", "length", "paper")
@@ -156,7 +156,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     per_block: optional function of the RestTerms of a block of points returning
     a dict of per-point arrays (first axis: the block's points); then the result
     is that dict for all points, and the dense (N, H) terms never exist for all
-    points at once (the OpenCL deformer's bind, :func:`nrpose.engine.slot_terms`).
+    points at once (the OpenCL deformer's bind, :func:`nrpose.pose.mls.slot_terms`).
     """
     v = real_rows(points, "points")
     alpha = check_alpha(alpha)
@@ -263,7 +263,7 @@ class GlobalRotation:
     and far from the origin that rounding times |q| would reach the fit).
     Per pose that leaves one (3, M) product and
     :func:`nrpose.rotation.covariance_rotation`. The OpenCL deformer runs the
-    same fit on the device (kernels/global_fit.h, :class:`nrpose.engine.GlobalFit`)
+    same fit on the device (kernels/global_fit.h, :class:`nrpose.pose.mls.GlobalFit`)
     from ``centred`` and ``scale2``; this is its float64 reference.
 
     centred: (M, 3) float64 rest positions (point handles, then segment ends) minus

@@ -1,4 +1,4 @@
-"""The core engine: PoCL kernel against the float64 reference, and the blend's properties."""
+"""The NR-MLS deformer (nrpose.pose.mls): PoCL kernel against the float64 reference, and the blend's properties."""
 from __future__ import annotations
 
 import time
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from launches import relaunch, splits, standing_workers_or_skip
 
-from nrpose import Deformer, HandleError, HandleSet, InputError, Pose, device
-from nrpose.blend import deform_reference, rest_terms
+from nrpose import Deformer, HandleError, HandleSet, InputError, Pose, device, diagnostics
+from nrpose.pose.blend import deform_reference, rest_terms
 from nrpose.rigs import cylinder
 from nrpose.model.rotation import Rotation
 
@@ -96,7 +96,7 @@ def test_point_handles_in_shared_and_mixed_reference_chunks(blend):
     """The kernel takes R_ref^T q_p from the per-pose table where a chunk's 8 points share
     their reference rotation and rotates q_p - q* per lane where they do not: both paths
     against the reference, on a layout that has both kinds of chunk."""
-    from nrpose.engine import device_layout, slot_terms
+    from nrpose.pose.mls import device_layout, slot_terms
 
     rng = np.random.default_rng(7)
     rest = random_rest(rng, 3, 4)
@@ -116,8 +116,8 @@ def test_kept_terms_block_by_block_equal_the_whole(monkeypatch, k, lever):
     """The OpenCL bind keeps, block by block, what the kernel uses of the rest terms
     (rest_terms(per_block=slot_terms)): the same arrays as slot_terms of the whole
     dense terms, over several blocks computed on threads, with points on handles."""
-    from nrpose import blend
-    from nrpose.engine import slot_terms
+    from nrpose.pose import blend
+    from nrpose.pose.mls import slot_terms
 
     rng = np.random.default_rng(19)
     rest = random_rest(rng, 2, 6)
@@ -142,19 +142,19 @@ def test_opencl_deformer_recomputes_its_dropped_rest_terms():
     for name in ("weights", "t", "p_star", "u", "lever", "ref", "phat"):
         np.testing.assert_array_equal(getattr(dev.terms, name), getattr(ref.terms, name))
     # the indices the kernel sees, read back from the device, are the layout's
-    (r_dev, s_dev), (r_ref, s_ref) = dev.bound_indices(), ref.bound_indices()
+    (r_dev, s_dev), (r_ref, s_ref) = diagnostics.bound_indices(dev), diagnostics.bound_indices(ref)
     np.testing.assert_array_equal(r_dev, r_ref)
     np.testing.assert_array_equal(s_dev, s_ref)
     assert s_dev.shape == (3, len(r_dev)) and len(r_dev) % 8 == 0
     dense = both(points, rest)[0]
-    assert dense.bound_indices()[1] is None
+    assert diagnostics.bound_indices(dense)[1] is None
 
 
 def test_sparse_slots_are_the_heaviest_segments():
     """The K slots per point (slot_terms, stored by device_layout) are its K heaviest
     segments (ties: lower index), listed by index, for rows with exactly K, fewer (points
     on a handle) and more (dense rest terms laid out sparse) non-zero segment weights."""
-    from nrpose.engine import device_layout, lanes_for, slot_terms
+    from nrpose.pose.mls import device_layout, lanes_for, slot_terms
 
     rng = np.random.default_rng(8)
     rest = random_rest(rng, 2, 7)
@@ -180,7 +180,7 @@ def test_chunks_of_consecutive_rows_are_stored_whole(k):
     output equals the reference whether a chunk is a run or not: points given in runs of
     one dominant segment (runs of 8 to 13, so that runs start at every offset), then in
     shuffled order, dense and sparse."""
-    from nrpose.engine import chunk_records, device_layout, lanes_for, slot_terms
+    from nrpose.pose.mls import chunk_records, device_layout, lanes_for, slot_terms
 
     rng = np.random.default_rng(12)
     rest = random_rest(rng, 0, 4)
@@ -205,7 +205,7 @@ def chunk_kinds(deformer) -> list[str]:
     """How the pose kernel takes each chunk of ``deformer``'s stored points, block by block
     (kernels/nrmls.cl pair_ref): "pair" for two consecutive chunks of one block whose lanes all
     share one reference (counted once), else "single" (its lanes share it) or "mixed"."""
-    ref, _ = deformer.bound_indices()
+    ref, _ = diagnostics.bound_indices(deformer)
     chunks = ref.reshape(-1, deformer.lanes)
     block = deformer._block // deformer.lanes
     kinds = []
@@ -223,12 +223,12 @@ def chunk_kinds(deformer) -> list[str]:
 
 def variant_frames(dev, source: str, batch: list) -> np.ndarray:
     """The frames (F, n, 3) that the pose kernel built from ``source`` (a variant of
-    kernels/nrmls.cl, Deformer.pose_kernel_variant) writes for ``batch``, relaunched into the
+    kernels/nrmls.cl, diagnostics.kernel_variant) writes for ``batch``, relaunched into the
     deformer's own output slots after ``dev.pose_frames(batch)``."""
     dev.pose_frames(batch)
-    variant = dev.pose_kernel_variant(source)
+    variant = diagnostics.kernel_variant(dev, source)
     dev._out.host[: len(batch) * 3 * dev._npad] = np.nan
-    dev.relaunch(pose_kernel=variant)
+    diagnostics.relaunch(dev, kernel=variant)
     dev._out.download()
     return dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, : dev.n].copy()
 
@@ -246,7 +246,7 @@ def test_chunk_pairs_match_the_reference(blend, lever):
     poses and a batch of three against the reference; the batch equals the single poses and
     the kernel built without pairs, bitwise; a kernel whose pair path is broken differs (the
     path is taken)."""
-    from nrpose.engine import lanes_for
+    from nrpose.pose.mls import lanes_for
 
     rng = np.random.default_rng(31)
     rest = random_rest(rng, 0, 4)
@@ -296,7 +296,7 @@ def test_kernel_matches_reference_large_point_handle_angles(angle):
 @pytest.mark.parametrize("lever", ["weight", "paper"])
 def test_kernel_matches_reference_tiny_and_huge_models(scale, lever):
     """Point handles on models 1e-12 to 1e8 across: |p̂ × ŷ|² and |p̂|² would be denormal
-    on the tiny ones; the device binds p̂ scaled by a power of two (engine.device_layout),
+    on the tiny ones; the device binds p̂ scaled by a power of two (mls.device_layout),
     which keeps them normal floats (before, a model 1e-12 across was posed 10 % of its
     size off)."""
     rng = np.random.default_rng(int(-np.log10(scale)) + 40)
@@ -312,7 +312,7 @@ def test_kernel_matches_reference_tiny_and_huge_models(scale, lever):
 def test_point_handle_at_every_centroid(lever):
     """Authored weights that put every point's p* on the point handle (up to rounding):
     p̂ is rounding residue (~1e-19) beside a 30-unit bone. The device's power-of-two
-    scaling of p̂ (engine.device_layout) must not overflow the bone's lever in float32
+    scaling of p̂ (mls.device_layout) must not overflow the bone's lever in float32
     (it did: every point NaN); posed as the reference poses it."""
     rng = np.random.default_rng(1)
     a = np.array([1.1e-3, 0.0, 0.0])
@@ -378,7 +378,7 @@ def test_rotation_table_against_float64(blend, lever, point):
                      rotations=R, **({"points": [[9.0, 41.0, 0.0]]} if point else {}))
     dev = Deformer(points, rest, blend=blend, lever=lever)
     dev.pose(pose)
-    refs = np.unique(dev.bound_indices()[0])
+    refs = np.unique(diagnostics.bound_indices(dev)[0])
     assert list(refs) == list(range(S))       # every segment is some point's reference
     dev._frame_blocks.download()
     tw = 4 if blend == "quaternion" else 3
@@ -386,7 +386,7 @@ def test_rotation_table_against_float64(blend, lever, point):
     block = dev._frame_blocks.host[dev._pose_stride: dev._pose_stride + at["stride"]]
     # j = S, R_g: unused here, its entries never written (whatever the memory held: cast only what is read)
     table = block[at["table"]: at["stride"]].reshape(S + 1, S, tw)[:S].astype(np.float64)
-    len2 = dev.bound_array("len2", np.float32)
+    len2 = diagnostics.bound_array(dev, "len2", np.float32)
     assert len2.shape == (S,)
     assert (len2 > 0).all() and (lever == "weight") == (np.ptp(len2) == 0)
     got = table / len2[None, :, None]
@@ -654,7 +654,7 @@ def test_slot_loop_unrolled_or_not(n_segs, k, blend):
     for points in (rng.uniform(-1.2, 1.2, (1201, 3)), rest.segments[:8, 0] + 0.01):
         dev, ref = both(points, rest, k=k, blend=blend)
         if len(points) == 8:
-            assert len(np.unique(dev.bound_indices()[0][:8])) == 8
+            assert len(np.unique(diagnostics.bound_indices(dev)[0][:8])) == 8
         for _ in range(2):
             pose = random_pose(rng, rest)
             assert np.abs(dev.pose(pose) - ref.pose(pose)).max() <= TOL * diag(points)
@@ -763,7 +763,7 @@ def test_jobs_from_both_ends_where_the_bound_data_fits(monkeypatch, limit, ends)
     taking blocks from the start while the calling thread takes them from the end, the
     poses equal the reference."""
     if limit is not None:
-        monkeypatch.setattr(device, "ENDS_MAX_BOUND_BYTES", limit)
+        monkeypatch.setattr(device.mailbox, "ENDS_MAX_BOUND_BYTES", limit)
     rng = np.random.default_rng(14)
     rest = random_rest(rng, 1, 3)
     points = rng.uniform(-1, 1, (3000, 3))
@@ -773,7 +773,7 @@ def test_jobs_from_both_ends_where_the_bound_data_fits(monkeypatch, limit, ends)
         want = ref.pose(pose)
         for workers in (True, None, None):            # the second finds the worker standing
             dev.pose(pose)
-            dev.relaunch(workers=workers)
+            diagnostics.relaunch(dev, workers=workers)
             dev._out.download()
             got = dev._out.host[: 3 * dev._npad].reshape(-1, 3)[: dev.n]
             assert np.abs(got - want).max() <= TOL * diag(points)
@@ -785,10 +785,10 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
     over again: Jobs.set_argument), the clone takes the new argument too. Single poses
     served by a standing worker before and after such a batch land in their handed
     frames, and leave the batch's frames as they were."""
-    from nrpose.engine import BLOCK_POINTS
+    from nrpose.pose.mls import BLOCK_POINTS
 
     standing_workers_or_skip()
-    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    monkeypatch.setattr(device.policy, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(0.5)
     rng = np.random.default_rng(37)
     rest = random_rest(rng, 2, 3)
@@ -813,12 +813,12 @@ def test_standing_worker_follows_the_rebound_output(monkeypatch):
 @pytest.mark.parametrize("blocks", [1, 3])
 @pytest.mark.parametrize("n_pts,n_segs", [(2, 3), (3, 0)])     # 8 and 16 lanes
 def test_shared_launch_any_split_same_points(blocks, n_pts, n_segs, monkeypatch):
-    """The pose kernel's blocks of points (engine.BLOCK_POINTS) may be taken by the
+    """The pose kernel's blocks of points (mls.BLOCK_POINTS) may be taken by the
     calling thread alone, by PoCL's workers alone or by both, the workers standing or
     woken for the launch (device.launch_shared):
     bitwise the same result each way, equal to the reference; a last block that is
     partly filled and a padded last chunk included."""
-    from nrpose.engine import BLOCK_POINTS
+    from nrpose.pose.mls import BLOCK_POINTS
 
     rng = np.random.default_rng(3)
     rest = random_rest(rng, n_pts, n_segs)
@@ -837,9 +837,9 @@ def test_shared_launch_any_split_same_points(blocks, n_pts, n_segs, monkeypatch)
 
 
 def test_block_points_sizes():
-    """Blocks of work (engine.block_points): whole chunks, about BLOCKS_PER_LAUNCH of them
+    """Blocks of work (mls.block_points): whole chunks, about BLOCKS_PER_LAUNCH of them
     per launch, between BLOCK_POINTS and MAX_BLOCK_POINTS points each."""
-    from nrpose.engine import BLOCK_POINTS, BLOCKS_PER_LAUNCH, MAX_BLOCK_POINTS, block_points
+    from nrpose.pose.mls import BLOCK_POINTS, BLOCKS_PER_LAUNCH, MAX_BLOCK_POINTS, block_points
 
     for lanes in (8, 16):
         for npad in (lanes, 256, 6_016, 8_192, 20_008, 35_824, 131_072, 1_000_000 // lanes * lanes):
@@ -852,15 +852,15 @@ def test_block_points_sizes():
 
 
 def test_bound_block_layout_is_the_kernels():
-    """engine.bound_block, the pose kernel's one read-only argument: its header names the
+    """mls.bound_block, the pose kernel's one read-only argument: its header names the
     kernel's BOUND_* indices in kernels/nrmls.cl's order; each array at a multiple of
     BOUND_ALIGN bytes, its bytes as given (an empty one too), the header's ints the
     constants and offsets; a block past the int32 offsets (2 GiB) is a DeviceError naming
     the fix, raised before anything is allocated; a bound deformer's arrays read back
-    (Deformer.bound_array) are the ones it laid out."""
+    (diagnostics.bound_array) are the ones it laid out."""
     import re
 
-    from nrpose.engine import BOUND_ALIGN, BOUND_ARRAYS, BOUND_CONSTANTS, GlobalFit, bound_block
+    from nrpose.pose.mls import BOUND_ALIGN, BOUND_ARRAYS, BOUND_CONSTANTS, GlobalFit, bound_block
     from nrpose.errors import DeviceError
 
     names = re.findall(r"^#define BOUND_([A-Z0-9_]+) (\d+)$", device.kernel_source("nrmls.cl"), re.M)
@@ -885,25 +885,25 @@ def test_bound_block_layout_is_the_kernels():
     rest = HandleSet.make(points=[[0.0, 0.0, 3.0], [0.0, 3.0, 0.0]], segments=[[[0, 0, 0], [1, 0, 0]]])
     dev = Deformer(rng.uniform(-0.5, 0.5, (50, 3)) + [[0.0, 0.0, 3.0], [0.5, 0.0, 0.0]] * 25, rest, lever="length")
     assert dev._global is not None               # the points take R_g: the fit's data is bound
-    assert np.array_equal(dev.bound_array("fit", np.float64), GlobalFit(rest).values)   # 1 + 3 (P + 2S)
-    ref, _ = dev.bound_indices()
+    assert np.array_equal(diagnostics.bound_array(dev, "fit", np.float64), GlobalFit(rest).values)   # 1 + 3 (P + 2S)
+    ref, _ = diagnostics.bound_indices(dev)
     assert ref.shape == (dev._npad,) and set(ref) <= {0, 1}
-    assert dev.bound_array("len2", np.float32).shape == (1,)
+    assert diagnostics.bound_array(dev, "len2", np.float32).shape == (1,)
 
 
 @pytest.mark.parametrize("n_pts,n_segs", [(0, 3), (2, 0)])     # 8 and 16 lanes
 def test_large_blocks_same_points(n_pts, n_segs, monkeypatch):
-    """A deformer of 20,000 points takes its points in 32 blocks of 632 or 640 (engine.block_points,
+    """A deformer of 20,000 points takes its points in 32 blocks of 632 or 640 (mls.block_points,
     8 or 16 lanes), not 79 of 256: bitwise the same frames as with 256-point blocks, each way a launch may
     split the blocks, and equal to the reference."""
-    from nrpose import engine
+    from nrpose.pose import mls
 
     rng = np.random.default_rng(41)
     rest = random_rest(rng, n_pts, n_segs)
     points = rng.uniform(-1, 1, (20_000, 3))
     dev, ref = both(points, rest)
     assert dev._blocks == 32 and dev._block == (632 if dev.lanes == 8 else 640)
-    monkeypatch.setattr(engine, "block_points", lambda npad, lanes: engine.BLOCK_POINTS)
+    monkeypatch.setattr(mls, "block_points", lambda npad, lanes: mls.BLOCK_POINTS)
     small = Deformer(points, rest)
     assert small._blocks == -(-small._npad // 256)
     poses = [random_pose(rng, rest) for _ in range(3)]
@@ -919,12 +919,12 @@ def test_large_blocks_same_points(n_pts, n_segs, monkeypatch):
 
 
 def test_time_launch_reruns_the_pose_as_a_frame_loop(monkeypatch):
-    """Deformer.time_launch: the last posing run again as a frame loop runs it (a
+    """diagnostics.time_launch: the last posing run again as a frame loop runs it (a
     standing worker serving it, after poses in a loop), its kernel time from the job's
     publication (finite, positive, at most the call's own time) and the same frames in
     the launch's slots, single poses and batches."""
 
-    monkeypatch.setattr(device, "_STANDBY", [None])           # restored after the test
+    monkeypatch.setattr(device.policy, "_STANDBY", [None])           # restored after the test
     device.set_standby_s(0.2)
     rng = np.random.default_rng(43)
     rest = random_rest(rng, 2, 3)
@@ -936,7 +936,7 @@ def test_time_launch_reruns_the_pose_as_a_frame_loop(monkeypatch):
         dev.pose_frames(frames)
         dev._out.host[: 3 * len(frames) * dev._npad] = np.nan
         t = time.perf_counter()
-        span, stood = dev.time_launch()
+        span, stood = diagnostics.time_launch(dev)
         wall = time.perf_counter() - t
         assert span is not None and 0 < span <= wall
         assert stood == (device.worker_queue() is not None and device.fine_grain_svm()
@@ -957,7 +957,7 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     only (its vector stores), single poses and batches that regrow the arrays, bitwise
     as with SVM (computed before SVM is switched off) and against the reference; R_g by
     GlobalFit.fit likewise."""
-    from nrpose.engine import GlobalFit
+    from nrpose.pose.mls import GlobalFit
 
     rng = np.random.default_rng(23)
     rest = random_rest(rng, n_pts, n_segs)
@@ -967,7 +967,7 @@ def test_buffer_path_without_shared_memory(monkeypatch, blend, n_pts, n_segs):
     singles = [svm.pose(p) for p in poses]
     batches = [svm.pose_frames(poses), svm.pose_frames(poses[1:])]
     fits = GlobalFit.fit(rest, poses)
-    monkeypatch.setattr(device, "fine_grain_svm", lambda: False)
+    monkeypatch.setattr(device.memory, "fine_grain_svm", lambda: False)
     dev = Deformer(points, rest, blend=blend)
     assert dev._global is not None and not dev._frame_blocks.svm and not dev._jobs.box.svm
     for pose, want in zip(poses, singles):
@@ -1007,9 +1007,9 @@ def test_pose_hands_its_result_over_without_a_copy():
     del held[1]                          # its slot is free again
     column = dev.pose(poses[1])[:, 1]    # only a view kept: its slot stays taken
     assert in_slots(column)
-    other = dev.pose_kernel_variant(device.kernel_source("nrmls.cl").replace(
+    other = diagnostics.kernel_variant(dev, device.kernel_source("nrmls.cl").replace(
         "const floatv ux = LOADV(0, u)", "const floatv ux = 2.0f * LOADV(0, u)"))
-    dev.relaunch(pose_kernel=other)      # another result of the last pose: into the launch's slot
+    diagnostics.relaunch(dev, kernel=other)      # another result of the last pose: into the launch's slot
     assert not any(in_slots(dev.pose(p)) for p in poses[3:])    # every slot held: copies
     assert np.abs(held[0] - want[0]).max() <= TOL * diag(points)
     assert np.abs(held[1] - want[2]).max() <= TOL * diag(points)
@@ -1095,8 +1095,8 @@ def test_a_handed_off_result_changed_by_its_caller_changes_no_later_one():
 
 
 def test_pose_kernel_variant_follows_the_deformers_arrays():
-    """A kernel variant (Deformer.pose_kernel_variant, for bench/kernel_ab.py) run by
-    relaunch(pose_kernel=) uses the deformer's arrays and batch size as they are at the
+    """A kernel variant (diagnostics.kernel_variant, for bench/kernel_ab.py) run by
+    relaunch(kernel=) uses the deformer's arrays and batch size as they are at the
     launch (bound again only after they change): after a single pose, a larger batch (new
     arrays), a batch into a frames_array (its memory bound) and a smaller batch, each
     relaunched twice, the shipped source as a variant gives the deformer's own results
@@ -1109,7 +1109,7 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
     rest = random_rest(rng, 2, 3)
     dev = Deformer(rng.uniform(-1, 1, (300, 3)), rest)
     source = device.kernel_source("nrmls.cl")
-    variant = dev.pose_kernel_variant(source)
+    variant = diagnostics.kernel_variant(dev, source)
     poses = [random_pose(rng, rest) for _ in range(3)]
     for batch, into in ((poses[:1], False), (poses, False), (poses[1:], True), (poses[:1], False)):
         want = dev.pose_frames(batch).copy()
@@ -1117,14 +1117,14 @@ def test_pose_kernel_variant_follows_the_deformers_arrays():
             dev.pose_frames(batch, out=dev.frames_array(len(batch)))
         for _ in range(2):
             dev._out.host[: len(batch) * 3 * dev._npad] = np.nan    # the launch's slots
-            dev.relaunch(pose_kernel=variant)
+            diagnostics.relaunch(dev, kernel=variant)
             dev._out.download()
             got = dev._out.host[: len(batch) * 3 * dev._npad].reshape(len(batch), dev._npad, 3)[:, :300]
             assert np.array_equal(got, want)
     with pytest.raises(DeviceError, match="does not build.*error:"):
-        dev.pose_kernel_variant(source.replace("const floatv ux = LOADV(0, u)", "const floatv ux = +"))
+        diagnostics.kernel_variant(dev, source.replace("const floatv ux = LOADV(0, u)", "const floatv ux = +"))
     with pytest.raises(DeviceError, match="does not run its job's prologue"):
-        dev.pose_kernel_variant(source.replace("claim_prologue(", "0 && (").replace(
+        diagnostics.kernel_variant(dev, source.replace("claim_prologue(", "0 && (").replace(
             "open_job(jobs, job_tag_);", ""))
 
 
@@ -1152,7 +1152,7 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     again: launch_shared's path for frames in a loop)."""
     import time
 
-    from nrpose.engine import BLOCK_POINTS
+    from nrpose.pose.mls import BLOCK_POINTS
 
     rng = np.random.default_rng(4)
     rest = random_rest(rng, 0, 2)
@@ -1165,7 +1165,7 @@ def test_small_launches_stay_on_the_calling_thread(monkeypatch):
     jobs.alone_s = device.SHARE_MIN_S / 4
     if not device.standing_workers_possible():
         pytest.skip("standing workers only on x86 hosts")
-    monkeypatch.setattr(device, "_STANDBY", [10.0])
+    monkeypatch.setattr(device.policy, "_STANDBY", [10.0])
     for frames in (3, 4, 1):
         jobs.stop()
         jobs._last = time.perf_counter() - 20.0             # long since the last launch
@@ -1237,7 +1237,7 @@ def test_global_rotation_fit(shape):
     random rotations, noise, coplanar handles (rank-2 covariance), and a target
     that is the mirror image (the best proper rotation, not the reflection); rest
     and pose far from the origin too (GlobalRotation does not centre the posed side)."""
-    from nrpose.blend import GlobalRotation, global_rotation
+    from nrpose.pose.blend import GlobalRotation, global_rotation
     from nrpose.model.rotation import kabsch
 
     rng = np.random.default_rng(["general", "noisy", "coplanar", "mirrored"].index(shape))
@@ -1260,8 +1260,8 @@ def test_global_fit_on_device(shape):
     float64 reference, several frames per launch. It reads float32 positions, so
     the tolerance is float32 rounding amplified by the fit's conditioning, with rest
     and pose up to 30 handle spans from the origin."""
-    from nrpose.blend import GlobalRotation
-    from nrpose.engine import GlobalFit
+    from nrpose.pose.blend import GlobalRotation
+    from nrpose.pose.mls import GlobalFit
 
     rng = np.random.default_rng(10 + ["general", "noisy", "coplanar", "mirrored"].index(shape))
     for trial in range(12):
@@ -1283,8 +1283,8 @@ def test_global_fit_on_device_ties():
     """Non-unique fits on the device as in the reference: collinear handles take the
     minimal rotation between the two lines, a single handle the identity, and handles
     posed on one line what the float64 reference takes."""
-    from nrpose.blend import GlobalRotation
-    from nrpose.engine import GlobalFit
+    from nrpose.pose.blend import GlobalRotation
+    from nrpose.pose.mls import GlobalFit
     from nrpose.model.rotation import minimal_rotvec
 
     rng = np.random.default_rng(6)
@@ -1315,7 +1315,7 @@ def test_global_rotation_ties():
     """Fits that are not unique take the optimal rotation nearest the identity: for
     collinear handles (two point handles, one segment) the minimal rotation between
     the two lines, for a single point handle the identity; also far from the origin."""
-    from nrpose.blend import GlobalRotation
+    from nrpose.pose.blend import GlobalRotation
     from nrpose.model.rotation import kabsch, minimal_rotvec
 
     rng = np.random.default_rng(5)
@@ -1344,8 +1344,8 @@ def test_global_fit_half_turn_ties():
     30 degrees of x, also 1000 line lengths from the origin, where the device's float32
     positions leave a noise projection of the identity; a unique half turn (handles in
     general position turned by 180 degrees) is that turn on both."""
-    from nrpose.blend import GlobalRotation
-    from nrpose.engine import GlobalFit
+    from nrpose.pose.blend import GlobalRotation
+    from nrpose.pose.mls import GlobalFit
 
     rng = np.random.default_rng(29)
     dirs = [rng.normal(size=3) for _ in range(6)] + [np.array([1.0, 0.1, -0.05]), np.array([1.0, 0, 0]),
@@ -1378,7 +1378,7 @@ def test_global_fit_half_turn_ties():
 def test_global_fit_needs_double_precision(monkeypatch):
     """A device without cl_khr_fp64 cannot fit R_g: a DeviceError that says so and what to do."""
     from nrpose import DeviceError, device
-    from nrpose.engine import GlobalFit
+    from nrpose.pose.mls import GlobalFit
 
     class NoDoubles:
         extensions = "cl_khr_global_int32_base_atomics cl_khr_byte_addressable_store"

@@ -3,7 +3,7 @@
     deformer = Deformer(points, rest_handles, alpha=1.0)        # bind: rest-only work
     posed = deformer.pose(pose)                                   # per frame: (N, 3)
 
-Binding computes :class:`nrpose.blend.RestTerms` in float64 on the host, block
+Binding computes :class:`nrpose.pose.blend.RestTerms` in float64 on the host, block
 by block, keeps what the kernel uses (:func:`slot_terms`) and uploads it once
 (float32) to the device; the kernel objects and buffers
 live as long as the deformer. A pose writes (P + 2S)·3 + 9S + 1 floats of
@@ -20,17 +20,17 @@ thread enters the kernel), or alone when the launch is too small to be worth
 waking them (timed at bind). ``pose_frames`` does the same for F poses in one
 launch. ``pose`` hands its result over without a copy (:class:`nrpose.device.Handoff`).
 
-``backend="numpy"`` runs :func:`nrpose.blend.pose_reference` instead (float64);
+``backend="numpy"`` runs :func:`nrpose.pose.blend.pose_reference` instead (float64);
 nothing ever falls back to it silently.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from . import device
+from .. import device
+from ..errors import DeviceError, InputError
+from ..model.handles import HandleSet, Pose
 from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers
-from .errors import DeviceError, InputError
-from .model.handles import HandleSet, Pose
 
 BACKENDS = ("opencl", "numpy")
 #: points per block of work taken from the job mailbox (share.h): at least BLOCK_POINTS,
@@ -53,10 +53,9 @@ def lanes_for(segments: int) -> int:
 
     A rig of point handles spends its kernel in chains of ~90 cycles per handle (cross
     product, inverse square root, atan2) that leave the FMA pipes half idle; with 16 lanes
-    every operation is two independent 8-lane instructions. Measured in one process
-    (bench/commit_ab.py, 8 against 16 lanes, two runs): Table-1 point rows 0.99-1.17x;
-    segment rows, whose slot loop reads the rotation table (no such chains) and gathers
-    where lanes disagree, 0.83-1.15x, no clear gain, so they keep 8."""
+    every operation is two independent 8-lane instructions. Segment rigs, whose slot loop
+    reads the rotation table (no such chains) and gathers where lanes disagree, gain
+    nothing from 16 and keep 8."""
     return 8 if segments else 16
 
 
@@ -67,41 +66,38 @@ def block_points(npad: int, lanes: int) -> int:
 
     Every block taken is a compare-and-swap on the mailbox's counter, whose cache line then
     moves between the cores; a few dozen blocks still share the work
-    evenly between a calling thread and a worker that starts late. Against a fixed 256
-    points (140 blocks for the dragon), paired in one process (bench/commit_ab.py, two
-    runs): single poses of the Table-1 rows of 20,000-36,000 points 1.01-1.07x (dragon
-    segments 0.98x once), 1M points x 65 bones 1.10x; the box (6,006 points) keeps 256;
-    batches of 10-64 frames 0.98-1.01x."""
+    evenly between a calling thread and a worker that starts late."""
     chunks = -(-npad // BLOCKS_PER_LAUNCH // lanes)
     return lanes * min(max(chunks, BLOCK_POINTS // lanes), MAX_BLOCK_POINTS // lanes)
 
 
-class Deformer:
-    """A point set bound to rest handles.
+class Deformer(device.BoundKernel):
+    """A point set bound to rest handles (a :class:`nrpose.device.BoundKernel`).
 
     points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
     blend: "relative" (default, equivariant), "quaternion" (equivariant and
     continuous where the dominant handle changes) or "paper"; lever: "weight"
-    (default), "length" or "paper" (see :mod:`nrpose.blend`); distances / weights:
+    (default), "length" or "paper" (see :mod:`nrpose.pose.blend`); distances / weights:
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
     k: keep the k most influential handles of each point (None: all, dense).
     With k < S the kernel stores, per point, k segment slots (which segment,
     its coefficients) instead of all S segments.
 
-    ``terms``: the :class:`nrpose.blend.RestTerms` (float64, dense (N, H)). The
+    ``terms``: the :class:`nrpose.pose.blend.RestTerms` (float64, dense (N, H)). The
     numpy backend keeps them. The OpenCL deformer never holds them for all points:
     it computes them block by block and keeps of each block only what the kernel
     uses (:func:`slot_terms`), then uploads that; ``terms`` recomputes them from
     the arrays given at bind, which it keeps by reference. Binding a 1M-point,
     65-bone cloud with k = 8 peaks at 0.9 GB of host memory (2.5 GB while the
     dense terms were built first) and holds 0.5 GB once bound. ``lanes``: points per
-    chunk of the kernel's bound records (:func:`lanes_for`; the numpy backend's
-    :meth:`bound_indices` lays them out alike).
+    chunk of the kernel's bound records (:func:`lanes_for`).
 
     Not thread-safe: pose one deformer from one thread at a time (its launches share
     per-frame arrays and a job mailbox); deformers posed from different threads each
     take PoCL's worker in turn (:mod:`nrpose.device`).
     """
+
+    PROLOGUE = True
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
@@ -128,6 +124,7 @@ class Deformer:
         else:
             self._terms = rest_terms(points, rest, alpha, lever, distances, weights, k)
             self.n = len(self._terms.u)
+            self._frame_floats = None
 
     @property
     def terms(self) -> RestTerms:
@@ -151,6 +148,7 @@ class Deformer:
         del kept
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
+        self._frame_floats = 3 * npad
         self._npairs = len(arrays["pairs"]) // 2 if S else 0   # S = 0: a placeholder pair
         self._npos = 3 * (P + 2 * S)
         # floats per frame: positions, rotations, then the frame's output slot (int32 bits)
@@ -184,8 +182,7 @@ class Deformer:
         self._jobs = device.Jobs(owner=self, bound_bytes=self._bound.size)
         self._frames = 0      # capacity of the per-frame arrays (grown by _reserve)
         # the pose kernel's arguments change with _reserve and _bind_handed: a variant
-        # (pose_kernel_variant) is bound again only after such a change (set_args of its
-        # arguments took ~24 us when they were 18, which diluted bench/kernel_ab.py's paired ratios)
+        # (nrpose.diagnostics.kernel_variant) is bound again only after such a change
         self._args_version = 0
         self._variants: dict = {}   # variant -> the _args_version it is bound at
         # which parts of a frame's pose block a pose fills (empty views cost ~0.3 us each)
@@ -200,13 +197,9 @@ class Deformer:
         # back after every batch made a loop of the box's batches 1.6x slower
         self._handed = self._handoff.array
         self._reserve(1)
-        # PoCL compiles a kernel's work-group function at its first launch on each
-        # device (~0.5 s): pay that at bind (the mailbox shares launches until
-        # alone_s is timed), not in the first frame; into the launch's own slot
-        self._run([Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0))], owned=False)
-        # one frame's pose kernel on the calling thread alone (small launches are not
-        # shared) and the standby's calibration, once per process
-        self._jobs.time_kernel(self._kernel, self._blocks, prologue=True)
+        # the identity pose, into the launch's own slot
+        identity = Pose(self.rest, np.repeat(np.eye(3)[None], S, axis=0))
+        self._warm_up(lambda: self._run([identity], False, None))
 
     def _pose_args(self) -> list:
         """The arguments of ``nrmls_pose`` as they are now (kernels/nrmls.cl): the bound
@@ -215,33 +208,6 @@ class Deformer:
         return [self._bound, self._frame_blocks.arg, self._out.arg,
                 (self._out if self._handed is None else self._handed).arg, self._jobs.box.arg,
                 np.int32(device.ROLE_CALLER)]
-
-    def pose_kernel_variant(self, source: str):
-        """``nrmls_pose`` built from ``source`` (the text of a variant of kernels/nrmls.cl,
-        with the shipped headers pasted) with this deformer's build options:
-        ``relaunch(pose_kernel=...)`` binds it to the deformer's current arguments and runs
-        it in place of the deformer's own (bench/kernel_ab.py). DeviceError, naming the
-        first compiler error, if it does not build or does not take nrmls_pose's arguments,
-        or if it does not run the job's prologue (``claim_prologue``, kernels/share.h: the
-        launch would wait for it for ever)."""
-        import pyopencl as cl
-
-        if "claim_prologue(" not in source:
-            raise DeviceError("the nrmls_pose variant does not run its job's prologue (claim_prologue, "
-                              "kernels/share.h): its launches would wait for it for ever")
-        try:
-            prg = cl.Program(device.context()[0], device.with_headers(source)).build(options=list(self._options))
-            kernel = cl.Kernel(prg, "nrmls_pose")
-            args = self._pose_args()
-            # typed scalars: relaunch rebinds the variant after the arguments change, and
-            # pyopencl's untyped set_arg of an int takes 10-15 us (typed, three took 1.3 us)
-            kernel.set_scalar_arg_dtypes([type(a) if isinstance(a, np.generic) else None for a in args])
-            kernel.set_args(*args)
-        except (cl.RuntimeError, cl.LogicError, TypeError) as exc:
-            errors = [line.strip() for line in str(exc).splitlines() if "error:" in line]
-            raise DeviceError("the nrmls_pose variant does not build or take nrmls_pose's arguments: "
-                              + (errors[0] if errors else str(exc).splitlines()[0])) from None
-        return kernel
 
     def _reserve(self, frames: int) -> None:
         """Per-frame arrays (poses in, rotation tables, posed points out) for ``frames`` frames.
@@ -286,25 +252,11 @@ class Deformer:
         """
         if out is None and self.backend == "opencl":    # a frame loop's call: the shortest way
             self.rest.same_layout(pose.handles, "posed handles")
-            return self._run([pose], owned=True)[0]
+            return self._run([pose], True, None)[0]
         if out is not None and np.shape(out) != (self.n, 3):
             raise InputError(f"out: expected an array of shape {(self.n, 3)} (points, 3), got {np.shape(out)}")
         result = self.pose_frames([pose], None if out is None else out[None])[0]
         return result if out is None else out
-
-    def frames_array(self, frames: int) -> np.ndarray:
-        """An uninitialised (frames, N, 3) array for :meth:`pose_frames`' ``out``: on OpenCL
-        with shared memory (PoCL) in memory the pose kernel writes into directly, so that
-        posing into it, or into a run of its frames (``out=a[i:j]``), costs no copy (the
-        copy took 0.08 ms of a 0.18 ms frame of the dragon's 35,820 points, batched); its
-        frames are each (N, 3) C-contiguous but 3 Npad floats apart (:attr:`lanes`
-        padding), so the whole is not C-contiguous. Float32 (float64 on numpy); elsewhere
-        a plain array. After a launch into it the deformer keeps its memory (as the
-        kernel's argument) until its next single pose, a launch into another, or
-        :meth:`release_frames`."""
-        if self.backend == "opencl":
-            return device.frame_array(frames, 3 * self._npad, self.n)
-        return np.empty((device.frame_count(frames), self.n, 3))
 
     def pose_frames(self, poses, out: np.ndarray | None = None) -> np.ndarray:
         """Posed points (F, N, 3) of F poses in one launch (float32; float64 on numpy).
@@ -323,87 +275,30 @@ class Deformer:
             raise InputError(f"out: expected an array of shape {(F, self.n, 3)} (frames, points, 3), "
                              f"got {np.shape(out)}")
         device.check_out_writable(out)
-        if self.backend == "numpy":
-            result = np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses]) if F \
-                else np.zeros((0, self.n, 3))
-        else:
-            direct = device.frames_in(out, 3 * self._npad) if out is not None and F else None
-            result = self._run(poses, owned=out is None, direct=direct)
-            if direct is not None:
-                return out
-        if out is None:
-            return result
-        out[...] = result
-        return out
+        return self._posed(poses, F, out)
 
-    def bound_array(self, name: str, dtype) -> np.ndarray:
-        """Array ``name`` of :data:`BOUND_ARRAYS` read back from the device's bound block, as
-        a flat array of ``dtype`` (OpenCL deformers; diagnostics and tests)."""
-        import pyopencl as cl
+    def _reference(self, poses: list) -> np.ndarray:
+        """The numpy backend's frames (F, N, 3) float64: :func:`nrpose.pose.blend.pose_reference`
+        of each pose."""
+        if not poses:
+            return np.zeros((0, self.n, 3))
+        return np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses])
 
-        offset, nbytes = self._bound_at[name]
-        out = np.empty(nbytes // np.dtype(dtype).itemsize, dtype)
-        if out.size:
-            cl.enqueue_copy(self._queue, out, self._bound, src_offset=offset)
-        return out
-
-    def bound_indices(self) -> tuple[np.ndarray, np.ndarray | None]:
-        """The kernel's per-point indices in stored order (points sorted by reference, padded
-        to a multiple of :attr:`lanes`): ref (Npad,) int32, each point's reference rotation (segment s,
-        or S for the global one), and slots (K, Npad) int32, its segment slots (None when
-        dense). On OpenCL they are read back from the bound device buffer (diagnostics:
-        bench/roofline.py counts the chunks whose lanes disagree)."""
-        if self.backend == "numpy":
-            kept = slot_terms(self._terms, self.k, self.lever)
-            arrays, K = device_layout(kept, self.rest, self.lever, self.lanes)
-            return arrays["ref"], (arrays["slot"] if K < len(self.rest.segments) else None)
-        rec = self.bound_array("irec", np.int32).reshape(self._npad // self.lanes, -1, self.lanes)   # chunk records: ref, row, then any slots
-        slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, self._npad) if rec.shape[1] > 2 else None
-        return rec[:, 0].ravel(), slots
-
-    def relaunch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
-        """Run the last posing's launch again (same inputs, same result) and return its
-        events (:func:`nrpose.device.launch_shared`; the pose kernel, its prologue
-        included, on each device that ran it); queues: as there,
-        e.g. profiling queues; workers: share the pose kernel with PoCL's worker threads
-        (True), run it on the calling thread alone (False) or let
-        :func:`nrpose.device.launch_shared` decide (None, default); pose_kernel: a
-        :meth:`pose_kernel_variant` to run instead of the deformer's own; timed: as
-        ``launch_shared``'s (:meth:`time_launch`). The frames are written into the launch's
-        own output slots (never into a result handed to a caller)."""
+    def _own_output(self) -> None:
+        """The next launch writes into its own output slots (not into a caller's frames)."""
         self._slots[: self._batch] = self._own_slots[: self._batch]
-        return self._launch(queues, workers, pose_kernel, timed)
 
-    def time_launch(self) -> tuple[float | None, bool]:
-        """Run the last posing's launch again as a frame loop runs it (a standing worker
-        serves it where one stands, :func:`nrpose.device.launch_shared` deciding) and time
-        it: ``(seconds, stood)``, seconds from the job's publication to the end of the
-        calling thread's kernel, which returns once every block is done
-        (:func:`nrpose.device.published_span_s`; None where PoCL's event clock is not the
-        host's), and whether a standing worker was there to serve it. Same inputs, same
-        result, written into the launch's own output slots."""
-        stood = self._jobs.standing(self._kernel)
-        events = self.relaunch(timed=True)
-        return device.published_span_s(self._jobs, events[-1]), stood
+    def _unbind_frames(self) -> None:
+        """The kernel's ``handed`` argument bound back to the deformer's own slots."""
+        self._bind_handed(self._handoff.array)
 
-    def _launch(self, queues=None, workers: bool | None = None, pose_kernel=None, timed: bool = False) -> list:
-        """:meth:`relaunch`, into the output slots that the pose blocks name."""
-        if pose_kernel is None and queues is None and workers is None and not timed:
-            # a pose's launch, positional (keyword arguments cost a box pose ~0.5 us)
-            return device.launch_shared(self._kernel, self._jobs, self._blocks, self._batch, True)
-        if pose_kernel is not None and self._variants.get(pose_kernel) != self._args_version:
-            pose_kernel.set_args(*self._pose_args())   # the current arrays
-            self._variants[pose_kernel] = self._args_version
-        return device.launch_shared(self._kernel if pose_kernel is None else pose_kernel, self._jobs,
-                                    self._blocks, self._batch, prologue=True, queues=queues,
-                                    workers=workers, timed=timed)
-
-    def release_frames(self) -> None:
-        """Stop keeping the memory of the last :meth:`frames_array` posed into (the kernel's
-        argument bound back to the deformer's own slots; ~2 us, or ~0.05 ms where a standing
-        worker holds it)."""
-        if self.backend == "opencl":
-            self._bind_handed(self._handoff.array)
+    def _bind_variant(self, kernel):
+        """``kernel`` (a variant of ``nrmls_pose``, :func:`nrpose.diagnostics.kernel_variant`)
+        with the deformer's current arguments, set again only after they changed."""
+        if self._variants.get(kernel) != self._args_version:
+            kernel.set_args(*self._pose_args())
+            self._variants[kernel] = self._args_version
+        return kernel
 
     def _bind_handed(self, memory) -> None:
         """Bind ``memory`` (a HostArray, or None where there are no handoff slots: the
@@ -415,7 +310,7 @@ class Deformer:
             self._jobs.set_argument(self._kernel, ARG_HANDED, (self._out if memory is None else memory).arg)
             self._jobs.keep = (self._frame_blocks, self._out, memory)
 
-    def _run(self, poses: list, owned: bool, direct: tuple | None = None) -> np.ndarray | None:
+    def _run(self, poses: list, owned: bool, direct: tuple | None) -> np.ndarray | None:
         """Launch the pose kernel for the poses: the posed points (F, N, 3),
         the caller's own (owned: a single frame is written into a free handed-off slot,
         :class:`nrpose.device.Handoff`, else copied) or a view of the launch's slots;
@@ -458,10 +353,10 @@ class Deformer:
 
 
 class GlobalFit:
-    """R_g, the global rotation (:class:`nrpose.blend.GlobalRotation`, its float64
+    """R_g, the global rotation (:class:`nrpose.pose.blend.GlobalRotation`, its float64
     reference), fitted on the device (kernels/global_fit.h) for each frame of a block
     of poses by the pose kernel's prologue, where the points read it: no host work per
-    pose (on the host the fit took 60-130 µs of a point-handle pose).
+    pose (the fit on the host would cost each point-handle pose far more than its kernel).
 
     rest: the rest handles. ``values``: what the fit reads (float64 (1 + 3M,): the
     tie tolerance's scale, then the M = P + 2S centred rest positions (M, 3), point
@@ -512,7 +407,7 @@ def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:
     (n, P + K), the normalised levers (elsewhere the kernel derives them: w |phat|^2 per
     point handle, per slot w times the lever factor folded into its per-pose table, and
     normalises them by 1 / their sum, bound by :func:`device_layout`). Computed block by block
-    at bind (:func:`nrpose.blend.rest_terms` ``per_block``), so that the dense (n, H)
+    at bind (:func:`nrpose.pose.blend.rest_terms` ``per_block``), so that the dense (n, H)
     terms never exist for all points at once."""
     n, P, S = len(T.u), T.phat.shape[1], T.t.shape[1]
     ws, t = T.weights[:, P:], T.t
@@ -543,8 +438,7 @@ def levers_stored(lever: str, segments: int) -> bool:
     (``lever`` rows, kernels/nrmls.cl) instead of deriving them per pose (-DDERIVED_LEVER):
     with the "paper" rule, and on rigs without segments, whose point-handle levers
     w |phat|^2 (the same under every rule) the kernel would derive from three more
-    products per handle and normalise per point (stored, the Table-1 point rows posed
-    1.06-1.12x faster, in one process against the derived build). Segment rigs derive
+    products per handle and normalise per point (stored, they pose faster). Segment rigs derive
     theirs: a slot's lever w times its segment's factor, folded into the per-pose table,
     and one bound 1 / lever sum per point, rather than P + K more floats per point."""
     return lever == "paper" or segments == 0

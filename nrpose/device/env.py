@@ -1,0 +1,202 @@
+"""The OpenCL context nrpose launches on: PoCL's settings while it starts, the devices,
+their queues and how a shared launch spreads over them.
+
+Default: PoCL's CPU devices. ``PYOPENCL_CTX`` (pyopencl's own variable, e.g.
+``PYOPENCL_CTX=0`` or ``0:0``) overrides the choice.
+"""
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+
+from ..errors import DeviceError
+
+INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
+                "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
+
+
+@functools.lru_cache(maxsize=None)
+def pyopencl():
+    """The pyopencl module, imported once (an import statement per launch costs ~0.25 us)."""
+    try:
+        import pyopencl as cl
+    except ImportError as exc:  # pragma: no cover - dependency is declared
+        raise DeviceError(f"pyopencl is not importable ({exc}); {INSTALL_HINT}") from None
+    return cl
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on (its affinity set where the OS tells, else all)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):   # not Linux
+        return os.cpu_count() or 1
+
+
+def may_pin_workers() -> bool:
+    """True when nrpose should ask PoCL to pin its worker threads: ``POCL_AFFINITY``
+    is not set by the user, and this process may run on every CPU (PoCL pins worker
+    i to CPU i, which may be outside a restricted set)."""
+    if os.environ.get("POCL_AFFINITY"):     # empty counts as unset, as PYOPENCL_CTX's does
+        return False
+    try:
+        allowed = os.sched_getaffinity(0)
+    except (AttributeError, OSError):   # not Linux
+        return False
+    return allowed == set(range(os.cpu_count() or 0))
+
+
+def pocl_settings() -> dict[str, str]:
+    """The PoCL variables nrpose sets while PoCL starts; a variable the user has set
+    (to anything but the empty string) is left alone.
+
+    * ``POCL_DEVICES="pthread basic"`` (``"basic"`` on a single CPU): the worker-thread
+      device and the device that runs kernels in the calling thread
+      (:func:`nrpose.device.launch_shared`).
+    * ``POCL_MAX_PTHREAD_COUNT`` = usable CPUs - 1, with that device list: the calling
+      thread is the last worker. The workers are left unpinned: pinned, the calling thread
+      sometimes shared a worker's CPU for a whole process (woken on it by the worker it
+      waited for) while another CPU idled.
+    * ``POCL_AFFINITY=1`` only with a device list of the user's (PoCL's own workers on
+      every CPU) and where :func:`may_pin_workers`: unpinned, PoCL's broadcast may wake
+      two workers onto one CPU, and a sub-millisecond kernel then runs on one thread.
+    """
+    out = {}
+    if not os.environ.get("POCL_DEVICES"):
+        cpus = usable_cpus()
+        out["POCL_DEVICES"] = "pthread basic" if cpus >= 2 else "basic"
+        if cpus >= 2 and not os.environ.get("POCL_MAX_PTHREAD_COUNT"):
+            out["POCL_MAX_PTHREAD_COUNT"] = str(cpus - 1)
+    elif may_pin_workers():
+        out["POCL_AFFINITY"] = "1"
+    return out
+
+
+@contextlib.contextmanager
+def pocl_environment():
+    """Inside the block (while PoCL starts) the environment holds :func:`pocl_settings`;
+    after it, each variable is as it was, so that child processes, perhaps restricted to
+    fewer CPUs, decide for themselves. Yields the settings made."""
+    settings = pocl_settings()
+    before = {k: os.environ.get(k) for k in settings}
+    os.environ.update(settings)
+    try:
+        yield settings
+    finally:
+        for k, v in before.items():
+            if v is None:
+                del os.environ[k]
+            else:                   # the empty value that counted as unset
+                os.environ[k] = v
+
+
+@functools.lru_cache(maxsize=None)
+def context():
+    """Return the shared ``(cl.Context, cl.CommandQueue)`` pair. The queue is the
+    calling thread's: PoCL's ``basic`` device where the context has it (kernels run
+    inside ``finish``), else the context's only device.
+
+    Raises DeviceError with an installation hint when no platform exists.
+    """
+    cl = pyopencl()
+    with pocl_environment():        # PoCL reads it when it starts, here
+        ctx = _new_context(cl)
+    host = [d for d in ctx.devices if _is_basic(d)]
+    return ctx, cl.CommandQueue(ctx, (host or ctx.devices)[0])
+
+
+def worker_queue():
+    """Queue of PoCL's worker-thread device when the context also has the ``basic``
+    device (:func:`nrpose.device.launch_shared` uses both), else None."""
+    return _worker_queue(*context())
+
+
+@functools.lru_cache(maxsize=None)
+def _worker_queue(ctx, host_queue):
+    if len(ctx.devices) < 2:
+        return None
+    return pyopencl().CommandQueue(ctx, [d for d in ctx.devices if d != host_queue.device][0])
+
+
+def worker_device():
+    """PoCL's worker-thread device, where a standing worker runs (None without one)."""
+    wq = worker_queue()
+    return None if wq is None else wq.device
+
+
+def _is_basic(dev) -> bool:
+    return dev.name.startswith("basic")
+
+
+def _new_context(cl):
+    """The cl.Context of PYOPENCL_CTX's choice; else PoCL's pthread and basic devices
+    together, when it offers both; else the first PoCL (or other) CPU device."""
+    try:
+        platforms = cl.get_platforms()
+    except cl.Error:
+        platforms = []
+    if not platforms:
+        raise DeviceError(f"no OpenCL platform found; {INSTALL_HINT}")
+    if os.environ.get("PYOPENCL_CTX"):
+        try:
+            return cl.create_some_context(interactive=False)
+        except (cl.Error, RuntimeError, ValueError, IndexError) as exc:
+            raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no usable "
+                              f"device ({exc}); unset it to use PoCL") from None
+    ordered = sorted(platforms, key=lambda p: "Portable Computing Language" not in p.name)
+    for plat in ordered:
+        try:
+            devs = plat.get_devices(device_type=cl.device_type.CPU)
+        except cl.Error:
+            devs = []
+        if not devs:
+            continue
+        workers = [d for d in devs if d.name.startswith("pthread")]
+        host = [d for d in devs if _is_basic(d)]
+        if "Portable Computing Language" in plat.name and workers and host:
+            return cl.Context(devices=[workers[0], host[0]])
+        return cl.Context(devices=[(workers or devs)[0]])
+    raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
+
+
+def work_items(queues=None) -> tuple[tuple, ...]:
+    """``((queue, work-items), ...)`` of a shared launch on ``queues`` (worker queue or
+    None, calling-thread queue; default the shared ones): the worker device's queue
+    with one work-item per worker thread, then the calling thread's queue with one; on
+    a single device, its queue with 4 work-items per compute unit."""
+    return _work_items(*(queues if queues is not None else (worker_queue(), context()[1])))
+
+
+@functools.lru_cache(maxsize=16)
+def _work_items(wq, q) -> tuple[tuple, ...]:
+    if wq is None:
+        return ((q, 4 * q.device.max_compute_units),)
+    return ((wq, wq.device.max_compute_units), (q, 1))
+
+
+def fine_grain_svm() -> bool:
+    """True when the context's devices share fine-grained SVM buffers with the host (PoCL's do)."""
+    cl = pyopencl()
+    ctx, _ = context()
+    try:
+        return all(d.svm_capabilities & cl.device_svm_capabilities.FINE_GRAIN_BUFFER for d in ctx.devices)
+    except (cl.Error, AttributeError):  # OpenCL 1.x device
+        return False
+
+
+def describe() -> dict:
+    """Device facts for benchmark records: platform, the first device's name, version and
+    compute units, and how a shared launch uses the devices (``launch``: one entry per
+    device, its name and work-items; ``threads``: worker threads + the calling thread;
+    ``summary``: that in words, for plot titles)."""
+    ctx, _ = context()
+    dev = ctx.devices[0]
+    plan = work_items()
+    return {"platform": dev.platform.name, "platform_version": dev.platform.version,
+            "device": dev.name, "device_version": dev.version,
+            "driver_version": dev.driver_version, "compute_units": dev.max_compute_units,
+            "launch": [{"device": q.device.name, "work_items": n} for q, n in plan],
+            "threads": (plan[0][1] + 1) if len(plan) > 1 else dev.max_compute_units,
+            "summary": (f"{plan[0][0].device.name} x {plan[0][1]} + calling thread ({plan[1][0].device.name})"
+                        if len(plan) > 1 else f"{dev.name} ({dev.max_compute_units} CU)")}

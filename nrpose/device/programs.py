@@ -1,0 +1,49 @@
+"""OpenCL programs: kernel sources as shipped (headers pasted) and their builds, once per
+(context, kernel file, build options) for the life of the process."""
+from __future__ import annotations
+
+import functools
+import re
+from importlib import resources
+
+from ..errors import DeviceError
+from .env import context, pyopencl
+
+_INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
+
+
+def kernel_source(name: str) -> str:
+    """Text of ``kernels/<name>`` as shipped in the installed package, headers pasted
+    (:func:`with_headers`)."""
+    return with_headers(resources.files("nrpose.kernels").joinpath(name).read_text())
+
+
+def with_headers(source: str) -> str:
+    """OpenCL ``source`` with each ``#include "x.h"`` line replaced by the text of
+    ``kernels/x.h`` (pasted here rather than left to the compiler so that PoCL's kernel
+    cache, keyed on the source, sees changes to the header)."""
+    folder = resources.files("nrpose.kernels")
+    return "".join(folder.joinpath(m.group(1)).read_text() if (m := _INCLUDE.match(line)) else line
+                   for line in source.splitlines(keepends=True))
+
+
+def program(name: str, options: tuple[str, ...] = ()):
+    """Build (once per context) and return the program for kernel file ``name``."""
+    return _program(context()[0], name, tuple(options))
+
+
+@functools.lru_cache(maxsize=None)
+def _program(ctx, name: str, options: tuple[str, ...]):
+    cl = pyopencl()
+    try:
+        return cl.Program(ctx, kernel_source(name)).build(options=list(options))
+    except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
+        raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+
+
+def build_source(source: str, options: tuple[str, ...] = ()):
+    """The program built from OpenCL ``source`` (``#include`` lines pasted,
+    :func:`with_headers`) with ``options``, not cached (kernel variants of diagnostics).
+    pyopencl's errors pass through."""
+    cl = pyopencl()
+    return cl.Program(context()[0], with_headers(source)).build(options=list(options))
