@@ -76,7 +76,7 @@ def git_commit() -> str:
         sha = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True,
                              text=True, check=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--", "kernels/skinning.cl", "kernels/share.h",
-                                "kernels/lanes.h", "nrpose/skinning.py", "nrpose/device.py"], cwd=ROOT.parent, capture_output=True,
+                                "kernels/lanes.h", "nrpose/pose/skinning.py", "nrpose/device"], cwd=ROOT.parent, capture_output=True,
                                text=True).stdout.strip()
         return sha + ("-dirty" if dirty else "")
     except (OSError, subprocess.CalledProcessError):

@@ -1,5 +1,5 @@
 /* R_g of F frames on their own, one work-item per frame (global size F): for
- * tests and diagnostics (nrpose.engine.GlobalFit.fit); a deformer fits R_g in its
+ * tests and diagnostics (nrpose.pose.mls.GlobalFit.fit); a deformer fits R_g in its
  * pose kernel's prologue (nrmls.cl). global_fit.h says what is computed.
  *   pose  [F][pose_stride] float: frame blocks, each starting with the M = m posed
  *         positions; R_g is written at float offset rg_offset of each

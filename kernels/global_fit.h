@@ -1,5 +1,5 @@
 /* R_g, the global rotation of the relative and quaternion blends, fitted on the
- * device: the twin of nrpose.blend.GlobalRotation (its float64 reference).
+ * device: the twin of nrpose.pose.blend.GlobalRotation (its float64 reference).
  *
  * R_g is the rotation R maximising trace(R^T C) for the covariance
  * C = sum_k (q_k - o) p_k^T of the M handle positions (point handles, then
@@ -25,7 +25,7 @@
  *         centred rest positions (with max |C| it sets the tie tolerance's
  *         scale), then the centred rest positions, same order
  * Used by the pose kernel's prologue (nrmls.cl, built with -DGLOBAL_FIT) and by
- * the kernel global_rotation (global_fit.cl: nrpose.engine.GlobalFit.fit).
+ * the kernel global_rotation (global_fit.cl: nrpose.pose.mls.GlobalFit.fit).
  */
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
 

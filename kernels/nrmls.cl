@@ -1,12 +1,12 @@
 /* Near-rigid MLS pose kernel (Jeong & Kim): relative-rotation blend (default),
  * the paper's blend, or (built with -DQUAT_BLEND) the quaternion blend.
  *
- * Reference: nrpose/blend.py (pose_reference), float64. Everything that
- * depends only on the rest configuration is bound once (see nrpose/engine.py);
+ * Reference: nrpose/pose/blend.py (pose_reference), float64. Everything that
+ * depends only on the rest configuration is bound once (see nrpose/pose/mls.py);
  * a pose uploads one small float buffer of per-handle data.
  *
  * Each work-item poses a chunk of VW consecutive points (-DVW: 8, or 16 on rigs
- * without segments, nrpose/engine.py lanes_for) with vector lanes (floatv,
+ * without segments, nrpose/pose/mls.py lanes_for) with vector lanes (floatv,
  * kernels/lanes.h): on PoCL CPU explicit vectors were worth ~4x over scalar
  * work-items (shared/notes/pocl.md), and at 16 lanes each operation is two
  * independent 8-lane instructions, which keeps the FMA pipes busier through the
@@ -29,13 +29,13 @@
  *                         lever coefficient
  *   phat   [3P]           p_i - p* of the point handles (x, y, z rows per handle), times
  *                         2^-e, e the binary exponent of the largest |component| over all
- *                         points (nrpose/engine.py device_layout): exact, and the blend
+ *                         points (nrpose/pose/mls.py device_layout): exact, and the blend
  *                         does not change (the rotations depend on phat's direction only;
  *                         the derived levers w |phat|^2 and len2 scale alike and are
  *                         normalised per point), but |phat x y|^2 stays a normal float
  *   lever  [P+K]          normalised levers (points, then segment slots), or, built with
  *                         -DDERIVED_LEVER (lever rules "weight" and "length" on rigs with
- *                         segments: nrpose/engine.py levers_stored), instead
+ *                         segments: nrpose/pose/mls.py levers_stored), instead
  *   inv    [1]            1 / the point's lever sum, sum_p w_p |phat_p|^2 + sum_k w_k len2[s_k]
  *                         (rest-only): the kernel derives the point levers w_p |phat_p|^2,
  *                         and the segment levers w_k len2[s] are folded into the per-pose
@@ -53,9 +53,9 @@
  *   K                     segment slots per point: S (dense) or k < S (sparse:
  *                         the k most influential segments of each point)
  *   len2   [S]            per-segment lever factor: L^2 ("weight") or the squared
- *                         rest length ("length"), see nrpose/blend.py; times 2^-2e, e as
+ *                         rest length ("length"), see nrpose/pose/blend.py; times 2^-2e, e as
  *                         for phat (without point handles, the longest lever's exponent;
- *                         at most 2^50 / the longest lever: nrpose/engine.py device_layout)
+ *                         at most 2^50 / the longest lever: nrpose/pose/mls.py device_layout)
  * Per-pose data, F frames of a launch in `frames`, frame f at f frame_stride floats: its
  * pose block (pose_stride floats, written by the host), then its derived block:
  *   pose   qpos [(P+2S)*3] | rots [(S+1)*9] | slot [1]: posed handle positions, the
@@ -81,7 +81,7 @@
  *          1.02-1.07x faster on one thread, but batched dense poses 1.5-2x slower: a
  *          launch's frames then read 8 times the per-frame data per chunk, more than L1.)
  *   out    [F][Np*3]      posed points, xyz interleaved, in the caller's order; each
- *                         frame in the slot its pose block names (nrpose/engine.py)
+ *                         frame in the slot its pose block names (nrpose/pose/mls.py)
  *   handed [2][Np*3]      the same, slots whose frames are handed to the caller without
  *                         a copy (nrpose.device.Handoff)
  *
@@ -106,7 +106,7 @@
 #include "global_fit.h"
 #endif
 
-/* Handle counts known at build time (nrpose/engine.py builds one program per
+/* Handle counts known at build time (nrpose/pose/mls.py builds one program per
  * configuration): P point handles (-DNPOINTS) and K segment slots per point
  * (-DNSLOTS). Dense (K = S) the segment count is K too and the slot loop unrolls;
  * sparse (-DSPARSE, K < S, skeletons with top-k weights) S stays a kernel
@@ -116,7 +116,7 @@
  * one process): dense segment rows -19 to -27 %, point rows -16 to -18 %.
  * Loops longer than UNROLL_MAX are left to the compiler. */
 #ifndef NPOINTS
-#error "build with -DNPOINTS=<point handles> -DNSLOTS=<segment slots per point> (nrpose/engine.py)"
+#error "build with -DNPOINTS=<point handles> -DNSLOTS=<segment slots per point> (nrpose/pose/mls.py)"
 #endif
 #define P NPOINTS
 #define K NSLOTS
@@ -188,7 +188,7 @@
 #else
 #define FREC(P, K) (VW * (3 + 5 * (P) + 3 * (K)))
 #endif
-/* offsets in a frame's derived block (floats; nrpose/engine.py derived_layout) */
+/* offsets in a frame's derived block (floats; nrpose/pose/mls.py derived_layout) */
 #define QUATS_OFFSET(S) (9 * ((S) + 1))
 #define PLOC_OFFSET(S) (QUATS_OFFSET(S) + 4 * ((S) + 1))
 #define SEGV_OFFSET(S) (PLOC_OFFSET(S) + 3 * P * ((S) + 1))
@@ -202,7 +202,7 @@
 #define FREC_AT(frec, g) ((frec) + (size_t)(g) * FREC(P, K))
 #define IREC_AT(irec, g) ((irec) + (size_t)(g) * IREC(K))
 
-/* The bound block (nrpose/engine.py bound_block): a header of ints, the deformer's constants
+/* The bound block (nrpose/pose/mls.py bound_block): a header of ints, the deformer's constants
  * and the byte offsets of its arrays, each at a multiple of 128 bytes from the block's start:
  *   BOUND_NP          Np, points padded to a multiple of VW
  *   BOUND_NSEGS       S, segments
@@ -479,7 +479,7 @@ static inline __attribute__((always_inline)) void finish_chunk(const int g, cons
     const floatv oz = uz + s2 * (rw * kz + jz) + qz;
 #else
     /* w = exp(r) u for r = 2 h, h the summed half rotation vector (the levers are bound
-     * halved: nrpose/engine.py device_layout), by Rodrigues through the half angle
+     * halved: nrpose/pose/mls.py device_layout), by Rodrigues through the half angle
      * t = |h| = th/2: w = u + A (h x u) + B h x (h x u) with A = 2 sin(th)/th = 2 sinc(t) cos(t)
      * and B = 4 (1 - cos th)/th^2 = 2 sinc(t)^2, so A = S C and B = S S for S = sqrt2 sinc(t),
      * C = sqrt2 cos(t). S and C are polynomials in x = t^2 = |h|^2 on [0, (pi/2)^2]

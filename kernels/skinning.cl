@@ -12,7 +12,7 @@
  *                             have weight 1 on joint 0.
  *   rows    (G, 8) int      : output row of each stored vertex. Vertices are stored
  *                             sorted by their joints (influence 0, then 1, ...;
- *                             nrpose/skinning.py), so that the 8 lanes of a group
+ *                             nrpose/pose/skinning.py), so that the 8 lanes of a group
  *                             nearly always share influence k's joint: then its
  *                             parameters are read once for the 8 (broadcast loads)
  *                             instead of gathered lane by lane (12 or 8 gathers
@@ -28,7 +28,7 @@
  *   dqs: dq   (F, J, 8) float: unit dual quaternion (qr.xyzw, qd.xyzw) per
  *        joint, scalar last, qd = 0.5 (t, 0) qr.
  *
- * Launch (nrpose/device.py launch_shared): any number of work-items, local
+ * Launch (nrpose/device/launch.py launch_shared): any number of work-items, local
  * size 1, on PoCL's worker threads and the calling thread at once. Each takes
  * the next block of `block` groups of the job published in `jobs` (share.h:
  * ceil(G / block) blocks, F frames) until none are left, and poses every group
