@@ -4,7 +4,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 
-.PHONY: venv demo test bench
+BLENDER_VENV := .venv-blender
+
+.PHONY: venv demo test bench blender
 venv:
 	@test -x $(PY) || { $(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip; }
 	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench]'
@@ -17,3 +19,8 @@ test: venv
 
 bench: venv
 	$(PY) -m bench --suite all
+
+# Blender 5 (bpy) in its own environment: a test client for glTF outputs and the e2e benchmark's anchor
+blender:
+	@test -x $(BLENDER_VENV)/bin/python || $(PYTHON) -m venv $(BLENDER_VENV)
+	@$(BLENDER_VENV)/bin/python -m pip install --quiet --disable-pip-version-check 'bpy>=5,<6' numpy
