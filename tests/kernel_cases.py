@@ -2,9 +2,11 @@
 another OpenCL device (tests/test_oclgrind.py runs it under Oclgrind, in a process of its
 own: the device is chosen once per process, by PYOPENCL_CTX).
 
-    python tests/kernel_cases.py      # prints one JSON object: case -> max error / tolerance
+    python tests/kernel_cases.py [--save OUT.npz]
 
-Each case is posed with several blocks of work (so that launches have more than one
+prints one JSON object, case -> max error / tolerance, and with --save writes every
+case's device output (float32 as the device gave it, for bitwise comparisons between
+devices: tests/test_second_pocl.py). Each case is posed with several blocks of work (so that launches have more than one
 work-group) and, for the pose kernels, as one frame and as a batch of frames. An error
 above 1 means the kernel is off its reference by more than the tests' tolerance.
 """
@@ -43,8 +45,9 @@ def diag(x: np.ndarray) -> float:
     return float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
 
 
-def nrmls_errors(rng) -> dict:
-    """NR-MLS pose kernel (kernels/nrmls.cl), one frame and a batch, against the numpy backend."""
+def nrmls_cases(rng) -> dict:
+    """NR-MLS pose kernel (kernels/nrmls.cl), one frame and a batch, and the numpy backend's:
+    {case: (device output, reference, tolerance)}."""
     out = {}
     for name, p, s, kw in NRMLS:
         rest = random_rest(rng, p, s)
@@ -53,13 +56,14 @@ def nrmls_errors(rng) -> dict:
         poses = [random_pose(rng, rest) for _ in range(FRAMES)]
         want = np.stack([ref.pose(q) for q in poses])
         tol = NRMLS_TOL * diag(want)
-        out[f"nrmls {name}"] = float(np.abs(dev.pose(poses[0]) - want[0]).max() / tol)
-        out[f"nrmls {name} batch"] = float(np.abs(dev.pose_frames(poses) - want).max() / tol)
+        out[f"nrmls {name}"] = (dev.pose(poses[0]).copy(), want[0], tol)
+        out[f"nrmls {name} batch"] = (dev.pose_frames(poses), want, tol)
     return out
 
 
-def skinning_errors(rng) -> dict:
-    """LBS and DQS kernels (kernels/skinning.cl), one frame and a batch, against their references."""
+def skinning_cases(rng) -> dict:
+    """LBS and DQS kernels (kernels/skinning.cl), one frame and a batch, and their references
+    (float32 outputs: into float32 arrays, as the device wrote them)."""
     rest, joints, weights = make_rig(rng, POINTS, 5, 3)
     out = {}
     for name, cls, reference, mats in (("lbs", LbsDeformer, lbs_reference, [affine(rng, 5) for _ in range(FRAMES)]),
@@ -67,25 +71,28 @@ def skinning_errors(rng) -> dict:
         dev = cls(rest, joints, weights)
         want = np.stack([reference(rest, joints, weights, m) for m in mats])
         tol = SKIN_TOL * diag(want)
-        out[name] = float(np.abs(dev.pose(mats[0]) - want[0]).max() / tol)
-        out[f"{name} batch"] = float(np.abs(dev.pose_frames(np.stack(mats)) - want).max() / tol)
+        one, batch = np.empty((POINTS, 3), np.float32), np.empty((FRAMES, POINTS, 3), np.float32)
+        out[name] = (dev.pose(mats[0], out=one), want[0], tol)
+        out[f"{name} batch"] = (dev.pose_frames(np.stack(mats), out=batch), want, tol)
     return out
 
 
-def global_fit_errors(rng) -> dict:
+def global_fit_cases(rng) -> dict:
     """R_g on its own (kernels/global_fit.cl) against nrpose.blend.GlobalRotation."""
     rest = random_rest(rng, 3, 2)
     poses = [random_pose(rng, rest) for _ in range(FRAMES)]
     got = GlobalFit.fit(rest, poses)
     fit = GlobalRotation(rest)
     want = np.stack([fit(q) for q in poses])
-    return {"global fit": float(np.abs(got - want).max() / 1e-4)}
+    return {"global fit": (got, want, 1e-4)}
 
 
 def main() -> None:
     rng = np.random.default_rng(32)
-    errors = {**nrmls_errors(rng), **skinning_errors(rng), **global_fit_errors(rng)}
-    print(json.dumps(errors))
+    cases = {**nrmls_cases(rng), **skinning_cases(rng), **global_fit_cases(rng)}
+    if "--save" in sys.argv:
+        np.savez(sys.argv[sys.argv.index("--save") + 1], **{k: got for k, (got, _, _) in cases.items()})
+    print(json.dumps({k: float(np.abs(got - want).max() / tol) for k, (got, want, tol) in cases.items()}))
 
 
 if __name__ == "__main__":
