@@ -76,6 +76,16 @@ def test_pyopencl_own_query_is_what_is_excluded(tmp_path):
     assert set(api_reports(proc.stderr)) == {PYOPENCL_QUERY}
 
 
+def test_device_setup_asks_nothing_a_1_2_device_lacks(tmp_path):
+    """nrpose's own device queries (context, shared-memory test, benchmark facts, a host
+    array) give no API report at all: the exclusion above is pyopencl's alone."""
+    code = ("from nrpose import device; device.context(); device.fine_grain_svm(); "
+            "device.describe(); device.HostArray(4).upload()")
+    proc, _ = run_oclgrind(tmp_path, ["-c", code], check_api=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert api_reports(proc.stderr) == []
+
+
 @pytest.mark.xfail(strict=True, reason="Oclgrind 21.10's uninitialized-value check crashes (SIGSEGV) "
                    "on a vector times a scalar, and reports shuffles of initialized vectors as "
                    "uninitialized (a float8 x * s, or __builtin_shufflevector(x, y, 0, 8, 1, 9, ...) "
