@@ -87,7 +87,12 @@
  * standing_workers_possible), where every work-group runs on a thread of the process,
  * x86's total store order keeps a core's stores in order and its loads in order (and a
  * locked compare-and-swap is a full barrier), and JOB_RELEASE / JOB_ACQUIRE keep the
- * compiler from moving a block's memory accesses across the mailbox's.
+ * compiler from moving a block's memory accesses across the mailbox's. (In the C11 terms
+ * of OpenCL 2.0, the kernel's side is fence synchronisation, a release fence before the
+ * atomic that opens a job or counts blocks done, an acquire fence after the atomic that
+ * takes a block or the read that sees the count, but for the polls, which are volatile
+ * loads rather than atomic ones: on x86, one aligned load either way. The host's side,
+ * numpy stores to shared memory, has only x86's order.)
  *
  * Everywhere else the host builds with -DPLAIN_OPENCL, and a launch is plain OpenCL
  * 1.2: the kernel only reads the mailbox (the job's descriptor, written before the
