@@ -1,0 +1,99 @@
+"""Every kernel of nrpose on tiny inputs against its float64 reference, for a run on
+another OpenCL device (tests/test_oclgrind.py runs it under Oclgrind, in a process of its
+own: the device is chosen once per process, by PYOPENCL_CTX).
+
+    python tests/kernel_cases.py [--save OUT.npz]
+
+prints one JSON object, case -> max error / tolerance, and with --save writes every
+case's device output (float32 as the device gave it, for bitwise comparisons between
+devices: tests/test_second_pocl.py). Each case is posed with several blocks of work (so that launches have more than one
+work-group) and, for the pose kernels, as one frame and as a batch of frames. An error
+above 1 means the kernel is off its reference by more than the tests' tolerance.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_engine import random_pose, random_rest  # noqa: E402  (tests' own helpers)
+from test_skinning import affine, make_rig, rigid  # noqa: E402
+
+from nrpose import Deformer  # noqa: E402
+from nrpose.engine import GlobalFit  # noqa: E402
+from nrpose.blend import GlobalRotation  # noqa: E402
+from nrpose.skinning import DqsDeformer, LbsDeformer, dqs_reference, lbs_reference  # noqa: E402
+
+POINTS = 300        # a few blocks of work at 8 or 16 lanes
+FRAMES = 3
+#: of the bounding-box diagonal: tests/test_engine.py's for NR-MLS, test_skinning.py's for skinning
+NRMLS_TOL, SKIN_TOL = 1e-4, 1e-5
+
+#: (name, point handles, segments, Deformer keywords): the kernel's build variants (point
+#: handles only at 16 lanes, segments only with chunk pairs, both, sparse slots, the blends
+#: and a lever rule with stored levers)
+NRMLS = [("points", 3, 0, {}), ("segments", 0, 3, {}), ("mixed", 2, 2, {}),
+         ("sparse", 1, 4, {"k": 3}), ("quaternion", 2, 2, {"blend": "quaternion"}),
+         ("paper", 2, 2, {"blend": "paper", "lever": "paper"}), ("length", 0, 3, {"lever": "length"})]
+
+
+def diag(x: np.ndarray) -> float:
+    x = x.reshape(-1, 3)
+    return float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+
+
+def nrmls_cases(rng) -> dict:
+    """NR-MLS pose kernel (kernels/nrmls.cl), one frame and a batch, and the numpy backend's:
+    {case: (device output, reference, tolerance)}."""
+    out = {}
+    for name, p, s, kw in NRMLS:
+        rest = random_rest(rng, p, s)
+        pts = rng.uniform(-1, 1, (POINTS, 3))
+        dev, ref = Deformer(pts, rest, **kw), Deformer(pts, rest, backend="numpy", **kw)
+        poses = [random_pose(rng, rest) for _ in range(FRAMES)]
+        want = np.stack([ref.pose(q) for q in poses])
+        tol = NRMLS_TOL * diag(want)
+        out[f"nrmls {name}"] = (dev.pose(poses[0]).copy(), want[0], tol)
+        out[f"nrmls {name} batch"] = (dev.pose_frames(poses), want, tol)
+    return out
+
+
+def skinning_cases(rng) -> dict:
+    """LBS and DQS kernels (kernels/skinning.cl), one frame and a batch, and their references
+    (float32 outputs: into float32 arrays, as the device wrote them)."""
+    rest, joints, weights = make_rig(rng, POINTS, 5, 3)
+    out = {}
+    for name, cls, reference, mats in (("lbs", LbsDeformer, lbs_reference, [affine(rng, 5) for _ in range(FRAMES)]),
+                                       ("dqs", DqsDeformer, dqs_reference, [rigid(rng, 5) for _ in range(FRAMES)])):
+        dev = cls(rest, joints, weights)
+        want = np.stack([reference(rest, joints, weights, m) for m in mats])
+        tol = SKIN_TOL * diag(want)
+        one, batch = np.empty((POINTS, 3), np.float32), np.empty((FRAMES, POINTS, 3), np.float32)
+        out[name] = (dev.pose(mats[0], out=one), want[0], tol)
+        out[f"{name} batch"] = (dev.pose_frames(np.stack(mats), out=batch), want, tol)
+    return out
+
+
+def global_fit_cases(rng) -> dict:
+    """R_g on its own (kernels/global_fit.cl) against nrpose.blend.GlobalRotation."""
+    rest = random_rest(rng, 3, 2)
+    poses = [random_pose(rng, rest) for _ in range(FRAMES)]
+    got = GlobalFit.fit(rest, poses)
+    fit = GlobalRotation(rest)
+    want = np.stack([fit(q) for q in poses])
+    return {"global fit": (got, want, 1e-4)}
+
+
+def main() -> None:
+    rng = np.random.default_rng(32)
+    cases = {**nrmls_cases(rng), **skinning_cases(rng), **global_fit_cases(rng)}
+    if "--save" in sys.argv:
+        np.savez(sys.argv[sys.argv.index("--save") + 1], **{k: got for k, (got, _, _) in cases.items()})
+    print(json.dumps({k: float(np.abs(got - want).max() / tol) for k, (got, want, tol) in cases.items()}))
+
+
+if __name__ == "__main__":
+    main()
