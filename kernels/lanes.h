@@ -1,5 +1,5 @@
 /* 8-lane helpers shared by the kernels (pasted in place of `#include "lanes.h"`
- * by nrpose/device.py, so that PoCL's kernel cache sees the whole source).
+ * by nrpose/device/programs.py, so that PoCL's kernel cache sees the whole source).
  *
  * PoCL's builtins vload8, vstore3, all, any, select, fabs, sqrt, rsqrt and atan2
  * are out-of-line calls in the binary it builds here, and each call spills
@@ -27,7 +27,7 @@ static inline int or8(const int8 v)
 #define ANY_NONZERO8(x) (or8((x) != 0.0f) != 0)
 
 #ifdef PLAIN_OPENCL
-/* Plain OpenCL C (nrpose/device.py plain_opencl; kernels/share.h): no clang vector
+/* Plain OpenCL C (nrpose/device/env.py plain_opencl; kernels/share.h): no clang vector
  * extensions (__builtin_shufflevector, under-aligned vector types), the 8 rows stored
  * lane by lane, three floats each. Row l of (x, y, z) at q + 3 o (STORE_ROW_). */
 #define STORE_ROW_(x, y, z, q, o, l) do {                                           \

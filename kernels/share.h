@@ -1,4 +1,5 @@
-/* Work shared by the devices of one launch (nrpose/device.py Jobs, launch_shared):
+/* Work shared by the devices of one launch (nrpose/device/mailbox.py Jobs,
+ * nrpose/device/launch.py launch_shared):
  * the same kernel runs at once on PoCL's worker threads and on the calling
  * thread, and each work-item takes the next block of work until none are left.
  * Blocks are handed out in order, so a work-item that starts late finds fewer
@@ -18,7 +19,7 @@
  *                     is taken: a standing work-item serves jobs of different batch
  *                     sizes) and whether it is taken from both ends, in one of two
  *                     descriptors (JOB_DESC), by the tag's parity
- *   A job taken from both ends (at most 1,000 blocks, nrpose/device.py JOB_ENDS_MAX_BLOCKS,
+ *   A job taken from both ends (at most 1,000 blocks, nrpose/device/mailbox.py JOB_ENDS_MAX_BLOCKS,
  *   so that no count of both ends reads as JOB_PROLOGUE or JOB_IN_PROLOGUE) counts in the block
  *   field the blocks taken from its start (the low JOB_END_BITS bits), which standing
  *   workers take, and from its end (the next JOB_END_BITS), which work-items of role
@@ -26,7 +27,7 @@
  *   with a standing worker the two cores then pose about the same points in every launch, and the bound
  *   data of a job that fits in their two L2 caches, not in one, stays where it is read
  *   (the box's point rig, 588 KB: standing spans 1.02-1.42x; on rigs of 2 MB and more
- *   0.92-0.99x, so owners ask for it by size: nrpose/device.py ENDS_MAX_BOUND_BYTES).
+ *   0.92-0.99x, so owners ask for it by size: nrpose/device/mailbox.py ENDS_MAX_BOUND_BYTES).
  *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
  *                     blocks' writes (a cache line of its own: the block counter's
  *                     line already moves between the cores at every block taken)
@@ -83,7 +84,7 @@
  * nothing else. Nor does it promise that work-groups run at the same time, which the
  * calling thread's wait for the others' blocks (and the others' wait for the prologue)
  * needs. So this protocol is outside the 1.2 model, and the host uses it only where the
- * implementation gives both: PoCL's CPU devices on x86 (nrpose/device.py
+ * implementation gives both: PoCL's CPU devices on x86 (nrpose/device/policy.py
  * standing_workers_possible), where every work-group runs on a thread of the process,
  * x86's total store order keeps a core's stores in order and its loads in order (and a
  * locked compare-and-swap is a full barrier), and JOB_RELEASE / JOB_ACQUIRE keep the
@@ -144,7 +145,7 @@
 #endif
 
 /* Ordering of a block's reads and writes against the mailbox, for the compiler (the
- * hardware's is x86's, where the host enables standing workers: nrpose/device.py
+ * hardware's is x86's, where the host enables standing workers: nrpose/device/policy.py
  * standing_workers_possible): OpenCL 1.x atomics promise none, PoCL's mem_fence
  * compiles to nothing, clang's fences are compiler barriers here (release, acquire). */
 #if defined(__clang__)

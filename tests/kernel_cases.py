@@ -19,17 +19,17 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from test_engine import random_pose, random_rest  # noqa: E402  (tests' own helpers)
+from test_mls import random_pose, random_rest  # noqa: E402  (tests' own helpers)
 from test_skinning import affine, make_rig, rigid  # noqa: E402
 
 from nrpose import Deformer  # noqa: E402
-from nrpose.engine import GlobalFit  # noqa: E402
-from nrpose.blend import GlobalRotation  # noqa: E402
-from nrpose.skinning import DqsDeformer, LbsDeformer, dqs_reference, lbs_reference  # noqa: E402
+from nrpose.pose.mls import GlobalFit  # noqa: E402
+from nrpose.pose.blend import GlobalRotation  # noqa: E402
+from nrpose.pose.skinning import DqsSkinner, LbsSkinner, dqs_reference, lbs_reference  # noqa: E402
 
 POINTS = 300        # a few blocks of work at 8 or 16 lanes
 FRAMES = 3
-#: of the bounding-box diagonal: tests/test_engine.py's for NR-MLS, test_skinning.py's for skinning
+#: of the bounding-box diagonal: tests/test_mls.py's for NR-MLS, test_skinning.py's for skinning
 NRMLS_TOL, SKIN_TOL = 1e-4, 1e-5
 
 #: (name, point handles, segments, Deformer keywords): the kernel's build variants (point
@@ -66,8 +66,8 @@ def skinning_cases(rng) -> dict:
     (float32 outputs: into float32 arrays, as the device wrote them)."""
     rest, joints, weights = make_rig(rng, POINTS, 5, 3)
     out = {}
-    for name, cls, reference, mats in (("lbs", LbsDeformer, lbs_reference, [affine(rng, 5) for _ in range(FRAMES)]),
-                                       ("dqs", DqsDeformer, dqs_reference, [rigid(rng, 5) for _ in range(FRAMES)])):
+    for name, cls, reference, mats in (("lbs", LbsSkinner, lbs_reference, [affine(rng, 5) for _ in range(FRAMES)]),
+                                       ("dqs", DqsSkinner, dqs_reference, [rigid(rng, 5) for _ in range(FRAMES)])):
         dev = cls(rest, joints, weights)
         want = np.stack([reference(rest, joints, weights, m) for m in mats])
         tol = SKIN_TOL * diag(want)
@@ -78,7 +78,7 @@ def skinning_cases(rng) -> dict:
 
 
 def global_fit_cases(rng) -> dict:
-    """R_g on its own (kernels/global_fit.cl) against nrpose.blend.GlobalRotation."""
+    """R_g on its own (kernels/global_fit.cl) against nrpose.pose.blend.GlobalRotation."""
     rest = random_rest(rng, 3, 2)
     poses = [random_pose(rng, rest) for _ in range(FRAMES)]
     got = GlobalFit.fit(rest, poses)

@@ -296,6 +296,7 @@ class Deformer(device.BoundKernel):
         """``kernel`` (a variant of ``nrmls_pose``, :func:`nrpose.diagnostics.kernel_variant`)
         with the deformer's current arguments, set again only after they changed."""
         if self._variants.get(kernel) != self._args_version:
+            self._jobs.arguments_changed(kernel)    # its clones hold the old arguments
             kernel.set_args(*self._pose_args())
             self._variants[kernel] = self._args_version
         return kernel
