@@ -2,13 +2,24 @@
 another OpenCL device (tests/test_oclgrind.py runs it under Oclgrind, in a process of its
 own: the device is chosen once per process, by PYOPENCL_CTX).
 
-    python tests/kernel_cases.py [--save OUT.npz]
+    python tests/kernel_cases.py [--save OUT.npz] [--fill BITS]
 
 prints one JSON object, case -> max error / tolerance, and with --save writes every
 case's device output (float32 as the device gave it, for bitwise comparisons between
-devices: tests/test_second_pocl.py). Each case is posed with several blocks of work (so that launches have more than one
-work-group) and, for the pose kernels, as one frame and as a batch of frames. An error
-above 1 means the kernel is off its reference by more than the tests' tolerance.
+devices: tests/test_second_pocl.py). Each case is posed with several blocks of work (so
+that launches have more than one work-group) and, for the pose kernels, as one frame, as
+a batch of frames and as a batch into a frames_array (the kernel writing the caller's
+memory). An error above 1 means the kernel is off its reference by more than the tests'
+tolerance.
+
+--fill BITS (a 32-bit pattern, e.g. 0x7fc0dead) is the canary of tests/test_canary.py:
+every device array nrpose makes (:class:`nrpose.device.HostArray`: outputs, frame
+blocks, scratch, handoff slots, frames_array memory, on the host and on the device) and
+every output array given to a kernel here starts filled with BITS instead of whatever
+memory held, and --save also writes each such array as it ends ("memory NNN", uint32
+bits, in the order they were made), so that runs with different BITS show which lanes
+nothing wrote (BITS in each run), which were written with defined values (the same in
+every run) and which were written from memory nothing had written (neither).
 """
 from __future__ import annotations
 
@@ -23,6 +34,7 @@ from test_mls import random_pose, random_rest  # noqa: E402  (tests' own helpers
 from test_skinning import affine, make_rig, rigid  # noqa: E402
 
 from nrpose import Deformer  # noqa: E402
+from nrpose.device import HostArray  # noqa: E402
 from nrpose.pose.mls import GlobalFit  # noqa: E402
 from nrpose.pose.blend import GlobalRotation  # noqa: E402
 from nrpose.pose.skinning import DqsSkinner, LbsSkinner, dqs_reference, lbs_reference  # noqa: E402
@@ -31,6 +43,36 @@ POINTS = 300        # a few blocks of work at 8 or 16 lanes
 FRAMES = 3
 #: of the bounding-box diagonal: tests/test_mls.py's for NR-MLS, test_skinning.py's for skinning
 NRMLS_TOL, SKIN_TOL = 1e-4, 1e-5
+
+#: the --fill pattern (None: outputs given to kernels start as np.empty leaves them)
+FILL: list = [None]
+
+
+def fill_device_arrays(bits: int) -> list:
+    """From now on, every HostArray made starts filled with the 32-bit pattern ``bits``
+    (its host memory and, without shared memory, its device buffer); returns the list
+    each is appended to, in the order they are made (kept alive: read at the end)."""
+    made = []
+    init = HostArray.__init__
+
+    def filled(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        self.host.view(np.uint32)[:] = bits
+        self.upload()
+        made.append(self)
+
+    HostArray.__init__ = filled
+    FILL[0] = bits
+    return made
+
+
+def blank(shape) -> np.ndarray:
+    """A float32 output array for a kernel: the --fill pattern where one is given."""
+    out = np.empty(shape, np.float32)
+    if FILL[0] is not None:
+        out.view(np.uint32)[...] = FILL[0]
+    return out
+
 
 #: (name, point handles, segments, Deformer keywords): the kernel's build variants (point
 #: handles only at 16 lanes, segments only with chunk pairs, both, sparse slots, the blends
@@ -58,6 +100,8 @@ def nrmls_cases(rng) -> dict:
         tol = NRMLS_TOL * diag(want)
         out[f"nrmls {name}"] = (dev.pose(poses[0]).copy(), want[0], tol)
         out[f"nrmls {name} batch"] = (dev.pose_frames(poses), want, tol)
+        if name == "mixed":
+            out[f"nrmls {name} frames_array"] = (dev.pose_frames(poses, out=dev.frames_array(FRAMES)), want, tol)
     return out
 
 
@@ -71,9 +115,9 @@ def skinning_cases(rng) -> dict:
         dev = cls(rest, joints, weights)
         want = np.stack([reference(rest, joints, weights, m) for m in mats])
         tol = SKIN_TOL * diag(want)
-        one, batch = np.empty((POINTS, 3), np.float32), np.empty((FRAMES, POINTS, 3), np.float32)
-        out[name] = (dev.pose(mats[0], out=one), want[0], tol)
-        out[f"{name} batch"] = (dev.pose_frames(np.stack(mats), out=batch), want, tol)
+        out[name] = (dev.pose(mats[0], out=blank((POINTS, 3))), want[0], tol)
+        out[f"{name} batch"] = (dev.pose_frames(np.stack(mats), out=blank((FRAMES, POINTS, 3))), want, tol)
+        out[f"{name} frames_array"] = (dev.pose_frames(np.stack(mats), out=dev.frames_array(FRAMES)), want, tol)
     return out
 
 
@@ -89,9 +133,14 @@ def global_fit_cases(rng) -> dict:
 
 def main() -> None:
     rng = np.random.default_rng(32)
+    made = fill_device_arrays(int(sys.argv[sys.argv.index("--fill") + 1], 0)) if "--fill" in sys.argv else []
     cases = {**nrmls_cases(rng), **skinning_cases(rng), **global_fit_cases(rng)}
+    memory = {}
+    for i, a in enumerate(made):
+        a.download()
+        memory[f"memory {i:03d}"] = a.host.view(np.uint32).copy()
     if "--save" in sys.argv:
-        np.savez(sys.argv[sys.argv.index("--save") + 1], **{k: got for k, (got, _, _) in cases.items()})
+        np.savez(sys.argv[sys.argv.index("--save") + 1], **{k: got for k, (got, _, _) in cases.items()}, **memory)
     print(json.dumps({k: float(np.abs(got - want).max() / tol) for k, (got, want, tol) in cases.items()}))
 
 
