@@ -110,10 +110,11 @@ def context():
 def plain_opencl() -> bool:
     """True where launches are plain OpenCL 1.2 (kernels/share.h PLAIN_OPENCL: programs
     built with ``-DPLAIN_OPENCL``, :func:`nrpose.device.launch_shared` launching the job's
-    prologue and blocks in turn on one in-order queue): every context but one of PoCL's
-    CPU devices alone on an x86 host (:func:`nrpose.device.standing_workers_possible`),
-    the only place where the shared-launch protocol's ordering and concurrent
-    work-groups are known to hold."""
+    prologue and blocks in turn on one in-order queue): every context but one whose
+    devices are all PoCL's CPU devices, on an x86 host
+    (:func:`nrpose.device.standing_workers_possible`), the only place where the
+    shared-launch protocol's ordering and concurrent work-groups are known to hold
+    (docs/device.md, "Memory model")."""
     return _plain_opencl(context()[0])
 
 
