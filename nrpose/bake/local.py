@@ -133,6 +133,7 @@ def run_local(jobs, outdir: Path, workers: int, on_result) -> None:
                     if slot.job.bind_key in slot.bound:
                         slot.bound.remove(slot.job.bind_key)
                     slot.bound.append(slot.job.bind_key)
+                    record["attempts"] = attempts[slot.job.index]
                     slot.job = None
                     on_result(record)
                 elif slot.process.sentinel in ready:      # died with the job
@@ -142,7 +143,7 @@ def run_local(jobs, outdir: Path, workers: int, on_result) -> None:
                     if attempts[job.index] < MAX_ATTEMPTS:
                         queue.put_back(job)
                     else:
-                        on_result(_lost(job, code))
+                        on_result(dict(_lost(job, code), attempts=attempts[job.index]))
                     slot.conn.close()
                     slots[i] = _Slot(ctx, env, outdir)
     finally:

@@ -46,19 +46,21 @@ def summary(jobs: list[Job], records: dict[int, dict], skipped: set[int], progre
             workers: int | None) -> dict:
     """The summary document: totals and each job's status, frames, seconds, worker and node.
 
-    status: "done", "failed", "already done" (resumed: output in the manifest), "not run" (interrupted).
+    status: "done", "failed", "already done" (resumed: output in the manifest), "not run" (interrupted);
+    attempts: runs of the job (more than 1 after a lost worker; None where the runner does not count).
     """
     rows = []
     for job in jobs:
         r = records.get(job.index)
         if r is not None:
-            rows.append({k: r[k] for k in ("index", "output", "status", "error", "frames", "seconds",
-                                           "load_seconds", "bind_seconds", "worker", "node")})
+            row = {k: r[k] for k in ("index", "output", "status", "error", "frames", "seconds",
+                                     "load_seconds", "bind_seconds", "worker", "node")}
+            rows.append(dict(row, attempts=r.get("attempts")))
         else:
             rows.append({"index": job.index, "output": job.output,
                          "status": "already done" if job.index in skipped else "not run", "error": None,
                          "frames": 0, "seconds": 0.0, "load_seconds": 0.0, "bind_seconds": 0.0,
-                         "worker": None, "node": None})
+                         "worker": None, "node": None, "attempts": 0})
     s = max(progress.seconds, 1e-9)
     return {"runner": runner, "workers": workers, "seconds": s, "jobs": len(jobs), "done": progress.done,
             "failed": progress.failed, "already_done": len(skipped), "frames": progress.frames,
