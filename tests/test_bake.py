@@ -305,7 +305,7 @@ def test_killed_worker_job_redone_every_output_once(rig, tmp_path):
     out, summary = tmp_path / "out", tmp_path / "s.json"
     proc = start_bake(tmp_path, [jobs, "-o", out, "--workers", 2, "--summary", summary])
     wait_for(lambda: manifest_count(out) >= 1, what="a first finished job")
-    victims = [p for p in children(proc.pid) if "multiprocessing" in Path(f"/proc/{p}/cmdline").read_text()]
+    victims = [p for p in children(proc.pid) if "spawn_main" in Path(f"/proc/{p}/cmdline").read_text()]
     assert victims
     os.kill(victims[0], signal.SIGKILL)
     _, err = proc.communicate(timeout=180)
