@@ -211,6 +211,8 @@ BAD_JOBS = [
     ({"jobs": [{"output": "a.npz", "rest": True, "time": 0.5}]}, "with 'rest' or 'pose' there is one frame"),
     ({"jobs": [{"output": "a.npz", "clip": "walk", "frames": "3:1"}]}, "--frames '3:1'"),
     ({"jobs": [{"output": "a.npz", "clip": "walk", "fps": 0}]}, "'fps' must be positive"),
+    ({"jobs": [{"output": "a.npz", "rest": 1}]}, "'rest' must be true or false"),
+    ({"jobs": [{"output": "a.npz", "clip": 7}]}, "'clip' must be a non-empty string"),
     ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "root": "Hips"}}]}, "unknown key 'root'"),
     ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh"}}]}, "'retarget' drives a glTF character"),
     ({"defaults": {"output": "a.npz"}, "jobs": [{"output": "a.npz", "clip": "walk"}]},

@@ -205,11 +205,11 @@ def _job(index: int, d: dict, base: Path) -> Job:
     output = _output_name(_string(d, "output", required=True))
     character = _input_file(base, _string(d, "character", required=True), "character")
     skeleton = _string(d, "skeleton")
-    motions = [k for k in MOTION_KEYS if d.get(k) not in (None, False)]
+    motions = [k for k in MOTION_KEYS if d.get(k) is not None and d.get(k) is not False]
     if len(motions) != 1:
         raise InputError(f"give exactly one of {', '.join(MOTION_KEYS)}; got "
                          + (", ".join(motions) if motions else "none"))
-    if "rest" in d and d["rest"] not in (True, False):
+    if "rest" in d and not isinstance(d["rest"], bool):
         raise InputError(f"'rest' must be true or false, got {d['rest']!r}")
     time, frames = d.get("time"), _string(d, "frames")
     if time is not None:
@@ -256,7 +256,7 @@ def _retarget(spec, base: Path) -> Retarget:
     if Path(source).suffix.lower() not in work.SOURCE_SUFFIXES:
         raise InputError(f"retarget source {source}: must end in {', '.join(work.SOURCE_SUFFIXES)}")
     in_place = spec.get("in_place", False)
-    if in_place not in (True, False):
+    if not isinstance(in_place, bool):
         raise InputError(f"'retarget': 'in_place' must be true or false, got {in_place!r}")
     mapping = _string(spec, "map")
     return Retarget(_input_file(base, source, "retarget source"),
