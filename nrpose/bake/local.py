@@ -110,11 +110,17 @@ def run_local(jobs, outdir: Path, workers: int, on_result) -> None:
     slots = [_Slot(ctx, env, outdir) for _ in range(workers)]
     try:
         while True:
-            for slot in slots:
+            for i, slot in enumerate(slots):
                 if slot.job is None and queue:
+                    if not slot.process.is_alive():       # died between jobs, or after losing one
+                        slot.conn.close()
+                        slots[i] = slot = _Slot(ctx, env, outdir)
                     slot.job = queue.take(slot, slots)
                     attempts[slot.job.index] += 1
-                    slot.conn.send(slot.job)
+                    try:
+                        slot.conn.send(slot.job)
+                    except OSError:                       # died just now: its sentinel says so below
+                        pass
             busy = [s for s in slots if s.job is not None]
             if not busy:
                 break
@@ -141,11 +147,9 @@ def run_local(jobs, outdir: Path, workers: int, on_result) -> None:
                     job, code = slot.job, slot.process.exitcode
                     slot.job = None
                     if attempts[job.index] < MAX_ATTEMPTS:
-                        queue.put_back(job)
+                        queue.put_back(job)           # a new worker takes this slot for it
                     else:
                         on_result(dict(_lost(job, code), attempts=attempts[job.index]))
-                    slot.conn.close()
-                    slots[i] = _Slot(ctx, env, outdir)
     finally:
         for slot in slots:
             if slot.process.is_alive():
@@ -156,7 +160,7 @@ def run_local(jobs, outdir: Path, workers: int, on_result) -> None:
 
 
 def _lost(job, exitcode) -> dict:
+    from .worker import failed_record
+
     how = f"signal {-exitcode}" if exitcode is not None and exitcode < 0 else f"exit status {exitcode}"
-    return {"index": job.index, "output": job.output, "status": "failed", "frames": 0, "seconds": 0.0,
-            "load_seconds": 0.0, "bind_seconds": 0.0, "worker": None, "node": None, "size": None, "sha256": None,
-            "error": f"the worker process died ({how}) on each of {MAX_ATTEMPTS} attempts"}
+    return failed_record(job, f"the worker process died ({how}) on each of {MAX_ATTEMPTS} attempts")

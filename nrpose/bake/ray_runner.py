@@ -64,22 +64,16 @@ def pose_chunk(loaded: Loaded, jobs: list, outdir: str) -> list[dict]:
     """Ray task: run jobs of one binding with the loaded character; their records."""
     import ray
 
-    from .worker import WorkerCache, run_job
+    from .worker import WorkerCache, failed_record, run_job
 
     global _CACHE
     if _CACHE is None:
         _CACHE = WorkerCache()
     node = f"{socket.gethostname()}/{ray.get_runtime_context().get_node_id()[:8]}"
     if loaded.error is not None:
-        return [_failed(job, loaded.error, node) for job in jobs]
+        return [failed_record(job, loaded.error, None, node) for job in jobs]
     _CACHE.adopt(jobs[0].load_key, loaded.character, {})
     return [run_job(job, Path(outdir), _CACHE, node=node) for job in jobs]
-
-
-def _failed(job, error: str, node: str | None = None) -> dict:
-    return {"index": job.index, "output": job.output, "status": "failed", "error": error, "frames": 0,
-            "seconds": 0.0, "load_seconds": 0.0, "bind_seconds": 0.0, "worker": None, "node": node,
-            "size": None, "sha256": None}
 
 
 def chunks(jobs: list, cpus: int) -> list[list]:
@@ -98,32 +92,40 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
 
     from .local import thread_settings
 
-    kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
-    if address:
-        ray.init(address=address, **kwargs, runtime_env={"env_vars": thread_settings(1, 1)})
-    else:
-        ray.init(**kwargs, runtime_env={"env_vars": thread_settings(1, 1)})
+    from .worker import failed_record
+
+    kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
+                  runtime_env={"env_vars": thread_settings(1, 1)})
+    ray.init(address=address or "local", **kwargs)    # "local": a new instance, not a running cluster
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         load_task = ray.remote(load).options(num_cpus=1, max_retries=MAX_RETRIES)
         pose_task = ray.remote(pose_chunk).options(num_cpus=1, max_retries=MAX_RETRIES)
-        characters = {}
-        pending = {}
-        for chunk in chunks(jobs, cpus):
+        characters, pending = {}, {}
+
+        def submit(chunk: list, attempt: int, reload: bool = False) -> None:
             key = chunk[0].load_key
-            if key not in characters:
+            if reload or key not in characters:
                 characters[key] = load_task.remote(chunk[0])
-            pending[pose_task.remote(characters[key], chunk, str(outdir))] = chunk
+            pending[pose_task.remote(characters[key], chunk, str(outdir))] = (chunk, attempt)
+
+        for chunk in chunks(jobs, cpus):
+            submit(chunk, 1)
         try:
             while pending:
                 ready, _ = ray.wait(list(pending), num_returns=1)
                 for ref in ready:
-                    chunk = pending.pop(ref)
+                    chunk, attempt = pending.pop(ref)
                     try:
                         records = ray.get(ref)
-                    except ray.exceptions.RayError as exc:     # retries exhausted
-                        first = (str(exc).strip().splitlines() or [""])[0]
-                        records = [_failed(job, f"{type(exc).__name__}: {first}") for job in chunk]
+                    except ray.exceptions.RayError as exc:
+                        # Ray's own retries are spent, or an object was lost with its owner or node:
+                        # submit again (with the character loaded anew) a few times, then record
+                        if attempt <= MAX_RETRIES:
+                            submit(chunk, attempt + 1, reload=True)
+                            continue
+                        error = f"Ray could not run the job ({_cause(exc)}, {attempt} attempts)"
+                        records = [failed_record(job, error) for job in chunk]
                     for record in records:
                         on_result(record)
         except KeyboardInterrupt:
@@ -132,3 +134,9 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
             raise
     finally:
         ray.shutdown()
+
+
+def _cause(exc) -> str:
+    """The name of the error behind a Ray error (task errors wrap it)."""
+    cause = getattr(exc, "cause", None)
+    return type(cause).__name__ if isinstance(cause, BaseException) else type(exc).__name__

@@ -85,12 +85,17 @@ def node_name() -> str:
     return socket.gethostname()
 
 
+def failed_record(job: Job, error: str | None, worker: str | None = None, node: str | None = None) -> dict:
+    """The record of a job that did not finish (``error``: one line)."""
+    return {"index": job.index, "output": job.output, "status": "failed", "error": error, "frames": 0,
+            "seconds": 0.0, "load_seconds": 0.0, "bind_seconds": 0.0, "worker": worker, "node": node,
+            "size": None, "sha256": None}
+
+
 def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None) -> dict:
     """Run one job (module docstring); never raises for a bad job: the record says what failed."""
     t0 = time.perf_counter()
-    record = {"index": job.index, "output": job.output, "status": "failed", "error": None, "frames": 0,
-              "seconds": 0.0, "load_seconds": 0.0, "bind_seconds": 0.0, "worker": worker_name(),
-              "node": node or node_name(), "size": None, "sha256": None}
+    record = failed_record(job, None, worker_name(), node or node_name())
     tmp_dir = None
     try:
         with np.errstate(all="ignore"):    # as the pose command: its own checks speak for NaN and infinity
