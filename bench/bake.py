@@ -130,7 +130,7 @@ def run_mode(mode: str, doc: dict, jobs_file: pathlib.Path, work: pathlib.Path, 
 
 
 def ray_start_seconds() -> float:
-    code = ("import logging, ray; ray.init(include_dashboard=False, log_to_driver=False, "
+    code = ("import logging, ray; ray.init(address='local', include_dashboard=False, log_to_driver=False, "
             "logging_level=logging.ERROR); ray.shutdown()")
     return timed([[sys.executable, "-c", code]])
 

@@ -436,3 +436,19 @@ def test_ray_two_node_cluster_survives_a_removed_node(rig, reference, heavy_refe
         assert_same(out, reference, name)
     for name in names[:10]:
         assert_same(out, heavy_reference, name)
+
+
+def test_second_bake_on_one_outdir_is_refused(rig, tmp_path, capsys):
+    import fcntl
+
+    jobs = write_jobs(rig / "lock.json", {"defaults": {"character": "human.obj", "skeleton": "walk.bvh"},
+                                          "jobs": [{"output": "a.npz", "rest": True}]})
+    out = tmp_path / "out"
+    out.mkdir()
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)           # as a running bake's driver holds it
+        code, err = bake([jobs, "-o", out], capsys)
+    finally:
+        os.close(fd)
+    assert code == 2 and "another bake is writing there" in err and not list(out.iterdir())

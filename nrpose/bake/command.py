@@ -4,12 +4,14 @@ Exit status: 0 when every job is done, 1 when a job failed (each failure is
 one line on stderr; the other jobs still run), 2 for a bad JOBS file or bad
 options (nothing run), 130 when interrupted (the finished outputs stay in the
 manifest: run again with ``--resume`` to do the rest). One bake at a time per
-OUTDIR.
+OUTDIR (a second one is refused: the driver holds a lock on OUTDIR).
 """
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -37,8 +39,6 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     """Run the bake; returns the exit status (0, 1 or 130). Raises NrposeError for bad input (status 2)."""
-    from .work import usable_cpus
-
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: expected at least 1")
     if args.ray is not None and args.workers is not None:
@@ -58,6 +58,21 @@ def run(args) -> int:
         check_ray()
     outdir.mkdir(parents=True, exist_ok=True)
     outdir = outdir.resolve()
+    lock = os.open(outdir, os.O_RDONLY)
+    try:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(lock)
+        raise InputError(f"{outdir}: another bake is writing there; wait for it or choose another OUTDIR") from None
+    try:
+        return _bake(args, jobs, outdir)
+    finally:
+        os.close(lock)
+
+
+def _bake(args, jobs, outdir: Path) -> int:
+    from .work import usable_cpus
+
     clear_scratch(outdir)              # a driver that died leaves its workers' scratch
     manifest = Manifest(outdir)
     if args.resume:
@@ -89,6 +104,7 @@ def run(args) -> int:
     except KeyboardInterrupt:
         interrupted = True
     finally:
+        manifest.save()
         clear_scratch(outdir)
     if progress.tty and interrupted:
         print(file=sys.stderr)

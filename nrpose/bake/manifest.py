@@ -3,7 +3,8 @@
 The manifest is ``{"format": "nrpose-bake-manifest", "version": 1, "outputs":
 {OUTPUT: {"spec": sha256 of the job's options, "size": bytes, "sha256": hex,
 "frames": F}}}``, keyed by the output's name under OUTDIR, so it lists an
-output at most once. Only the driver writes it, each time through a
+output at most once. Only the driver writes it (at most once a second
+while jobs finish, and at the end or on an interrupt), each time through a
 temporary file and ``os.replace``: a reader (or a resumed run) never sees
 half of it. A directory output's size is the sum of its files' sizes and its
 checksum the sha256 over its sorted ``name\\0sha256\\n`` lines.
@@ -17,9 +18,11 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import tempfile
+import time
 import uuid
 from pathlib import Path
 
@@ -27,6 +30,9 @@ from .jobs import Job
 
 NAME = "manifest.json"
 TMP = ".bake-tmp"
+#: seconds between manifest saves while jobs finish (one rewrite per job is quadratic in the jobs);
+#: an output finished but not yet saved is simply made again by --resume
+SAVE_EVERY = 1.0
 
 
 def digest(path: Path) -> tuple[int, str]:
@@ -76,6 +82,7 @@ class Manifest:
     def __init__(self, outdir: Path):
         self.path = outdir / NAME
         self.outputs: dict[str, dict] = {}
+        self.saved = -math.inf
         if self.path.exists():
             try:
                 doc = json.loads(self.path.read_text())
@@ -94,8 +101,10 @@ class Manifest:
         return digest(out) == (entry.get("size"), entry.get("sha256"))
 
     def record(self, job: Job, size: int, sha256: str, frames: int) -> None:
+        """Record a finished output; saved at most every :data:`SAVE_EVERY` seconds (and by :meth:`save`)."""
         self.outputs[job.output] = {"spec": job.spec, "size": size, "sha256": sha256, "frames": frames}
-        self.save()
+        if time.monotonic() - self.saved >= SAVE_EVERY:
+            self.save()
 
     def forget(self, jobs) -> None:
         for job in jobs:
@@ -112,6 +121,7 @@ class Manifest:
                 fh.flush()
                 os.fsync(fh.fileno())
             os.replace(tmp, self.path)
+            self.saved = time.monotonic()
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise

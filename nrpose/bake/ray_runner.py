@@ -113,7 +113,11 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
             submit(chunk, 1)
         try:
             while pending:
+                # what finished within a moment, in one call: one call per result would cost
+                # O(pending) each, quadratic in the chunks
                 ready, _ = ray.wait(list(pending), num_returns=1)
+                more, _ = ray.wait(list(pending), num_returns=len(pending), timeout=0.05)
+                ready = list(dict.fromkeys(ready + more))
                 for ref in ready:
                     chunk, attempt = pending.pop(ref)
                     try:
