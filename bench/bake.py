@@ -21,9 +21,14 @@ Per mode: wall seconds, jobs/s, frames/s, wall per job; for the bakes, the sums
 over jobs of their seconds, load and bind seconds (from ``--summary``). Ratios
 to ``separate`` and to ``local2``. Load average and CPU steal before and after
 each mode (the machine is shared). ``--rounds`` repeats every mode (median).
+``--fps`` raises every job's frames (more posing and writing per job).
 
-Usage: ``.venv/bin/python bench/bake.py [--rounds 1] [--modes ...] [--data DIR]
-[--json bench/results/bake.json]``.
+``overhead``: the bake machinery's cost per job, from ``--overhead`` one-frame
+jobs (the Fox's rest pose, one binding) in each bake mode: wall time per job,
+and the sum of the jobs' own seconds.
+
+Usage: ``.venv/bin/python bench/bake.py [--rounds 1] [--modes ...] [--fps 30]
+[--overhead 120] [--data DIR] [--json bench/results/bake.json]``.
 """
 from __future__ import annotations
 
@@ -51,8 +56,8 @@ BAKE = [sys.executable, "-c", "import argparse, sys; from nrpose.bake import com
 NRPOSE = [sys.executable, "-m", "nrpose"]
 
 
-def library(data: pathlib.Path) -> dict:
-    """The JOBS document (module docstring)."""
+def library(data: pathlib.Path, fps: int = 30) -> dict:
+    """The JOBS document (module docstring); ``fps`` scales every job's frames (retargeted: 3 s, every 2nd)."""
     g, bvh = data / "gltf", str(data / "bvh" / "131_03.bvh")
     jobs = []
     for clip in ("Survey", "Walk", "Run"):
@@ -68,9 +73,9 @@ def library(data: pathlib.Path) -> dict:
                 if motion == "own":
                     job["clip"] = "Armature|mixamo.com|Layer0"
                 else:
-                    job.update(retarget={"source": bvh, "in_place": motion == "131_in_place"}, frames="0:90:2")
+                    job.update(retarget={"source": bvh, "in_place": motion == "131_in_place"}, frames=f"0:{3 * fps}:2")
                 jobs.append(job)
-    return {"defaults": {"fps": 30}, "jobs": jobs}
+    return {"defaults": {"fps": fps}, "jobs": jobs}
 
 
 def separate_commands(doc: dict, out: pathlib.Path) -> list[list[list[str]]]:
@@ -80,10 +85,11 @@ def separate_commands(doc: dict, out: pathlib.Path) -> list[list[list[str]]]:
         dest = out / job["output"]
         dest.parent.mkdir(parents=True, exist_ok=True)
         character, cmds = job["character"], []
-        opts = ["--method", job["method"], "--blend", job.get("blend", "relative"), "--fps", "30"]
+        fps = str(doc["defaults"]["fps"])
+        opts = ["--method", job["method"], "--blend", job.get("blend", "relative"), "--fps", fps]
         if "retarget" in job:
             glb = out / f"retargeted_{i}.glb"
-            cmds.append(NRPOSE + ["retarget", job["retarget"]["source"], character, "--fps", "30", "-o", str(glb)]
+            cmds.append(NRPOSE + ["retarget", job["retarget"]["source"], character, "--fps", fps, "-o", str(glb)]
                         + (["--in-place"] if job["retarget"]["in_place"] else []))
             cmds.append(NRPOSE + ["pose", str(glb), "--clip", "131_03", "--frames", job["frames"]] + opts
                         + ["-o", str(dest)])
@@ -129,6 +135,22 @@ def run_mode(mode: str, doc: dict, jobs_file: pathlib.Path, work: pathlib.Path, 
             "load_before": before[0], "load_after": after[0], "steal_percent": common.steal_percent(before[1], after[1])}
 
 
+def overhead(data: pathlib.Path, n: int, work: pathlib.Path, modes: list[str], address: str | None) -> dict:
+    """Per-job cost of the bake machinery: ``n`` one-frame jobs (the Fox's rest pose, one binding):
+    wall seconds per job, and per job minus the job's own seconds."""
+    doc = {"defaults": {"character": str(data / "gltf" / "Fox.glb"), "rest": True},
+           "jobs": [{"output": f"rest_{i:04d}.npz"} for i in range(n)]}
+    jobs_file = work / "overhead.json"
+    jobs_file.write_text(json.dumps(doc))
+    out = {}
+    for m in modes:
+        r = run_mode(m, doc, jobs_file, work / "overhead", address)
+        out[m] = {"jobs": n, "wall_s": round(r["wall_s"], 3), "wall_per_job_ms": round(1e3 * r["wall_s"] / n, 2),
+                  "job_seconds_sum": r["job_sums"]["seconds"], "load_before": r["load_before"]}
+        print(f"overhead {m}: {r['wall_s']:.1f} s for {n} jobs", flush=True)
+    return out
+
+
 def ray_start_seconds() -> float:
     code = ("import logging, ray; ray.init(address='local', include_dashboard=False, log_to_driver=False, "
             "logging_level=logging.ERROR); ray.shutdown()")
@@ -139,6 +161,10 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=1, help="times every mode runs (median; default 1)")
     ap.add_argument("--modes", default=",".join(MODES), help=f"comma-separated subset of {', '.join(MODES)}")
+    ap.add_argument("--fps", type=int, default=30, help="frames per second of every job (default 30; more: "
+                                                        "more posing and writing per job)")
+    ap.add_argument("--overhead", type=int, default=120,
+                    help="jobs of the per-job overhead library (the Fox's rest pose, one frame each; 0: skip)")
     ap.add_argument("--data", default=str(HERE.parent.parent / "shared" / "data"), help="asset folder")
     ap.add_argument("--json", default=str(HERE / "results" / "bake.json"), help="output record")
     a = ap.parse_args(argv)
@@ -148,7 +174,7 @@ def main(argv=None) -> int:
         print(f"bench/bake.py: modes from {', '.join(MODES)}, --rounds >= 1, and the asset folder {data} (--data)",
               file=sys.stderr)
         return 2
-    doc = library(data)
+    doc = library(data, a.fps)
     work = pathlib.Path(tempfile.mkdtemp(prefix="nrpose-bench-bake-"))
     cluster = None
     try:
@@ -180,6 +206,9 @@ def main(argv=None) -> int:
                                                              / results[m]["wall_s_median"], 2)
         record = {"benchmark": "bake (batch posing throughput)", "date": common.now(), "git": common.git(),
                   "environment": common.environment(), "library": doc, "results": results, "ratios": ratios}
+        if a.overhead:
+            record["overhead"] = overhead(data, a.overhead, work, [m for m in modes if m != "separate"],
+                                          cluster.address if cluster else None)
         if "ray_local" in modes:
             record["ray_start_s"] = round(ray_start_seconds(), 2)
     finally:
