@@ -17,7 +17,9 @@ as they do for a user):
   this machine (``ray.cluster_utils.Cluster``: a head without CPUs and two
   one-CPU nodes), started before the timing as a real cluster would be.
 
-Per mode: wall seconds, jobs/s, frames/s, wall per job; for the bakes, the sums
+Per mode: wall seconds, jobs/s, frames/s, wall per job, CPU seconds of the
+driver's child processes (the driver and its workers; not a cluster's own
+processes, which ``ray_cluster2`` uses); for the bakes, the sums
 over jobs of their seconds, load and bind seconds (from ``--summary``). Ratios
 to ``separate`` and to ``local2``. Load average and CPU steal before and after
 each mode (the machine is shared). ``--rounds`` repeats every mode (median).
@@ -35,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import pathlib
+import resource
 import shutil
 import subprocess
 import sys
@@ -118,6 +121,7 @@ def run_mode(mode: str, doc: dict, jobs_file: pathlib.Path, work: pathlib.Path, 
     out.mkdir(parents=True)
     summary = work / f"{mode}.summary.json"
     before = (common.load(), common.cpu_times())
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if mode == "separate":
         wall = timed([c for cmds in separate_commands(doc, out) for c in cmds])
         sums = None
@@ -130,8 +134,10 @@ def run_mode(mode: str, doc: dict, jobs_file: pathlib.Path, work: pathlib.Path, 
         sums = {k: round(sum(r[k] for r in rows), 3) for k in ("seconds", "load_seconds", "bind_seconds")}
         sums["workers_or_nodes"] = len({(r["node"], r["worker"]) for r in rows})
     after = (common.load(), common.cpu_times())
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (cpu1.ru_utime + cpu1.ru_stime) - (cpu0.ru_utime + cpu0.ru_stime)
     frames = frames_of(out, doc)
-    return {"wall_s": wall, "jobs": len(doc["jobs"]), "frames": frames, "job_sums": sums,
+    return {"wall_s": wall, "cpu_s": round(cpu, 3), "jobs": len(doc["jobs"]), "frames": frames, "job_sums": sums,
             "load_before": before[0], "load_after": after[0], "steal_percent": common.steal_percent(before[1], after[1])}
 
 

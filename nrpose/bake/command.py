@@ -12,6 +12,7 @@ import argparse
 import fcntl
 import json
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -64,9 +65,11 @@ def run(args) -> int:
     except OSError:
         os.close(lock)
         raise InputError(f"{outdir}: another bake is writing there; wait for it or choose another OUTDIR") from None
+    handler = signal.getsignal(signal.SIGINT)
     try:
         return _bake(args, jobs, outdir)
     finally:
+        signal.signal(signal.SIGINT, handler)
         os.close(lock)
 
 
@@ -103,6 +106,7 @@ def _bake(args, jobs, outdir: Path) -> int:
             run_local(todo, outdir, workers, on_result)
     except KeyboardInterrupt:
         interrupted = True
+        signal.signal(signal.SIGINT, signal.SIG_IGN)    # a second Ctrl-C must not cut the clean-up short
     finally:
         manifest.save()
         clear_scratch(outdir)

@@ -3,9 +3,11 @@
 Each worker is a fresh (spawned) process that runs one job at a time
 (:func:`nrpose.bake.worker.run_job`) and keeps what it loaded and bound. The
 driver hands an idle worker a job of the binding it already holds, else of a
-binding no other worker holds (the one with the most jobs left), else of the
+binding no other worker holds (of a character it has loaded, else of one no
+other worker has loaded, else the one with the most jobs left), else of the
 binding with the most jobs left: each character is loaded and bound once per
-worker that poses it, and the workers share the last bindings at the end.
+worker that poses it, characters tend to stay with one worker, and the workers
+share the last bindings at the end.
 
 PoCL threads: each worker gets ``CPUs // workers`` threads (the PoCL device
 list and thread count of :func:`nrpose.device.pocl_settings`, for that many
@@ -91,10 +93,12 @@ class _Queue:
         if mine:
             key = mine[0]
         else:
-            held = {k for s in slots for k in s.bound} | {s.job.bind_key for s in slots if s.job}
+            others = [s for s in slots if s is not slot]
+            held = {k for s in others for k in s.bound} | {s.job.bind_key for s in others if s.job}
             loaded = {k[:2] for k in slot.bound}
             free = [k for k in left if k not in held] or list(left)
-            key = max(free, key=lambda k: (k[:2] in loaded, len(left[k])))
+            # its own characters first, then characters no other worker has loaded, then the most jobs
+            key = max(free, key=lambda k: (k[:2] in loaded, k[:2] not in {h[:2] for h in held}, len(left[k])))
         return left[key].popleft()
 
 
