@@ -44,18 +44,26 @@ def bake(argv, capsys=None) -> tuple[int, str]:
 
 
 RUNNER = """
-import sys
-sys.path.insert(0, {tests!r})
-from test_bake import bake
+import argparse, sys
+from nrpose.bake import command
+from nrpose.errors import NrposeError
+
 if __name__ == "__main__":
-    sys.exit(bake(sys.argv[1:])[0])
+    parser = argparse.ArgumentParser(prog="nrpose")
+    command.add_parser(parser.add_subparsers(dest="command"))
+    args = parser.parse_args(["bake"] + sys.argv[1:])
+    try:
+        sys.exit(args.func(args))
+    except NrposeError as exc:
+        print(f"nrpose: error: {exc}", file=sys.stderr)
+        sys.exit(2)
 """
 
 
 def start_bake(tmp_path: Path, argv) -> subprocess.Popen:
     """The bake in a separate driver process (for signals and killed workers)."""
     script = tmp_path / "bake_main.py"
-    script.write_text(RUNNER.format(tests=str(Path(__file__).parent)))
+    script.write_text(RUNNER)
     return subprocess.Popen([sys.executable, str(script)] + [str(a) for a in argv],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
@@ -330,12 +338,12 @@ def test_sigint_then_resume_runs_only_unfinished_jobs(rig, heavy_reference, tmp_
     jobs = write_jobs(rig / "heavy2.json", doc)
     out, summary = tmp_path / "out", tmp_path / "s.json"
     proc = start_bake(tmp_path, [jobs, "-o", out, "--workers", 2])
-    wait_for(lambda: manifest_count(out) >= 2, what="two finished jobs")
+    wait_for(lambda: manifest_count(out) >= 1, what="a finished job")
     proc.send_signal(signal.SIGINT)
     stdout, err = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "--resume" in err and "Traceback" not in err, err
     first = json.loads((out / "manifest.json").read_text())["outputs"]
-    assert 2 <= len(first) < len(doc["jobs"])
+    assert 1 <= len(first) < len(doc["jobs"])
     assert not (out / ".bake-tmp").exists()
     stamps = {name: (out / name).stat().st_mtime_ns for name in first}
     code, err = bake([jobs, "-o", out, "--resume", "--summary", summary])
