@@ -19,6 +19,7 @@
 """
 from __future__ import annotations
 
+import importlib.util
 import logging
 import math
 import socket
@@ -43,10 +44,8 @@ class Loaded:
 
 def check_ray() -> None:
     """InputError with the install hint when Ray is not installed."""
-    try:
-        import ray  # noqa: F401
-    except ImportError:
-        raise InputError("--ray needs Ray: pip install 'nrpose[ray]'") from None
+    if importlib.util.find_spec("ray") is None:
+        raise InputError("--ray needs Ray: pip install 'nrpose[ray]'")
 
 
 def load(job) -> Loaded:

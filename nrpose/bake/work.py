@@ -5,9 +5,11 @@ Every job runs exactly the functions ``nrpose pose`` runs (and, for a
 bitwise the command's output. All imports of nrpose internals by the bake
 package go through this module.
 
-``pose_input`` and ``retargeted_clip`` are the parts of the pose and retarget
-commands that those commands do not expose as functions yet (see the package
-docstring); ``write_frames`` and friends are the pose command's own helpers.
+``pose_input`` (times and local pose from the motion options) and
+``retargeted_clip`` (the clip ``nrpose retarget`` stores) compute what the
+pose and retarget commands compute inline; ``write_frames``,
+``frames_output_kind``, ``motion_clip`` and ``parse_frames`` are the pose
+command's own helpers.
 """
 from __future__ import annotations
 
@@ -15,14 +17,14 @@ import numpy as np
 
 from ..blend import BLENDS
 from ..character import Clip, Track, load_character, load_pose, sample_times
-from ..cli import _frames_output_kind as frames_output_kind   # noqa: F401  (re-exported)
+from ..cli import _frames_output_kind as frames_output_kind
 from ..cli import _motion_clip as motion_clip
-from ..cli import _write_frames as write_frames                # noqa: F401  (re-exported)
+from ..cli import _write_frames as write_frames
 from ..cli import parse_frames
-from ..device import usable_cpus  # noqa: F401  (re-exported)
+from ..device import usable_cpus
 from ..engine import BACKENDS
 from ..errors import InputError, NrposeError
-from ..meshio import atomic_path  # noqa: F401  (re-exported)
+from ..meshio import atomic_path
 from ..posing import METHODS, WEIGHTS, CharacterPoser
 from ..retarget import joint_map, load_map, make_clip, retarget_pose
 from ..retargetcli import SOURCE_SUFFIXES, TARGET_SUFFIXES
