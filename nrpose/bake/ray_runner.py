@@ -15,13 +15,15 @@
   partial one. OUTDIR must be one directory on every node (a shared filesystem).
 * A task returns small records (no arrays) to the driver.
 * Each task takes one CPU and poses with one PoCL thread, so tasks × threads =
-  the cluster's CPUs.
+  the cluster's CPUs (set in the worker process before PoCL starts there, from
+  that node's environment: a variable set on the node is kept).
 """
 from __future__ import annotations
 
 import importlib.util
 import logging
 import math
+import os
 import socket
 from pathlib import Path
 
@@ -48,8 +50,17 @@ def check_ray() -> None:
         raise InputError("--ray needs Ray: pip install 'nrpose[ray]'")
 
 
+def _threads() -> None:
+    """One PoCL thread in this worker process (tasks × threads = CPUs), set before PoCL starts."""
+    from .local import thread_settings
+
+    for k, v in thread_settings(1, 1).items():
+        os.environ.setdefault(k, v)
+
+
 def load(job) -> Loaded:
     """Ray task: load the character of ``job``."""
+    _threads()
     from . import work
     try:
         return Loaded(work.load_character(job.character, job.skeleton))
@@ -63,6 +74,7 @@ def pose_chunk(loaded: Loaded, jobs: list, outdir: str) -> list[dict]:
     """Ray task: run jobs of one binding with the loaded character; their records."""
     import ray
 
+    _threads()
     from .worker import WorkerCache, failed_record, run_job
 
     global _CACHE
@@ -89,12 +101,9 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
     ``on_result(record)`` for each job. A KeyboardInterrupt cancels the tasks and propagates."""
     import ray
 
-    from .local import thread_settings
-
     from .worker import failed_record
 
-    kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR,
-                  runtime_env={"env_vars": thread_settings(1, 1)})
+    kwargs = dict(include_dashboard=False, log_to_driver=False, logging_level=logging.ERROR)
     ray.init(address=address or "local", **kwargs)    # "local": a new instance, not a running cluster
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
