@@ -1,0 +1,131 @@
+"""One job, run in a worker process: load (cached), bind (cached), pose, write, publish.
+
+A worker keeps the characters it loaded and the posers it bound (least recently
+used dropped first), so jobs that share a character and binding options load
+and bind it once per worker. The result of a job is a small record (no arrays):
+
+    {"index", "output", "status": "done" | "failed", "error", "frames", "seconds",
+     "load_seconds", "bind_seconds", "worker", "node", "size", "sha256"}
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from . import work
+from .jobs import Job
+from .manifest import digest, publish, scratch
+
+
+class _Lru(OrderedDict):
+    def __init__(self, size: int):
+        super().__init__()
+        self.size = size
+
+    def get_or_make(self, key, make):
+        """(value, seconds spent making it: 0 when cached)."""
+        if key in self:
+            self.move_to_end(key)
+            return self[key], 0.0
+        t0 = time.perf_counter()
+        value = make()
+        self[key] = value
+        while len(self) > self.size:
+            self.popitem(last=False)
+        return value, time.perf_counter() - t0
+
+
+class WorkerCache:
+    """Loaded characters, retargeted clips and bound posers of one worker process."""
+
+    def __init__(self, characters: int = 4, posers: int = 8):
+        self.characters = _Lru(characters)
+        self.clips = _Lru(4 * characters)
+        self.posers = _Lru(posers)
+
+    def adopt(self, load_key: tuple, character, clips: dict) -> None:
+        """Take a character (and retargeted clips keyed by :func:`clip_key`) loaded elsewhere."""
+        self.characters.get_or_make(load_key, lambda: character)
+        for key, clip in clips.items():
+            self.clips.get_or_make(key, lambda c=clip: c)
+
+    def character(self, job: Job):
+        return self.characters.get_or_make(job.load_key, lambda: work.load_character(job.character, job.skeleton))
+
+    def clip(self, job: Job, character):
+        return self.clips.get_or_make(clip_key(job), lambda: retargeted(job, character))
+
+    def poser(self, job: Job, character):
+        return self.posers.get_or_make(job.bind_key, lambda: work.CharacterPoser(
+            character, method=job.method, weights=job.weights, alpha=job.alpha, backend=job.backend,
+            blend=job.blend))
+
+
+def clip_key(job: Job) -> tuple:
+    """Jobs with one clip key share one retargeted clip."""
+    return job.load_key + (job.retarget, job.fps)
+
+
+def retargeted(job: Job, character):
+    r = job.retarget
+    return work.retargeted_clip(character, r.source, r.map, r.source_clip, r.in_place, job.fps)
+
+
+def worker_name() -> str:
+    return f"pid {os.getpid()}"
+
+
+def node_name() -> str:
+    return socket.gethostname()
+
+
+def failed_record(job: Job, error: str | None, worker: str | None = None, node: str | None = None) -> dict:
+    """The record of a job that did not finish (``error``: one line)."""
+    return {"index": job.index, "output": job.output, "status": "failed", "error": error, "frames": 0,
+            "seconds": 0.0, "load_seconds": 0.0, "bind_seconds": 0.0, "worker": worker, "node": node,
+            "size": None, "sha256": None}
+
+
+def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None) -> dict:
+    """Run one job (module docstring); never raises for a bad job: the record says what failed."""
+    t0 = time.perf_counter()
+    record = failed_record(job, None, worker_name(), node or node_name())
+    tmp_dir = None
+    try:
+        with np.errstate(all="ignore"):    # as the pose command: its own checks speak for NaN and infinity
+            character, record["load_seconds"] = cache.character(job)
+            clip = job.clip
+            if job.retarget is not None:
+                clip, seconds = cache.clip(job, character)
+                record["load_seconds"] += seconds
+            kind = work.frames_output_kind(job.output)
+            local, times = work.pose_input(character, clip=clip, motion=job.motion, pose=job.pose, rest=job.rest,
+                                           time=list(job.time) if job.time else None, frames=job.frames,
+                                           fps=job.fps, kind=kind)
+            poser, record["bind_seconds"] = cache.poser(job, character)
+            frames = poser.pose(local)
+            work.check_finite(frames.positions)
+            tmp_dir = scratch(outdir)
+            tmp = tmp_dir / Path(job.output).name
+            work.write_frames(str(tmp), frames, times, job.format, character)
+            record["size"], record["sha256"] = digest(tmp)
+            publish(tmp, outdir / job.output)
+        record.update(status="done", frames=int(len(times)))
+    except work.NrposeError as exc:
+        record["error"] = str(exc)
+    except OSError as exc:
+        record["error"] = f"{exc.filename or ''}: {exc.strerror or exc}"
+    except Exception as exc:     # a bug must not stop the other jobs; the record names it
+        record["error"] = f"internal error ({type(exc).__name__}: {exc}); please report this job"
+    finally:
+        if tmp_dir is not None:
+            shutil.rmtree(tmp_dir, ignore_errors=True)
+    record["error"] = record["error"] and record["error"].replace("\r", "\\r").replace("\n", "\\n")
+    record["seconds"] = time.perf_counter() - t0
+    return record
