@@ -52,10 +52,7 @@ sys.path.insert(0, str(HERE))
 import common  # noqa: E402
 
 MODES = ("separate", "local1", "local2", "ray_local", "ray_cluster2")
-#: `nrpose bake` through the command module's parser (`python -c`: no main module to re-import in workers)
-BAKE = [sys.executable, "-c", "import argparse, sys; from nrpose.bake import command; "
-        "p = argparse.ArgumentParser(prog='nrpose'); command.add_parser(p.add_subparsers()); "
-        "a = p.parse_args(['bake'] + sys.argv[1:]); sys.exit(a.func(a))"]
+BAKE = [sys.executable, "-m", "nrpose", "bake"]
 NRPOSE = [sys.executable, "-m", "nrpose"]
 
 

@@ -1,7 +1,6 @@
 """nrpose bake: outputs equal to `nrpose pose` job by job, exactly once under faults, resumable."""
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import signal
@@ -14,9 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nrpose.bake import command
 from nrpose.cli import main as nrpose_main
-from nrpose.errors import NrposeError
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data (Fox, Ely, CMU BVH) is not present")
@@ -30,41 +27,15 @@ needs_ray = pytest.mark.skipif(ray is None, reason="Ray is not installed (pip in
 
 
 def bake(argv, capsys=None) -> tuple[int, str]:
-    """`nrpose bake ARGV` through the command's parser and run(); (exit status, stderr)."""
-    parser = argparse.ArgumentParser(prog="nrpose")
-    command.add_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["bake"] + [str(a) for a in argv])
-    try:
-        code = args.func(args)
-    except NrposeError as exc:
-        print(f"nrpose: error: {exc}", file=sys.stderr)
-        code = 2
+    """`nrpose bake ARGV` through nrpose.cli.main; (exit status, stderr)."""
+    code = nrpose_main(["bake"] + [str(a) for a in argv])
     err = capsys.readouterr().err if capsys else ""
     return code, err
 
 
-RUNNER = """
-import argparse, sys
-from nrpose.bake import command
-from nrpose.errors import NrposeError
-
-if __name__ == "__main__":
-    parser = argparse.ArgumentParser(prog="nrpose")
-    command.add_parser(parser.add_subparsers(dest="command"))
-    args = parser.parse_args(["bake"] + sys.argv[1:])
-    try:
-        sys.exit(args.func(args))
-    except NrposeError as exc:
-        print(f"nrpose: error: {exc}", file=sys.stderr)
-        sys.exit(2)
-"""
-
-
 def start_bake(tmp_path: Path, argv) -> subprocess.Popen:
     """The bake in a separate driver process (for signals and killed workers)."""
-    script = tmp_path / "bake_main.py"
-    script.write_text(RUNNER)
-    return subprocess.Popen([sys.executable, str(script)] + [str(a) for a in argv],
+    return subprocess.Popen([sys.executable, "-m", "nrpose", "bake"] + [str(a) for a in argv],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
@@ -73,8 +44,8 @@ def start_bake(tmp_path: Path, argv) -> subprocess.Popen:
 @pytest.fixture(scope="module")
 def rig(tmp_path_factory) -> Path:
     """A tiny capsule humanoid (670 vertices) as OBJ + BVH skeleton with its walk, and a pose file."""
-    from nrpose.formats.bvh_write import write_bvh
-    from nrpose.meshio import write_geometry
+    from nrpose.io.bvh_write import write_bvh
+    from nrpose.io.meshes import write_geometry
     from nrpose.rigs.humanoid import humanoid
 
     d = tmp_path_factory.mktemp("rig")
@@ -147,7 +118,7 @@ def assert_same(out: Path, ref: Path, name: str) -> None:
 
 def assert_exactly_once(out: Path, outputs: list[str]) -> dict:
     """Every output present, nothing else (no scratch, no temporary), the manifest lists each once."""
-    from nrpose.bake.manifest import digest
+    from nrpose.cli.bake.manifest import digest
 
     manifest = json.loads((out / "manifest.json").read_text())["outputs"]
     assert sorted(manifest) == sorted(outputs)

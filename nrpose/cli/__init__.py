@@ -1,9 +1,10 @@
-"""Command line: ``nrpose deform | pose | info | weights | retarget | demo``.
+"""Command line: ``nrpose deform | pose | info | weights | retarget | bake | demo``.
 
 One module per command, each with ``add_parser(subparsers)`` and ``run(args)``.
 Every user mistake (bad file, bad option, no OpenCL platform) ends with one
 line on stderr and exit status 2; outputs are written to a temporary name
-and renamed, so a failed run leaves no output behind.
+and renamed, so a failed run leaves no output behind. A command's ``run``
+returns its exit status (None: 0); Ctrl-C ends a command with status 130.
 
 Library errors name arguments as Python spells them (``weights='euclidean'``,
 ``skeleton=``, ``format_map()``); :func:`flag_text` rewrites them with the
@@ -18,11 +19,11 @@ import sys
 import numpy as np
 
 from ..errors import NrposeError
-from . import deform, demo, info, pose, retarget, weights
+from . import bake, deform, demo, info, pose, retarget, weights
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
-COMMANDS = (deform, pose, weights, retarget, info, demo)
+COMMANDS = (deform, pose, weights, retarget, bake, info, demo)
 
 # name='value' | name= (before a space, punctuation or the end) | name()
 _ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
@@ -57,21 +58,28 @@ def flag_text(message: str, flags: dict[str, str]) -> str:
 
 
 def main(argv=None) -> int:
-    args = None
+    args, status = None, 0
     try:
         args = build_parser().parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
         # so in one line; numpy's floating-point warnings on the way would add lines to stderr
         # (nrpose's own warnings, e.g. a binding cache not written, still show)
         with np.errstate(all="ignore"):
-            args.func(args)
+            status = args.func(args) or 0
     except UsageError as exc:
         return fail(str(exc))
     except NrposeError as exc:
         return fail(f"nrpose: error: {flag_text(str(exc), getattr(args, 'flags', {}))}")
     except OSError as exc:
         return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
-    return 0
+    except KeyboardInterrupt:
+        print("nrpose: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return status
+
+
+#: the exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)
+EXIT_INTERRUPTED = 128 + 2
 
 
 def fail(message: str) -> int:

@@ -74,26 +74,8 @@ def run(args) -> None:
     if (args.rest or args.pose) and (args.time or args.frames):
         raise NrposeError("--time and --frames sample a clip; with --rest or --pose there is one frame: drop them")
     character = load_character(args.character, args.skeleton)
-    skel = character.skeleton
-    if args.rest:
-        local, times = skel.rest_pose, np.zeros(1)
-    elif args.pose:
-        local, times = load_pose(args.pose, skel), np.zeros(1)
-    else:
-        if args.clip:
-            clip = character.clip(args.clip)
-        else:
-            motion = load_character(args.motion)
-            clip = motion_clip(motion, skel, args.motion)
-        if args.time and args.frames:
-            raise NrposeError("give either --time or --frames, not both")
-        times = (np.asarray(args.time, dtype=np.float64) if args.time
-                 else parse_frames(args.frames, args.fps) if args.frames
-                 else sample_times(clip.duration, args.fps))
-        if kind == "glb" and (np.diff(times) <= 0).any():
-            raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
-                              "write .npz or a directory")
-        local = clip.sample(times)
+    local, times = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
+                              time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend)
     frames = poser.pose(local, progress=progress)
@@ -107,6 +89,36 @@ def run(args) -> None:
     print(f"{args.output}: {len(ms)} frame(s) × {poser.n} vertices, {args.method} ({args.weights} weights) on "
           f"{args.backend}: bind {poser.bind_ms:.0f} ms; per frame median {np.median(ms):.3f} ms, "
           f"min {ms.min():.3f}, max {ms.max():.3f}; {1e3 / np.median(ms):.0f} frames/s")
+
+
+def pose_input(character, *, clip: str | Clip | None = None, motion: str | None = None, pose: str | None = None,
+               rest: bool = False, time=None, frames: str | None = None, fps: float = 30.0,
+               kind: str = "npz") -> tuple:
+    """(local pose (F, J, ...) as ``Clip.sample`` gives it, times (F,) float64 seconds) that
+    ``nrpose pose`` poses for these options: the rest pose, a pose file, or a clip (a name of
+    the character's, or a :class:`Clip`, e.g. a retargeted one) or BVH ``motion`` sampled at
+    ``time`` (seconds), ``frames`` (``A:B[:STEP]``) or every frame at ``fps``.
+    ``kind``: :func:`frames_output_kind` of the output ("glb" needs strictly increasing times)."""
+    skel = character.skeleton
+    if rest:
+        return skel.rest_pose, np.zeros(1)
+    if pose:
+        return load_pose(pose, skel), np.zeros(1)
+    if isinstance(clip, Clip):
+        source = clip
+    elif clip:
+        source = character.clip(clip)
+    else:
+        source = motion_clip(load_character(motion), skel, motion)
+    if time and frames:
+        raise NrposeError("give either --time or --frames, not both")
+    times = (np.asarray(time, dtype=np.float64) if time
+             else parse_frames(frames, fps) if frames
+             else sample_times(source.duration, fps))
+    if kind == "glb" and (np.diff(times) <= 0).any():
+        raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
+                          "write .npz or a directory")
+    return source.sample(times), times
 
 
 def motion_clip(motion, skel, path) -> Clip:

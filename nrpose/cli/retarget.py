@@ -38,7 +38,7 @@ from ..io.poses import load_map
 from ..pose.retarget import format_map, joint_map, make_clip, retarget_pose
 from ..render.retarget_sheet import save_retarget_sheet
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "retarget_clip", "SOURCE_SUFFIXES", "TARGET_SUFFIXES"]
 
 #: library argument name -> the flag users type
 FLAGS = {"user_map": "--map MAP.json,", "format_map": "--show-map", "in_place": "--in-place", "fps": "--fps"}
@@ -94,14 +94,8 @@ def run(args) -> None:
         print(format_map(mapping, source.skeleton, target.skeleton))
     if args.output is None:
         return
-    if not mapping:
-        raise InputError(f"no joint of {args.target} maps to a joint of {args.source}: the rigs share no known "
-                         "joint names; give a joint map (--map MAP.json, {\"TargetJoint\": \"SourceJoint\"})")
-    if not source.clips:
-        raise InputError(f"{args.source}: has no animation: no motion to retarget")
-    clip = source.clip(args.source_clip) if args.source_clip else source.clips[0]
-    times, local, plan = retarget_pose(source, clip, target, mapping, args.in_place, args.fps)
-    result = make_clip(clip.name, times, local, plan, target.skeleton)
+    clip, times, local, plan, result = retarget_clip(source, target, mapping, args.source, args.target,
+                                                     args.source_clip, args.in_place, args.fps)
 
     out = Path(args.output)
     if out.suffix.lower() == ".glb":
@@ -115,3 +109,18 @@ def run(args) -> None:
     print(f"{out}: animation {name!r}, {len(times)} frames at {args.fps:g} fps ({times[-1]:.2f} s), "
           f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped, root motion x{plan.scale:.4g}"
           f"{' in place' if args.in_place else ''}, lift {plan.lift:+.3g}")
+
+
+def retarget_clip(source, target, mapping: dict, source_path: str, target_path: str, source_clip: str | None = None,
+                  in_place: bool = False, fps: float = 30.0):
+    """The retargeting ``nrpose retarget`` writes: (source clip, times (F,) s, target local pose,
+    plan, the target's new Clip). ``mapping``: :func:`nrpose.pose.retarget.joint_map`; the paths
+    name the characters in errors (InputError: no mapped joint, no animation, unknown clip)."""
+    if not mapping:
+        raise InputError(f"no joint of {target_path} maps to a joint of {source_path}: the rigs share no known "
+                         "joint names; give a joint map (--map MAP.json, {\"TargetJoint\": \"SourceJoint\"})")
+    if not source.clips:
+        raise InputError(f"{source_path}: has no animation: no motion to retarget")
+    clip = source.clip(source_clip) if source_clip else source.clips[0]
+    times, local, plan = retarget_pose(source, clip, target, mapping, in_place, fps)
+    return clip, times, local, plan, make_clip(clip.name, times, local, plan, target.skeleton)

@@ -18,7 +18,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import work
+from ...errors import NrposeError
+from ...io import load_character
+from ...io.gltf_write import write_glb_with_clip
+from ...io.poses import load_map
+from ...pose.poser import CharacterPoser
+from ...pose.retarget import joint_map
+from ..common import frames_output_kind, write_frames
+from ..pose import pose_input
+from ..retarget import retarget_clip
 from .jobs import Job
 from .manifest import digest, publish, scratch
 
@@ -56,13 +64,13 @@ class WorkerCache:
             self.clips.get_or_make(key, lambda c=clip: c)
 
     def character(self, job: Job):
-        return self.characters.get_or_make(job.load_key, lambda: work.load_character(job.character, job.skeleton))
+        return self.characters.get_or_make(job.load_key, lambda: load_character(job.character, job.skeleton))
 
-    def clip(self, job: Job, character):
-        return self.clips.get_or_make(clip_key(job), lambda: retargeted(job, character))
+    def clip(self, job: Job, character, outdir: Path):
+        return self.clips.get_or_make(clip_key(job), lambda: retargeted(job, character, outdir))
 
     def poser(self, job: Job, character):
-        return self.posers.get_or_make(job.bind_key, lambda: work.CharacterPoser(
+        return self.posers.get_or_make(job.bind_key, lambda: CharacterPoser(
             character, method=job.method, weights=job.weights, alpha=job.alpha, backend=job.backend,
             blend=job.blend))
 
@@ -72,9 +80,20 @@ def clip_key(job: Job) -> tuple:
     return job.load_key + (job.retarget, job.fps)
 
 
-def retargeted(job: Job, character):
+def retargeted(job: Job, character, outdir: Path):
+    """The clip ``nrpose retarget SOURCE CHARACTER ... -o OUT.glb`` adds, as ``nrpose pose OUT.glb
+    --clip NAME`` reads it back (the .glb holds float32 keys): written to a scratch .glb and read."""
     r = job.retarget
-    return work.retargeted_clip(character, r.source, r.map, r.source_clip, r.in_place, job.fps)
+    source = load_character(r.source)
+    mapping = joint_map(source.skeleton, character.skeleton, load_map(r.map) if r.map else None)
+    made = retarget_clip(source, character, mapping, r.source, job.character, r.source_clip, r.in_place,
+                         job.fps)[-1]
+    tmp = scratch(outdir)
+    try:
+        name = write_glb_with_clip(job.character, tmp / "retargeted.glb", character, made)
+        return load_character(str(tmp / "retargeted.glb")).clip(name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def worker_name() -> str:
@@ -102,22 +121,23 @@ def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None)
             character, record["load_seconds"] = cache.character(job)
             clip = job.clip
             if job.retarget is not None:
-                clip, seconds = cache.clip(job, character)
+                clip, seconds = cache.clip(job, character, outdir)
                 record["load_seconds"] += seconds
-            kind = work.frames_output_kind(job.output)
-            local, times = work.pose_input(character, clip=clip, motion=job.motion, pose=job.pose, rest=job.rest,
-                                           time=list(job.time) if job.time else None, frames=job.frames,
-                                           fps=job.fps, kind=kind)
+            kind = frames_output_kind(job.output)
+            local, times = pose_input(character, clip=clip, motion=job.motion, pose=job.pose, rest=job.rest,
+                                      time=list(job.time) if job.time else None, frames=job.frames,
+                                      fps=job.fps, kind=kind)
             poser, record["bind_seconds"] = cache.poser(job, character)
             frames = poser.pose(local)
-            work.check_finite(frames.positions)
+            if not np.isfinite(frames.positions).all():     # the pose command's guard
+                raise NrposeError("posing produced non-finite coordinates; please report this input")
             tmp_dir = scratch(outdir)
             tmp = tmp_dir / Path(job.output).name
-            work.write_frames(str(tmp), frames, times, job.format, character)
+            write_frames(str(tmp), frames, times, job.format, character)
             record["size"], record["sha256"] = digest(tmp)
             publish(tmp, outdir / job.output)
         record.update(status="done", frames=int(len(times)))
-    except work.NrposeError as exc:
+    except NrposeError as exc:
         record["error"] = str(exc)
     except OSError as exc:
         record["error"] = f"{exc.filename or ''}: {exc.strerror or exc}"

@@ -48,8 +48,13 @@ import math
 from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 
-from . import work
-from .work import InputError, NrposeError
+from ...errors import InputError, NrposeError
+from ...pose.blend import BLENDS
+from ...pose.mls import BACKENDS
+from ...pose.poser import METHODS, WEIGHTS
+from ..common import frames_output_kind
+from ..pose import parse_frames
+from ..retarget import SOURCE_SUFFIXES, TARGET_SUFFIXES
 
 MOTION_KEYS = ("clip", "motion", "pose", "rest", "retarget")
 SAMPLING_KEYS = ("time", "frames")
@@ -226,12 +231,12 @@ def _job(index: int, d: dict, base: Path) -> Job:
     if fps <= 0:
         raise InputError(f"'fps' must be positive, got {fps:g}")
     if frames is not None:
-        work.parse_frames(frames, fps)
+        parse_frames(frames, fps)
     retarget = None
     if motions[0] == "retarget":
         retarget = _retarget(d["retarget"], base)
-        if Path(character).suffix.lower() not in work.TARGET_SUFFIXES:
-            raise InputError(f"'retarget' drives a glTF character ({', '.join(work.TARGET_SUFFIXES)}), "
+        if Path(character).suffix.lower() not in TARGET_SUFFIXES:
+            raise InputError(f"'retarget' drives a glTF character ({', '.join(TARGET_SUFFIXES)}), "
                              f"not {Path(character).name}")
     return Job(index=index, output=output, character=character,
                skeleton=_input_file(base, skeleton, "skeleton") if skeleton else None,
@@ -239,10 +244,10 @@ def _job(index: int, d: dict, base: Path) -> Job:
                motion=_input_file(base, _string(d, "motion"), "motion") if d.get("motion") is not None else None,
                pose=_input_file(base, _string(d, "pose"), "pose") if d.get("pose") is not None else None,
                rest=d.get("rest") is True, retarget=retarget, time=time, frames=frames, fps=fps,
-               method=_choice(d, "method", work.METHODS, "nrmls"),
-               weights=_choice(d, "weights", work.WEIGHTS, "authored"),
-               alpha=_number(d, "alpha", 1.0), blend=_choice(d, "blend", work.BLENDS, "relative"),
-               backend=_choice(d, "backend", work.BACKENDS, "opencl"),
+               method=_choice(d, "method", METHODS, "nrmls"),
+               weights=_choice(d, "weights", WEIGHTS, "authored"),
+               alpha=_number(d, "alpha", 1.0), blend=_choice(d, "blend", BLENDS, "relative"),
+               backend=_choice(d, "backend", BACKENDS, "opencl"),
                format=_choice(d, "format", FORMATS, "ply"))
 
 
@@ -253,8 +258,8 @@ def _retarget(spec, base: Path) -> Retarget:
     if unknown:
         raise InputError(f"'retarget': unknown key {unknown[0]!r}; keys are {', '.join(RETARGET_KEYS)}")
     source = _string(spec, "source", required=True)
-    if Path(source).suffix.lower() not in work.SOURCE_SUFFIXES:
-        raise InputError(f"retarget source {source}: must end in {', '.join(work.SOURCE_SUFFIXES)}")
+    if Path(source).suffix.lower() not in SOURCE_SUFFIXES:
+        raise InputError(f"retarget source {source}: must end in {', '.join(SOURCE_SUFFIXES)}")
     in_place = spec.get("in_place", False)
     if not isinstance(in_place, bool):
         raise InputError(f"'retarget': 'in_place' must be true or false, got {in_place!r}")
@@ -270,7 +275,7 @@ def _output_name(name: str) -> str:
         raise InputError(f"'output' {name!r} must be a relative name under OUTDIR (no '..')")
     if p.parts[0] in RESERVED:
         raise InputError(f"'output' {name!r}: {p.parts[0]} is the bake's own")
-    work.frames_output_kind(str(p))
+    frames_output_kind(str(p))
     return str(p)
 
 

@@ -27,7 +27,7 @@ import os
 import socket
 from pathlib import Path
 
-from .work import InputError
+from ...errors import InputError
 
 #: task attempts after the first on worker or node loss
 MAX_RETRIES = 3
@@ -61,10 +61,11 @@ def _threads() -> None:
 def load(job) -> Loaded:
     """Ray task: load the character of ``job``."""
     _threads()
-    from . import work
+    from ...errors import NrposeError
+    from ...io import load_character
     try:
-        return Loaded(work.load_character(job.character, job.skeleton))
-    except work.NrposeError as exc:
+        return Loaded(load_character(job.character, job.skeleton))
+    except NrposeError as exc:
         return Loaded(error=str(exc))
     except OSError as exc:
         return Loaded(error=f"{exc.filename or ''}: {exc.strerror or exc}")

@@ -26,23 +26,14 @@ from collections import deque
 from multiprocessing.connection import wait
 from pathlib import Path
 
-from .work import usable_cpus
+from ...device import pocl_settings, usable_cpus
 
 MAX_ATTEMPTS = 3
 
 
 def thread_settings(workers: int, cpus: int | None = None) -> dict[str, str]:
     """PoCL variables for one of ``workers`` worker processes sharing ``cpus`` CPUs."""
-    threads = max(1, (cpus or usable_cpus()) // max(workers, 1))
-    env = {}
-    if not os.environ.get("POCL_DEVICES"):
-        # as nrpose.device.pocl_settings for `threads` CPUs: the calling thread is the last worker
-        env["POCL_DEVICES"] = "pthread basic" if threads >= 2 else "basic"
-        if threads >= 2 and not os.environ.get("POCL_MAX_PTHREAD_COUNT"):
-            env["POCL_MAX_PTHREAD_COUNT"] = str(threads - 1)
-    if not os.environ.get("POCL_AFFINITY"):
-        env["POCL_AFFINITY"] = "0"      # pinned, every worker's thread i would share CPU i
-    return env
+    return pocl_settings(cpus=max(1, (cpus or usable_cpus()) // max(workers, 1)))
 
 
 def _worker_main(conn, env: dict, outdir: str) -> None:

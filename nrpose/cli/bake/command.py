@@ -19,7 +19,9 @@ from pathlib import Path
 from .jobs import load_jobs
 from .manifest import Manifest, clear_scratch
 from .progress import Progress, summary
-from .work import InputError, atomic_path
+from ...device import usable_cpus
+from ...errors import InputError
+from ...io.files import atomic_path
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -74,8 +76,6 @@ def run(args) -> int:
 
 
 def _bake(args, jobs, outdir: Path) -> int:
-    from .work import usable_cpus
-
     clear_scratch(outdir)              # a driver that died leaves its workers' scratch
     manifest = Manifest(outdir)
     if args.resume:
