@@ -442,3 +442,19 @@ def test_ray_missing_is_one_line_exit_2(rig, tmp_path, capsys, monkeypatch):
                                            "jobs": [{"output": "a.npz", "rest": True}]})
     code, err = bake([jobs, "-o", tmp_path / "out", "--ray"], capsys)
     assert code == 2 and "pip install 'nrpose[ray]'" in err and not (tmp_path / "out").exists()
+
+
+def test_worker_thread_settings_share_the_cpus(monkeypatch):
+    """workers × PoCL threads = CPUs, never pinned (each worker's thread i would share CPU i);
+    a variable the user set is kept."""
+    from nrpose.cli.bake.local import thread_settings
+
+    for k in ("POCL_DEVICES", "POCL_MAX_PTHREAD_COUNT", "POCL_AFFINITY"):
+        monkeypatch.delenv(k, raising=False)
+    assert thread_settings(2, cpus=2) == {"POCL_DEVICES": "basic", "POCL_AFFINITY": "0"}
+    assert thread_settings(2, cpus=8) == {"POCL_DEVICES": "pthread basic", "POCL_MAX_PTHREAD_COUNT": "3",
+                                          "POCL_AFFINITY": "0"}
+    assert thread_settings(3, cpus=2) == {"POCL_DEVICES": "basic", "POCL_AFFINITY": "0"}
+    monkeypatch.setenv("POCL_DEVICES", "pthread")
+    monkeypatch.setenv("POCL_AFFINITY", "1")
+    assert thread_settings(1, cpus=4) == {}

@@ -78,9 +78,7 @@ def run(args) -> None:
                               time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend)
-    frames = poser.pose(local, progress=progress)
-    if not np.isfinite(frames.positions).all():
-        raise NrposeError("posing produced non-finite coordinates; please report this input")
+    frames = posed_frames(poser, local, progress)
     write_frames(args.output, frames, times, args.format, character)
     if args.png:
         save_contact_sheet(args.png, frames.positions, frames.faces, times,
@@ -119,6 +117,14 @@ def pose_input(character, *, clip: str | Clip | None = None, motion: str | None 
         raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
                           "write .npz or a directory")
     return source.sample(times), times
+
+
+def posed_frames(poser: CharacterPoser, local, progress=None):
+    """``poser.pose(local)``, refused (NrposeError) when a coordinate is not finite."""
+    frames = poser.pose(local, progress=progress)
+    if not np.isfinite(frames.positions).all():
+        raise NrposeError("posing produced non-finite coordinates; please report this input")
+    return frames
 
 
 def motion_clip(motion, skel, path) -> Clip:

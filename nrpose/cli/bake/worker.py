@@ -25,7 +25,7 @@ from ...io.poses import load_map
 from ...pose.poser import CharacterPoser
 from ...pose.retarget import joint_map
 from ..common import frames_output_kind, write_frames
-from ..pose import pose_input
+from ..pose import pose_input, posed_frames
 from ..retarget import retarget_clip
 from .jobs import Job
 from .manifest import digest, publish, scratch
@@ -128,9 +128,7 @@ def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None)
                                       time=list(job.time) if job.time else None, frames=job.frames,
                                       fps=job.fps, kind=kind)
             poser, record["bind_seconds"] = cache.poser(job, character)
-            frames = poser.pose(local)
-            if not np.isfinite(frames.positions).all():     # the pose command's guard
-                raise NrposeError("posing produced non-finite coordinates; please report this input")
+            frames = posed_frames(poser, local)
             tmp_dir = scratch(outdir)
             tmp = tmp_dir / Path(job.output).name
             write_frames(str(tmp), frames, times, job.format, character)
