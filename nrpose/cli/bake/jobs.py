@@ -256,7 +256,8 @@ def _retarget(spec, base: Path) -> Retarget:
         raise InputError("'retarget' must be an object {\"source\": path, \"map\": path, ...}")
     unknown = [k for k in spec if k not in RETARGET_KEYS]
     if unknown:
-        raise InputError(f"'retarget': unknown key {unknown[0]!r}; keys are {', '.join(RETARGET_KEYS)}")
+        hint = " (nrpose retarget has no --root: use \"in_place\": true)" if unknown[0] == "root" else ""
+        raise InputError(f"'retarget': unknown key {unknown[0]!r}{hint}; keys are {', '.join(RETARGET_KEYS)}")
     source = _string(spec, "source", required=True)
     if Path(source).suffix.lower() not in SOURCE_SUFFIXES:
         raise InputError(f"retarget source {source}: must end in {', '.join(SOURCE_SUFFIXES)}")
