@@ -28,7 +28,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     """Add the ``bake`` subcommand to an argparse subparsers object."""
     p = subparsers.add_parser("bake", help="pose a library of jobs (characters × clips × methods) in parallel, "
                                            "locally or on a Ray cluster")
-    p.add_argument("jobs", help="JOBS.json (schema: nrpose.bake.jobs)")
+    p.add_argument("jobs", help="JOBS.json (schema: docs/bake.md)")
     p.add_argument("-o", "--output", required=True, help="OUTDIR: outputs, manifest.json")
     p.add_argument("--workers", type=int, help="local worker processes (default: the CPUs)")
     p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",

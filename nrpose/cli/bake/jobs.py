@@ -1,32 +1,11 @@
 """JOBS.json: the schema, the defaults merge, path resolution and whole-file validation.
 
 A JOBS file is ``{"defaults": {...}, "jobs": [{...}, ...]}`` ("defaults" optional).
-A job has the options of ``nrpose pose`` as keys:
-
-=============  ===========================================================  ==========
-key            value                                                        default
-=============  ===========================================================  ==========
-character      path: .glb/.gltf, or a mesh with ``skeleton``                required
-skeleton       path: .tgf/.bvh skeleton of a mesh character                 none
-clip           clip name of the character                                   \\
-motion         path: BVH recorded on the character's skeleton               | exactly
-pose           path: pose JSON or DMAT                                      | one of
-rest           ``true``: the rest pose                                      | these
-retarget       ``{"source": path, "map": path, "source_clip": name,         |
-               "in_place": bool}``: the source motion retargeted onto the   |
-               character (a .glb/.gltf), as ``nrpose retarget``, then posed /
-time           seconds: a number or a list                                  \\ at most
-frames         ``"A:B"`` or ``"A:B:STEP"`` frame numbers at ``fps``         / one
-fps            frames per second (clip sampling; retarget output rate)      30
-method         nrmls, lbs, dqs                                              nrmls
-weights        authored, euclidean, heat, exact, graph                      authored
-alpha          weight exponent of distance weights                          1
-blend          relative, paper, quaternion (nrmls)                          relative
-backend        opencl, numpy                                                opencl
-format         ply, obj: frame files of a directory output                  ply
-output         a relative name under OUTDIR: ``X.npz``, ``X.glb`` or a      required
-               directory (no suffix)
-=============  ===========================================================  ==========
+A job has the options of ``nrpose pose`` as keys (the table: docs/bake.md):
+``character``, ``skeleton``; exactly one of ``clip``, ``motion``, ``pose``, ``rest``,
+``retarget`` (``{"source", "map", "source_clip", "in_place"}``); at most one of
+``time``, ``frames``; ``fps``, ``method``, ``weights``, ``alpha``, ``blend``,
+``backend``, ``format``; ``output`` (a relative name under OUTDIR).
 
 ``defaults`` takes every key but ``output``; a job's keys override them, and
 the motion keys (clip, motion, pose, rest, retarget) and the sampling keys

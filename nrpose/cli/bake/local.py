@@ -1,7 +1,7 @@
 """The local runner: a pool of worker processes on this machine.
 
 Each worker is a fresh (spawned) process that runs one job at a time
-(:func:`nrpose.bake.worker.run_job`) and keeps what it loaded and bound. The
+(:func:`nrpose.cli.bake.worker.run_job`) and keeps what it loaded and bound. The
 driver hands an idle worker a job of the binding it already holds, else of a
 binding no other worker holds (of a character it has loaded, else of one no
 other worker has loaded, else the one with the most jobs left), else of the

@@ -1,12 +1,12 @@
 """The Ray runner: the same jobs as Ray tasks, on a cluster or a local Ray instance.
 
 * Each character is loaded once, by a Ray task (:func:`load`); its result (the
-  :class:`~nrpose.character.Character`, numpy arrays and small dataclasses:
+  :class:`~nrpose.model.character.Character`, numpy arrays and small dataclasses:
   picklable, no OpenCL object) lives in the object store, and every pose task
   of that character takes its reference as an argument, so Ray moves it to a
   node once and the node's workers read it from shared memory.
 * A pose task (:func:`pose_chunk`) runs a few jobs of one binding
-  (:func:`nrpose.bake.worker.run_job`). A Ray worker process keeps the posers it
+  (:func:`nrpose.cli.bake.worker.run_job`). A Ray worker process keeps the posers it
   bound (device buffers and programs are built in the process that uses them,
   never shipped), so a binding is made once per worker process.
 * Tasks are retried on worker or node loss (``max_retries``; a lost character
