@@ -458,3 +458,25 @@ def test_worker_thread_settings_share_the_cpus(monkeypatch):
     monkeypatch.setenv("POCL_DEVICES", "pthread")
     monkeypatch.setenv("POCL_AFFINITY", "1")
     assert thread_settings(1, cpus=4) == {}
+
+
+@pytest.mark.parametrize("method", ["nrmls", "lbs"])
+def test_poser_binding_ships_without_its_device_part(rig, method, monkeypatch):
+    """A pickled CharacterPoser (what a Ray bind task ships) holds the host binding; unpickled it
+    builds its device part without computing weights again and poses bitwise the same frames."""
+    import pickle
+
+    import nrpose.pose.poser as poser_module
+    from nrpose.io import load_character
+    from nrpose.pose.poser import CharacterPoser
+
+    character = load_character(str(rig / "human.obj"), str(rig / "walk.bvh"))
+    poser = CharacterPoser(character, method=method, weights="euclidean")
+    local = character.clips[0].sample(np.arange(5) / 30.0)
+    expected = poser.pose(local).positions.copy()
+    shipped = pickle.dumps(poser)
+    assert poser.deformer is not None       # pickling leaves the original working
+    monkeypatch.setattr(poser_module, "bone_weights", lambda *a, **k: pytest.fail("weights made again"))
+    copy = pickle.loads(shipped)
+    assert copy.deformer is not None and copy.deformer is not poser.deformer
+    assert np.array_equal(copy.pose(local).positions, expected)

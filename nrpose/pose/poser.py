@@ -85,7 +85,7 @@ class CharacterPoser:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
                              "give a mesh and pass the skeleton with skeleton=")
         t0 = time.perf_counter()
-        self.character, self.method = character, method
+        self.character, self.method, self._backend = character, method, backend
         skel = character.skeleton
         meshes = character.meshes
         geo = concatenate_meshes(meshes)
@@ -98,14 +98,14 @@ class CharacterPoser:
         self._rest_inv = np.linalg.inv(skel.rest_globals())
         self.bones = skel.bones()
         deform_meshes = [m for m in meshes if m.rigid_joint is None]
-        self._deformer, self._bind_space = None, False
+        self._deformer, self._bind_space, self._device_args = None, False, None
         if deform_meshes:
             V = self._rest_world[self._deform_idx]
             if method == "nrmls":
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
                 W = bone_weights(character, weights, kk, alpha).weights[self._deform_idx]
-                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
+                self._device_args = (V, rest, W, kk, blend)
             else:
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
@@ -124,11 +124,30 @@ class CharacterPoser:
                     self._bind_space, src = False, V
                 joints, wts = _compact(joint_w)
                 joints = joints + offset[:, None]
-                cls = skinning.LbsSkinner if method == "lbs" else skinning.DqsSkinner
-                self._deformer = cls(src, joints, wts) if backend == "opencl" else None
-                self._skin_ref = (src, joints, wts)
-        self._backend = backend
+                self._device_args = (src, joints, wts)
+            self._deformer = self._device_build()
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
+
+    def _device_build(self):
+        """The deformer made from the host binding (``_device_args``): rest terms, buffers and
+        programs on the device (nrmls on the numpy backend: the float64 reference)."""
+        if self._device_args is None:
+            return None
+        if self.method == "nrmls":
+            V, rest, W, k, blend = self._device_args
+            return Deformer(V, rest, weights=W, k=k, backend=self._backend, blend=blend)
+        cls = skinning.LbsSkinner if self.method == "lbs" else skinning.DqsSkinner
+        return cls(*self._device_args) if self._backend == "opencl" else None
+
+    def __getstate__(self) -> dict:
+        """The host binding alone (the character, weights, handles, vertices: numpy arrays and
+        small objects), picklable: a binding made once can be shipped to other processes or nodes."""
+        return dict(self.__dict__, _deformer=None)
+
+    def __setstate__(self, state: dict) -> None:
+        """A shipped binding: the device part is built anew in this process."""
+        self.__dict__.update(state)
+        self._deformer = self._device_build()
 
     # ------------------------------------------------------------------ posing
     @property
@@ -182,7 +201,7 @@ class CharacterPoser:
                     self._deformer.pose_frames(mats[a:b], out=dst)
                 else:
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
-                    dst[...] = [ref(*self._skin_ref, m) for m in mats[a:b]]
+                    dst[...] = [ref(*self._device_args, m) for m in mats[a:b]]
                 if not whole:
                     out[a:b, self._deform_idx] = dst
             frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)

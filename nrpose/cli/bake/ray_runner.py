@@ -1,16 +1,18 @@
 """The Ray runner: the same jobs as Ray tasks, on a cluster or a local Ray instance.
 
-* Each character is loaded once, by a Ray task (:func:`load`); its result (the
-  :class:`~nrpose.model.character.Character`, numpy arrays and small dataclasses:
-  picklable, no OpenCL object) lives in the object store, and every pose task
-  of that character takes its reference as an argument, so Ray moves it to a
-  node once and the node's workers read it from shared memory.
+* Each character is loaded once, by a Ray task (:func:`load`), and each binding
+  made once, by a Ray task (:func:`bind`) taking the loaded character: its
+  result, the :class:`~nrpose.pose.poser.CharacterPoser`'s host binding (the
+  character, weights, handles: numpy arrays and small objects; pickling drops
+  the device objects), lives in the object store.
 * A pose task (:func:`pose_chunk`) runs a few jobs of one binding
-  (:func:`nrpose.cli.bake.worker.run_job`). A Ray worker process keeps the posers it
-  bound (device buffers and programs are built in the process that uses them,
-  never shipped), so a binding is made once per worker process.
+  (:func:`nrpose.cli.bake.worker.run_job`). It gets the binding's reference
+  wrapped in a list, so Ray does not fetch it for every task: a Ray worker
+  process that has not posed that binding yet fetches it (moved to a node once,
+  read by the node's workers from shared memory) and builds its device part
+  (buffers, programs) there; later tasks of the binding in that process reuse it.
 * Tasks are retried on worker or node loss (``max_retries``; a lost character
-  is rebuilt from its load task); outputs are written under a scratch name and
+  or binding is made again from its task); outputs are written under a scratch name and
   renamed to their deterministic name, so a retry never leaves two files or a
   partial one. OUTDIR must be one directory on every node (a shared filesystem).
 * A task returns small records (no arrays) to the driver.
@@ -25,6 +27,7 @@ import logging
 import math
 import os
 import socket
+import time
 from pathlib import Path
 
 from ...errors import InputError
@@ -37,11 +40,11 @@ CHUNKS_PER_CPU = 4
 _CACHE = None       # the WorkerCache of this Ray worker process
 
 
-class Loaded:
-    """A load task's result: the character, or the one-line error that stopped it."""
+class Made:
+    """A load or bind task's result: the character or poser, or the one-line error that stopped it."""
 
-    def __init__(self, character=None, error: str | None = None):
-        self.character, self.error = character, error
+    def __init__(self, value=None, error: str | None = None):
+        self.value, self.error = value, error
 
 
 def check_ray() -> None:
@@ -58,34 +61,66 @@ def _threads() -> None:
         os.environ.setdefault(k, v)
 
 
-def load(job) -> Loaded:
-    """Ray task: load the character of ``job``."""
-    _threads()
+def _made(make) -> Made:
     from ...errors import NrposeError
-    from ...io import load_character
+
     try:
-        return Loaded(load_character(job.character, job.skeleton))
+        return Made(make())
     except NrposeError as exc:
-        return Loaded(error=str(exc))
+        return Made(error=str(exc))
     except OSError as exc:
-        return Loaded(error=f"{exc.filename or ''}: {exc.strerror or exc}")
+        return Made(error=f"{exc.filename or ''}: {exc.strerror or exc}")
 
 
-def pose_chunk(loaded: Loaded, jobs: list, outdir: str) -> list[dict]:
-    """Ray task: run jobs of one binding with the loaded character; their records."""
-    import ray
-
-    _threads()
-    from .worker import WorkerCache, failed_record, run_job
+def _cache():
+    """The WorkerCache of this Ray worker process."""
+    from .worker import WorkerCache
 
     global _CACHE
     if _CACHE is None:
         _CACHE = WorkerCache()
-    node = f"{socket.gethostname()}/{ray.get_runtime_context().get_node_id()[:8]}"
+    return _CACHE
+
+
+def load(job) -> Made:
+    """Ray task: the character of ``job``."""
+    _threads()
+    from ...io import load_character
+
+    return _made(lambda: load_character(job.character, job.skeleton))
+
+
+def bind(loaded: Made, job) -> Made:
+    """Ray task: the poser of ``job``'s binding (kept in this process's cache too)."""
+    _threads()
     if loaded.error is not None:
-        return [failed_record(job, loaded.error, None, node) for job in jobs]
-    _CACHE.adopt(jobs[0].load_key, loaded.character, {})
-    return [run_job(job, Path(outdir), _CACHE, node=node) for job in jobs]
+        return loaded
+    cache = _cache()
+    cache.adopt(job, character=loaded.value)
+    return _made(lambda: cache.poser(job, loaded.value)[0])
+
+
+def pose_chunk(binding: list, jobs: list, outdir: str) -> list[dict]:
+    """Ray task: run jobs of one binding (``binding``: [reference to the :func:`bind` result]);
+    their records."""
+    import ray
+
+    _threads()
+    from .worker import failed_record, run_job
+
+    cache = _cache()
+    node = f"{socket.gethostname()}/{ray.get_runtime_context().get_node_id()[:8]}"
+    t0, fetched = time.perf_counter(), jobs[0].bind_key not in cache.posers
+    if fetched:
+        bound = ray.get(binding[0])         # unpickling builds the device part in this process
+        if bound.error is not None:
+            return [failed_record(job, bound.error, None, node) for job in jobs]
+        cache.adopt(jobs[0], poser=bound.value)
+    seconds = time.perf_counter() - t0
+    records = [run_job(job, Path(outdir), cache, node=node) for job in jobs]
+    if fetched:     # the fetch and device build count as the first job's binding
+        records[0]["bind_seconds"] += seconds
+    return records
 
 
 def chunks(jobs: list, cpus: int) -> list[list]:
@@ -109,14 +144,17 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         load_task = ray.remote(load).options(num_cpus=1, max_retries=MAX_RETRIES)
+        bind_task = ray.remote(bind).options(num_cpus=1, max_retries=MAX_RETRIES)
         pose_task = ray.remote(pose_chunk).options(num_cpus=1, max_retries=MAX_RETRIES)
-        characters, pending = {}, {}
+        characters, bindings, pending = {}, {}, {}
 
         def submit(chunk: list, attempt: int, reload: bool = False) -> None:
-            key = chunk[0].load_key
-            if reload or key not in characters:
-                characters[key] = load_task.remote(chunk[0])
-            pending[pose_task.remote(characters[key], chunk, str(outdir))] = (chunk, attempt)
+            job = chunk[0]
+            if reload or job.load_key not in characters:
+                characters[job.load_key] = load_task.remote(job)
+            if reload or job.bind_key not in bindings:
+                bindings[job.bind_key] = bind_task.remote(characters[job.load_key], job)
+            pending[pose_task.remote([bindings[job.bind_key]], chunk, str(outdir))] = (chunk, attempt)
 
         for chunk in chunks(jobs, cpus):
             submit(chunk, 1)
@@ -133,7 +171,7 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
                         records = ray.get(ref)
                     except ray.exceptions.RayError as exc:
                         # Ray's own retries are spent, or an object was lost with its owner or node:
-                        # submit again (with the character loaded anew) a few times, then record
+                        # submit again (with the character loaded and bound anew) a few times, then record
                         if attempt <= MAX_RETRIES:
                             submit(chunk, attempt + 1, reload=True)
                             continue

@@ -57,11 +57,12 @@ class WorkerCache:
         self.clips = _Lru(4 * characters)
         self.posers = _Lru(posers)
 
-    def adopt(self, load_key: tuple, character, clips: dict) -> None:
-        """Take a character (and retargeted clips keyed by :func:`clip_key`) loaded elsewhere."""
-        self.characters.get_or_make(load_key, lambda: character)
-        for key, clip in clips.items():
-            self.clips.get_or_make(key, lambda c=clip: c)
+    def adopt(self, job: Job, character=None, poser=None) -> None:
+        """Take the job's character loaded elsewhere, or its poser bound elsewhere (with its character)."""
+        if poser is not None:
+            character = poser.character
+            self.posers.get_or_make(job.bind_key, lambda: poser)
+        self.characters.get_or_make(job.load_key, lambda: character)
 
     def character(self, job: Job):
         return self.characters.get_or_make(job.load_key, lambda: load_character(job.character, job.skeleton))
