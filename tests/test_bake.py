@@ -480,3 +480,17 @@ def test_poser_binding_ships_without_its_device_part(rig, method, monkeypatch):
     copy = pickle.loads(shipped)
     assert copy.deformer is not None and copy.deformer is not poser.deformer
     assert np.array_equal(copy.pose(local).positions, expected)
+
+
+def test_ctrl_c_before_the_jobs_run_is_status_130(rig, tmp_path, capsys, monkeypatch):
+    """Ctrl-C while the JOBS file is read (outside the runner's own handling): nrpose.cli.main
+    returns 130 with one line, nothing written."""
+    import nrpose.cli.bake.command as command
+
+    def interrupted(path):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(command, "load_jobs", interrupted)
+    code, err = bake([write_jobs(rig / "ctrl_c.json", library(rig)), "-o", tmp_path / "out"], capsys)
+    assert code == 130 and err == "nrpose: interrupted\n"
+    assert not (tmp_path / "out").exists()
