@@ -200,7 +200,7 @@ def _self_case(character):
     clip = character.clips[0]
     mapping = joint_map(character.skeleton, character.skeleton)
     assert mapping == {n: n for n in character.skeleton.names}
-    times, local, plan = retarget_pose(character, clip, character, mapping, fps=30)
+    times, local, plan = retarget_pose(character, clip, character, mapping, root="keep", fps=30)
     assert plan.scale == pytest.approx(1.0, abs=1e-12)
     want = positions(character.skeleton, clip.sample(times))
     got = positions(character.skeleton, local)
@@ -228,7 +228,7 @@ def test_scaled_renamed_rotated_copy(case, request):
     assert joint_map(skel, copy) == {}                      # nothing in common by name
     user = dict(zip(names, skel.names))
     mapping = joint_map(skel, copy, user)
-    times, local, plan = retarget_pose(source, source.clips[0], target, mapping, fps=30)
+    times, local, plan = retarget_pose(source, source.clips[0], target, mapping, root="keep", fps=30)
     assert plan.scale == pytest.approx(c, rel=1e-9)
     errs = bone_errors(source, source.clips[0], target, mapping, times, local)
     raw = np.concatenate([e[0] for e in errs.values()])
@@ -242,7 +242,7 @@ def test_scaled_renamed_rotated_copy(case, request):
 
 def test_in_place_keeps_the_root_over_its_rest_position(walker):
     mapping = joint_map(walker.skeleton, walker.skeleton)
-    times, local, plan = retarget_pose(walker, walker.clips[0], walker, mapping, in_place=True, fps=30)
+    times, local, plan = retarget_pose(walker, walker.clips[0], walker, mapping, root="in-place", fps=30)
     hips = positions(walker.skeleton, local)[:, plan.root]
     rest = walker.skeleton.rest_globals()[plan.root, :3, 3]
     assert np.abs(hips[:, [0, 2]] - rest[[0, 2]]).max() < 1e-12
@@ -294,7 +294,7 @@ def test_bvh_writer_round_trip(walker, tmp_path):
     clip = walker.clips[0]
     copy = copy_skeleton(walker.skeleton, walker.skeleton.names, 1.0, seed=5)   # non-identity rest frames
     mapping = joint_map(walker.skeleton, copy)
-    _, local, plan = retarget_pose(walker, clip, Character(copy), mapping, fps=30)
+    _, local, plan = retarget_pose(walker, clip, Character(copy), mapping, root="keep", fps=30)
     out = tmp_path / "copy.bvh"
     write_bvh(out, copy, local, 1 / 30, position_joints=[plan.root])
     skel, back = read_bvh(out)

@@ -20,7 +20,8 @@ Written through :func:`nrpose.io.files.atomic_path`.
 :func:`write_glb_with_clip` writes a glTF character file again with one more
 animation: a :class:`~nrpose.model.character.Clip` of its skeleton, one
 sampler per track on its joint's node (float32, the track's times and
-interpolation). The original content (meshes, skins, materials, textures,
+interpolation; a joint node given as a ``matrix`` is rewritten as its TRS, as
+animated nodes must be). The original content (meshes, skins, materials, textures,
 other animations) is kept: every buffer is copied into the single GLB buffer
 (a ``.gltf`` with external buffers or images becomes self-contained) and the
 new data is appended after it.
@@ -236,6 +237,13 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
         name, k = f"{clip.name} ({k})", k + 1
     animation = pygltflib.Animation(name=name, channels=[], samplers=[])
     inputs = {}
+    skel = target.skeleton
+    for j in sorted({t.joint for t in clip.tracks}):
+        node = gltf.nodes[int(nodes[j])]
+        if node.matrix is not None:     # animated nodes must use TRS (glTF 2.0, 5.25)
+            node.matrix = None
+            node.translation, node.rotation, node.scale = (skel.translation[j].tolist(),
+                                                           skel.rotation[j].tolist(), skel.scale[j].tolist())
     for track in clip.tracks:
         if track.interpolation == "CUBICSPLINE":
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
