@@ -1,7 +1,7 @@
 """Clip sampling times and the bound on how many frames one call may ask for.
 
-Clip times are compared in float32, the precision glTF stores key times in: a
-time whose float32 value equals the clip's duration *is* the last key (a clip
+Clip times are compared to within one float32 step, the precision glTF stores key
+times in (:func:`same_time`): a time that close to the clip's duration *is* the last key (a clip
 of 248 frames at 30 fps read from glTF lasts 8.26666641 s, below 248 / 30 in
 float64, and its last key must not be lost to that rounding).
 """
@@ -26,8 +26,11 @@ def check_frame_count(count: float, what: str) -> None:
 
 
 def same_time(a, b) -> np.ndarray:
-    """Whether times a and b (seconds, broadcast) are equal in float32, the clip's own precision."""
-    return np.float32(a) == np.float32(b)
+    """Whether times a and b (seconds, broadcast) agree to within one float32 step (of the larger
+    of them, at least of 1 s): equal in the precision clips store key times in."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    scale = np.maximum(np.maximum(np.abs(a), np.abs(b)), 1.0)
+    return np.abs(a - b) <= np.spacing(scale.astype(np.float32)).astype(np.float64)
 
 
 def clip_times(times, duration: float) -> np.ndarray:
@@ -46,8 +49,8 @@ def clip_times(times, duration: float) -> np.ndarray:
 def sample_times(duration: float, fps: float, close: bool = True) -> np.ndarray:
     """Times (F,) float64 seconds sampling a whole clip at ``fps``.
 
-    The frames ``k / fps`` before the end of the clip (compared in float32,
-    :func:`same_time`), then, with ``close``, the last key itself (``duration``),
+    The frames ``k / fps`` before the end of the clip (compared to within a float32
+    step, :func:`same_time`), then, with ``close``, the last key itself (``duration``),
     so a clip keeps its last key and a loop closes without a seam; when the end
     lies on the grid it is that grid frame. Without ``close`` only grid frames
     (for formats with a fixed frame time such as BVH): the end is included when
