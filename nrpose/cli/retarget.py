@@ -40,7 +40,7 @@ from ..io.bvh_write import write_bvh
 from ..io.files import check_writable
 from ..io.gltf_write import write_glb_with_clip
 from ..io.poses import load_map
-from ..pose.retarget import ROOT_MODES, format_map, joint_map, make_clip, retarget_pose
+from ..pose.retarget import ROOT_MODES, coverage, format_map, joint_map, make_clip, retarget_pose, skinned_bounds
 from ..render.retarget_sheet import save_retarget_sheet
 
 __all__ = ["add_parser", "run"]
@@ -119,7 +119,7 @@ def run(args) -> None:
     times, local, plan = retarget_pose(source, clip, target, mapping, root, args.fps, args.force, close=not bvh)
     result = make_clip(clip.name, times, local, plan, target.skeleton)
     if not bvh:
-        name = write_glb_with_clip(args.target, out, target, result)
+        name = write_glb_with_clip(args.target, out, target, result, skinned_bounds(target, local))
     else:
         write_bvh(out, target.skeleton, local, 1.0 / args.fps, position_joints=[plan.root])
         name = result.name
@@ -127,5 +127,6 @@ def run(args) -> None:
         save_retarget_sheet(args.png, source, clip, target, times, local, plan,
                             title=f"{Path(args.target).name} <- {Path(args.source).name} ({clip.name})")
     print(f"{out}: animation {name!r}, {len(times)} frames at {args.fps:g} fps ({times[-1]:.2f} s), "
-          f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped, root motion x{plan.scale:.4g}"
+          f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped "
+          f"({100 * coverage(target.skeleton, mapping).fraction:.0f}% of its bone length), root motion x{plan.scale:.4g}"
           f", root {root}, lift {plan.lift:+.3g}")

@@ -140,7 +140,7 @@ from ..model.timing import sample_times
 
 __all__ = ["joint_map", "format_map", "normalize_name", "joint_slots", "mapped_bones", "leg_length",
            "sole_heights", "sample_times", "ROOT_MODES", "MIN_COVERAGE", "MAX_PART_AT_REST", "Coverage", "coverage",
-           "check_coverage", "RetargetPlan", "retarget", "retarget_pose", "make_clip"]
+           "check_coverage", "skinned_bounds", "RetargetPlan", "retarget", "retarget_pose", "make_clip"]
 
 UP = 1  # +Y is up in both rigs (glTF; BVH as conventionally recorded)
 ROOT_MODES = ("origin", "keep", "in-place")
@@ -749,6 +749,33 @@ def make_clip(name: str, times: np.ndarray, local: LocalPose, plan: RetargetPlan
             moving = (path == "rotation" and j in plan.mapping) or (path == "translation" and j == plan.root)
             tracks.append(Track(j, path, times, values) if moving else Track(j, path, ends, values[[0, -1]][:len(ends)]))
     return Clip(name, float(times[-1]), skeleton.rest_pose, tuple(tracks))
+
+
+def skinned_bounds(character: Character, local: LocalPose) -> tuple[np.ndarray, np.ndarray] | None:
+    """A world-space box (min (3,), max (3,)) holding the character's skinned meshes in every
+    frame of ``local`` (F, J, ...), or None without skinned meshes.
+
+    A skinned vertex is a convex combination of its joints' rigid motions, so it stays within
+    ``reach_j`` (the farthest rest vertex weighted on joint j from j's rest position, times the
+    largest stretch of j's skinning matrix) of some posed joint j: the box of the posed joints
+    grown by their reaches holds it, without posing a vertex.
+    """
+    skinned = [m for m in character.meshes if m.joints is not None and m.weights is not None]
+    if not skinned:
+        return None
+    skel = character.skeleton
+    G0 = skel.rest_globals()
+    reach = np.zeros(skel.num_joints)
+    for m in skinned:
+        for k in range(m.joints.shape[1]):
+            on = m.weights[:, k] > 0
+            d = np.linalg.norm(m.vertices[on] - G0[m.joints[on, k], :3, 3], axis=1)
+            np.maximum.at(reach, m.joints[on, k], d)
+    used = np.flatnonzero(reach > 0)
+    G = skel.forward_kinematics(local)[..., used, :, :]
+    stretch = np.linalg.norm((G @ np.linalg.inv(G0[used]))[..., :3, :3], ord=2, axis=(-2, -1))
+    pos, r = G[..., :3, 3], (stretch * reach[used])[..., None]
+    return (pos - r).reshape(-1, 3).min(axis=0), (pos + r).reshape(-1, 3).max(axis=0)
 
 
 # --------------------------------------------------------------------------- coverage
