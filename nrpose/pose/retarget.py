@@ -22,9 +22,9 @@ zero-length bones and bones above the root-motion joint left out) whose
 driving joint is mapped; at least :data:`MIN_COVERAGE` is needed, and no part
 left at rest (a maximal subtree without a mapped joint) may hold more than
 :data:`MAX_PART_AT_REST` of it. A Mixamo character driven by a CMU capture
-without fingers reaches 0.84, its largest part at rest a finger (1.5%); the Fox
+without fingers reaches 0.84, its largest part at rest a finger (1.6%); the Fox
 sample driven on hips, spine, neck, head and front legs reaches 0.61, a hind
-leg at rest holding 15%.
+leg at rest holding 14%.
 
 Joint mapping (:func:`joint_map`)
 ---------------------------------
