@@ -11,7 +11,10 @@ The retargeting itself is :mod:`nrpose.pose.retarget`. Outputs:
   keying every joint node's translation, rotation and scale (float32, LINEAR;
   moving values at ``k / fps`` and at the clip's end, constant ones at the
   start and end) (:func:`nrpose.io.gltf_write.write_glb_with_clip`: the
-  original content is kept). Pose it with ``nrpose pose OUT.glb --clip NAME``.
+  original content is kept; skinned mesh nodes are placed so that viewers'
+  culling bounds hold the animated geometry,
+  :func:`nrpose.pose.retarget.skinned_bounds`). Pose it with
+  ``nrpose pose OUT.glb --clip NAME``.
 * ``OUT.bvh``: the target skeleton and the clip as BVH
   (:mod:`nrpose.io.bvh_write`), frame time ``1 / fps`` (grid frames only).
 * ``--root``: horizontal root motion, ``origin`` (default: the clip starts

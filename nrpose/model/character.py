@@ -100,7 +100,7 @@ class Clip:
         """Local pose at time(s) t in [0, duration] seconds.
 
         A scalar t gives arrays (J, ...); an array of F times gives (F, J, ...).
-        Times outside the clip (compared in float32, :func:`nrpose.model.timing.clip_times`)
+        Times outside the clip (to within a float32 step, :func:`nrpose.model.timing.clip_times`)
         raise InputError.
         """
         times = np.asarray(t, dtype=np.float64)
