@@ -290,8 +290,9 @@ def fit_skinned_nodes(path, gltf: pygltflib.GLTF2, bounds) -> None:
     for i, node in enumerate(gltf.nodes):
         if node.mesh is None or node.skin is None:
             continue
-        box = [(gltf.accessors[p.attributes.POSITION].min, gltf.accessors[p.attributes.POSITION].max)
-               for p in gltf.meshes[node.mesh].primitives if p.attributes.POSITION is not None]
+        accessors = [gltf.accessors[p.attributes.POSITION] for p in gltf.meshes[node.mesh].primitives
+                     if p.attributes.POSITION is not None]
+        box = [(a.min, a.max) for a in accessors if a.min is not None and a.max is not None]
         if not box:
             continue
         mn = np.min([b[0] for b in box], axis=0)
