@@ -568,3 +568,50 @@ def test_retarget_then_pose_every_key(tmp_path, capsys):
     code, _, err = run(["pose", out, "--clip", "131_03", "--method", "lbs", "--frames", f"0:{n + 1}",
                         "-o", tmp_path / "past.npz"], capsys)
     assert code == 2 and "outside" in err
+
+
+@pytest.mark.parametrize("parent_scale, moved", [([0.01, 0.01, 0.01], True), ([1.0, 2.0, 1.0], False)])
+def test_fit_skinned_nodes_maps_the_culling_sphere_onto_the_bounds(parent_scale, moved):
+    from nrpose.io.gltf_read import node_globals
+    from nrpose.io.gltf_write import fit_skinned_nodes
+    g = pygltflib.GLTF2(
+        nodes=[pygltflib.Node(children=[1], rotation=[0.7071068, 0, 0, 0.7071068], scale=parent_scale,
+                              translation=[0.5, 0, 0]),
+               pygltflib.Node(mesh=0, skin=0), pygltflib.Node(mesh=0)],
+        meshes=[pygltflib.Mesh(primitives=[pygltflib.Primitive(attributes=pygltflib.Attributes(POSITION=0))])],
+        accessors=[pygltflib.Accessor(count=3, componentType=pygltflib.FLOAT, type="VEC3",
+                                      min=[-1.0, 0.0, -0.2], max=[1.0, 1.8, 0.2])],
+        skins=[pygltflib.Skin(joints=[0])])
+    lo, hi = np.array([-2.0, -0.1, -3.0]), np.array([1.5, 1.9, 0.5])
+    fit_skinned_nodes("doc.gltf", g, (lo, hi))
+    assert g.nodes[2].translation is None and g.nodes[2].scale is None      # not skinned: untouched
+    _, world = node_globals("doc.gltf", g)
+    if not moved:                                                           # a sheared frame: left alone
+        assert g.nodes[1].translation is None and g.nodes[1].scale is None
+        return
+    box_lo, box_hi = np.array([-1.0, 0.0, -0.2]), np.array([1.0, 1.8, 0.2])
+    centre = world[1] @ np.r_[(box_lo + box_hi) / 2, 1.0]
+    radius = np.linalg.norm(box_hi - box_lo) / 2 * np.linalg.norm(world[1][:3, 0])
+    assert np.allclose(centre[:3], (lo + hi) / 2, atol=1e-9)
+    assert radius == pytest.approx(np.linalg.norm(hi - lo) / 2, rel=1e-9)
+
+
+@needs_data
+def test_matrix_joint_nodes_become_trs_when_animated(tmp_path, capsys):
+    g = pygltflib.GLTF2().load(str(DATA / "gltf" / "Mannequin.glb"))
+    k = g.skins[0].joints[5]
+    node = g.nodes[k]
+    t = np.array(node.translation or [0, 0, 0])
+    q = np.array(node.rotation or [0, 0, 0, 1])
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_quat(q).as_matrix()
+    M[:3, 3] = t
+    node.matrix, node.translation, node.rotation, node.scale = M.T.reshape(-1).tolist(), None, None, None
+    src = tmp_path / "matrix.glb"
+    g.save_binary(str(src))
+    out = tmp_path / "out.glb"
+    assert run(["retarget", BVH, src, "-o", out], capsys)[0] == 0
+    back = pygltflib.GLTF2().load(str(out))
+    assert back.nodes[k].matrix is None
+    assert np.allclose(back.nodes[k].translation, t, atol=1e-6) and abs(np.dot(back.nodes[k].rotation, q)) > 1 - 1e-9
+    assert any(c.target.node == k for c in back.animations[-1].channels)
