@@ -192,7 +192,11 @@ BAD_JOBS = [
     ({"jobs": [{"output": "a.npz", "clip": "walk", "fps": 0}]}, "'fps' must be positive"),
     ({"jobs": [{"output": "a.npz", "rest": 1}]}, "'rest' must be true or false"),
     ({"jobs": [{"output": "a.npz", "clip": 7}]}, "'clip' must be a non-empty string"),
-    ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "root": "Hips"}}]}, "unknown key 'root'"),
+    ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "root": "Hips"}}]},
+     "'root' must be one of origin, keep, in-place"),
+    ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "root": "keep", "in_place": True}}]},
+     "contradict"),
+    ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "roots": "keep"}}]}, "unknown key 'roots'"),
     ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh"}}]}, "'retarget' drives a glTF character"),
     ({"defaults": {"output": "a.npz"}, "jobs": [{"output": "a.npz", "clip": "walk"}]},
      "defaults: unknown key 'output'"),
@@ -230,7 +234,9 @@ def test_fox_clips_and_retargeted_bvh_equal_the_commands(tmp_path, capsys):
     doc = {"jobs": [{"character": str(fox), "clip": "Run", "frames": "0:8", "output": "run.glb"},
                     {"character": str(fox), "clip": "Walk", "method": "dqs", "frames": "0:8", "output": "walk.npz"},
                     {"character": str(ely), "retarget": {"source": str(bvh), "in_place": True}, "fps": 24,
-                     "frames": "0:12", "output": "ely.npz"}]}
+                     "frames": "0:12", "output": "ely.npz"},
+                    {"character": str(ely), "retarget": {"source": str(bvh), "root": "keep"}, "method": "lbs",
+                     "frames": "0:6", "output": "ely_keep.npz"}]}
     code, _ = bake([write_jobs(tmp_path / "jobs.json", doc), "-o", tmp_path / "out", "--workers", 1], capsys)
     assert code == 0
     ref = tmp_path / "ref"
@@ -241,7 +247,10 @@ def test_fox_clips_and_retargeted_bvh_equal_the_commands(tmp_path, capsys):
     assert nrpose_main(["retarget", str(bvh), str(ely), "--in-place", "--fps", "24", "-o", str(ref / "r.glb")]) == 0
     assert nrpose_main(["pose", str(ref / "r.glb"), "--clip", "131_03", "--fps", "24", "--frames", "0:12",
                         "-o", str(ref / "ely.npz")]) == 0
-    for name in ("run.glb", "walk.npz", "ely.npz"):
+    assert nrpose_main(["retarget", str(bvh), str(ely), "--root", "keep", "-o", str(ref / "k.glb")]) == 0
+    assert nrpose_main(["pose", str(ref / "k.glb"), "--clip", "131_03", "--method", "lbs", "--frames", "0:6",
+                        "-o", str(ref / "ely_keep.npz")]) == 0
+    for name in ("run.glb", "walk.npz", "ely.npz", "ely_keep.npz"):
         assert_same(tmp_path / "out", ref, name)
 
 

@@ -3,7 +3,7 @@
 A JOBS file is ``{"defaults": {...}, "jobs": [{...}, ...]}`` ("defaults" optional).
 A job has the options of ``nrpose pose`` as keys (the table: docs/bake.md):
 ``character``, ``skeleton``; exactly one of ``clip``, ``motion``, ``pose``, ``rest``,
-``retarget`` (``{"source", "map", "source_clip", "in_place"}``); at most one of
+``retarget`` (``{"source", "map", "source_clip", "root", "in_place", "force"}``); at most one of
 ``time``, ``frames``; ``fps``, ``method``, ``weights``, ``alpha``, ``blend``,
 ``backend``, ``format``; ``output`` (a relative name under OUTDIR).
 
@@ -31,6 +31,7 @@ from ...errors import InputError, NrposeError
 from ...pose.blend import BLENDS
 from ...pose.mls import BACKENDS
 from ...pose.poser import METHODS, WEIGHTS
+from ...pose.retarget import ROOT_MODES
 from ..common import frames_output_kind
 from ..pose import parse_frames
 from ..retarget import SOURCE_SUFFIXES, TARGET_SUFFIXES
@@ -40,7 +41,7 @@ SAMPLING_KEYS = ("time", "frames")
 OPTION_KEYS = ("character", "skeleton") + MOTION_KEYS + SAMPLING_KEYS + (
     "fps", "method", "weights", "alpha", "blend", "backend", "format")
 JOB_KEYS = OPTION_KEYS + ("output",)
-RETARGET_KEYS = ("source", "map", "source_clip", "in_place")
+RETARGET_KEYS = ("source", "map", "source_clip", "root", "in_place", "force")
 FORMATS = ("ply", "obj")
 #: names in OUTDIR that belong to the bake itself
 RESERVED = ("manifest.json", ".bake-tmp")
@@ -48,12 +49,13 @@ RESERVED = ("manifest.json", ".bake-tmp")
 
 @dataclass(frozen=True)
 class Retarget:
-    """A ``retarget`` motion: absolute paths."""
+    """A ``retarget`` motion: absolute paths; ``root`` and ``force`` as ``nrpose retarget --root --force``."""
 
     source: str
     map: str | None = None
     source_clip: str | None = None
-    in_place: bool = False
+    root: str = "origin"
+    force: bool = False
 
 
 @dataclass(frozen=True)
@@ -235,18 +237,23 @@ def _retarget(spec, base: Path) -> Retarget:
         raise InputError("'retarget' must be an object {\"source\": path, \"map\": path, ...}")
     unknown = [k for k in spec if k not in RETARGET_KEYS]
     if unknown:
-        hint = " (nrpose retarget has no --root: use \"in_place\": true)" if unknown[0] == "root" else ""
-        raise InputError(f"'retarget': unknown key {unknown[0]!r}{hint}; keys are {', '.join(RETARGET_KEYS)}")
+        raise InputError(f"'retarget': unknown key {unknown[0]!r}; keys are {', '.join(RETARGET_KEYS)}")
     source = _string(spec, "source", required=True)
     if Path(source).suffix.lower() not in SOURCE_SUFFIXES:
         raise InputError(f"retarget source {source}: must end in {', '.join(SOURCE_SUFFIXES)}")
-    in_place = spec.get("in_place", False)
-    if not isinstance(in_place, bool):
-        raise InputError(f"'retarget': 'in_place' must be true or false, got {in_place!r}")
+    for key in ("in_place", "force"):
+        if not isinstance(spec.get(key, False), bool):
+            raise InputError(f"'retarget': {key!r} must be true or false, got {spec[key]!r}")
+    root = spec.get("root")
+    if root is not None and root not in ROOT_MODES:
+        raise InputError(f"'retarget': 'root' must be one of {', '.join(ROOT_MODES)}, got {root!r}")
+    if spec.get("in_place") and root not in (None, "in-place"):
+        raise InputError(f"'retarget': 'in_place' and 'root' {root!r} contradict each other; give one")
     mapping = _string(spec, "map")
     return Retarget(_input_file(base, source, "retarget source"),
                     _input_file(base, mapping, "retarget map") if mapping else None,
-                    _string(spec, "source_clip"), in_place)
+                    _string(spec, "source_clip"), "in-place" if spec.get("in_place") else root or "origin",
+                    spec.get("force", False))
 
 
 def _output_name(name: str) -> str:

@@ -23,7 +23,7 @@ from ...io import load_character
 from ...io.gltf_write import write_glb_with_clip
 from ...io.poses import load_map
 from ...pose.poser import CharacterPoser
-from ...pose.retarget import joint_map
+from ...pose.retarget import joint_map, skinned_bounds
 from ..common import frames_output_kind, write_frames
 from ..pose import pose_input, posed_frames
 from ..retarget import retarget_clip
@@ -87,11 +87,12 @@ def retargeted(job: Job, character, outdir: Path):
     r = job.retarget
     source = load_character(r.source)
     mapping = joint_map(source.skeleton, character.skeleton, load_map(r.map) if r.map else None)
-    made = retarget_clip(source, character, mapping, r.source, job.character, r.source_clip, r.in_place,
-                         job.fps)[-1]
+    local, made = retarget_clip(source, character, mapping, r.source, job.character, r.source_clip, r.root,
+                                job.fps, r.force)[2::2]
     tmp = scratch(outdir)
     try:
-        name = write_glb_with_clip(job.character, tmp / "retargeted.glb", character, made)
+        name = write_glb_with_clip(job.character, tmp / "retargeted.glb", character, made,
+                                   skinned_bounds(character, local))
         return load_character(str(tmp / "retargeted.glb")).clip(name)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
