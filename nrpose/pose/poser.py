@@ -145,15 +145,17 @@ class CharacterPoser:
         return dict(self.__dict__, _deformer=None)
 
     def __setstate__(self, state: dict) -> None:
-        """A shipped binding: the device part is built anew in this process."""
+        """A shipped binding: its device part is built in this process when first needed
+        (:attr:`deformer`), so unpickling a binding that is not used costs no device work."""
         self.__dict__.update(state)
-        self._deformer = self._device_build()
 
     # ------------------------------------------------------------------ posing
     @property
     def deformer(self):
         """The bound deformer on the device (NR-MLS :class:`~nrpose.pose.mls.Deformer` or a
         :class:`~nrpose.pose.skinning.Skinner`), or None on the numpy backend."""
+        if self._deformer is None and self._device_args is not None:
+            self._deformer = self._device_build()
         return self._deformer
 
     def pose(self, local: LocalPose, progress=None) -> Frames:
@@ -161,7 +163,7 @@ class CharacterPoser:
 
         progress: optional callable(done, total) called after each frame.
         """
-        skel = self.character.skeleton
+        skel, deformer = self.character.skeleton, self.deformer
         if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
             raise InputError("no frames to pose: give at least one time")
         G = skel.forward_kinematics(local)
@@ -170,7 +172,7 @@ class CharacterPoser:
         F = len(G)
         whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
         # on OpenCL: the frames in memory the deformer's kernel writes directly (no copy per frame)
-        out = (self._deformer.frames_array(F) if whole and self._backend == "opencl"
+        out = (deformer.frames_array(F) if whole and self._backend == "opencl"
                else np.empty((F, self.n, 3), np.float32))
         frame_ms = np.empty(F)
         # (F, J, 4, 4): skinning matrices, for rigidly attached meshes and for LBS/DQS of rest-space
@@ -195,10 +197,10 @@ class CharacterPoser:
                 dst = out[a:b] if whole else np.empty((b - a, len(self._deform_idx), 3), np.float32)
                 if self.method == "nrmls":
                     # FK output is consistent by construction: no Pose.make validation
-                    self._deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
-                                               out=dst)
-                elif self._deformer is not None:
-                    self._deformer.pose_frames(mats[a:b], out=dst)
+                    deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
+                                         out=dst)
+                elif deformer is not None:
+                    deformer.pose_frames(mats[a:b], out=dst)
                 else:
                     ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
                     dst[...] = [ref(*self._device_args, m) for m in mats[a:b]]
@@ -207,8 +209,8 @@ class CharacterPoser:
             frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
             if progress:
                 progress(b, F)
-        if self._backend == "opencl" and self._deformer is not None:
-            self._deformer.release_frames()       # the Frames are the caller's: not kept by the poser
+        if self._backend == "opencl" and deformer is not None:
+            deformer.release_frames()                 # the Frames are the caller's: not kept by the poser
         return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
 
 

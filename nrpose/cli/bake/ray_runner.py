@@ -6,11 +6,11 @@
   character, weights, handles: numpy arrays and small objects; pickling drops
   the device objects), lives in the object store.
 * A pose task (:func:`pose_chunk`) runs a few jobs of one binding
-  (:func:`nrpose.cli.bake.worker.run_job`). It gets the binding's reference
-  wrapped in a list, so Ray does not fetch it for every task: a Ray worker
-  process that has not posed that binding yet fetches it (moved to a node once,
-  read by the node's workers from shared memory) and builds its device part
-  (buffers, programs) there; later tasks of the binding in that process reuse it.
+  (:func:`nrpose.cli.bake.worker.run_job`) and takes the binding's reference as
+  an argument: Ray moves it to a node once, the node's workers read its arrays
+  from shared memory. A Ray worker process builds the device part (rest terms,
+  buffers, programs) of a binding it has not posed yet, and keeps it: later
+  tasks of the binding in that process reuse it (unpickling builds nothing).
 * Tasks are retried on worker or node loss (``max_retries``; a lost character
   or binding is made again from its task); outputs are written under a scratch name and
   renamed to their deterministic name, so a retry never leaves two files or a
@@ -100,9 +100,8 @@ def bind(loaded: Made, job) -> Made:
     return _made(lambda: cache.poser(job, loaded.value)[0])
 
 
-def pose_chunk(binding: list, jobs: list, outdir: str) -> list[dict]:
-    """Ray task: run jobs of one binding (``binding``: [reference to the :func:`bind` result]);
-    their records."""
+def pose_chunk(bound: Made, jobs: list, outdir: str) -> list[dict]:
+    """Ray task: run jobs of one binding (``bound``: the :func:`bind` result); their records."""
     import ray
 
     _threads()
@@ -110,15 +109,15 @@ def pose_chunk(binding: list, jobs: list, outdir: str) -> list[dict]:
 
     cache = _cache()
     node = f"{socket.gethostname()}/{ray.get_runtime_context().get_node_id()[:8]}"
-    t0, fetched = time.perf_counter(), jobs[0].bind_key not in cache.posers
-    if fetched:
-        bound = ray.get(binding[0])         # unpickling builds the device part in this process
-        if bound.error is not None:
-            return [failed_record(job, bound.error, None, node) for job in jobs]
+    if bound.error is not None:
+        return [failed_record(job, bound.error, None, node) for job in jobs]
+    t0, adopted = time.perf_counter(), jobs[0].bind_key not in cache.posers
+    if adopted:
+        bound.value.deformer        # the device part, built in this process
         cache.adopt(jobs[0], poser=bound.value)
     seconds = time.perf_counter() - t0
     records = [run_job(job, Path(outdir), cache, node=node) for job in jobs]
-    if fetched:     # the fetch and device build count as the first job's binding
+    if adopted:     # the device build counts as the first job's binding
         records[0]["bind_seconds"] += seconds
     return records
 
@@ -154,7 +153,7 @@ def run_ray(jobs: list, outdir: Path, address: str | None, on_result) -> None:
                 characters[job.load_key] = load_task.remote(job)
             if reload or job.bind_key not in bindings:
                 bindings[job.bind_key] = bind_task.remote(characters[job.load_key], job)
-            pending[pose_task.remote([bindings[job.bind_key]], chunk, str(outdir))] = (chunk, attempt)
+            pending[pose_task.remote(bindings[job.bind_key], chunk, str(outdir))] = (chunk, attempt)
 
         for chunk in chunks(jobs, cpus):
             submit(chunk, 1)
