@@ -19,8 +19,10 @@ What is read:
   nodes' default transforms (the skinned mesh node's own transform is ignored,
   per the spec). A non-skinned mesh whose node is a joint or lies below one is
   rigid: world vertices ``G[node] @ v``, one influence of weight 1 on that
-  joint. Meshes attached to no joint are scenery and skipped; morph targets,
-  normals and texture coordinates are not read.
+  joint. Meshes attached to no joint are scenery: kept as
+  ``Character.static_meshes`` (world vertices ``G[node] @ v``, no weights),
+  never posed. Each mesh records its ``source`` (node, mesh, primitive)
+  indices. Morph targets, normals and texture coordinates are not read.
 * Clips: every animation, channels on joints only (channels on other nodes
   and morph ``weights`` are ignored), samplers LINEAR / STEP / CUBICSPLINE.
 
@@ -44,7 +46,7 @@ from ..model.rotation import Rotation
 from ..model.skeleton import Skeleton, local_matrices, polar_rotation
 from .files import read_input
 
-__all__ = ["load_gltf"]
+__all__ = ["load_gltf", "read_document", "read_accessor", "joint_nodes"]
 
 COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -345,8 +347,8 @@ def _influences(path, what, attrs, acc: _Accessors, n: int):
 
 
 def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.ndarray],
-            node_to_joint: np.ndarray) -> list[Mesh]:
-    """Character meshes of the default scene (see the module docstring)."""
+            node_to_joint: np.ndarray) -> tuple[list[Mesh], list[Mesh]]:
+    """Posable and static meshes of the default scene (see the module docstring)."""
     if gltf.scenes:
         if not 0 <= (gltf.scene or 0) < len(gltf.scenes):
             raise FileFormatError(f"{path}: default scene {gltf.scene} does not exist")
@@ -355,7 +357,7 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
         in_scene = [i for i in nodes.order if i in roots or any(a in roots for a in nodes.ancestors(i))]
     else:
         in_scene = nodes.order
-    meshes = []
+    meshes, static = [], []
     for i in in_scene:
         node = gltf.nodes[i]
         if node.mesh is None:
@@ -363,8 +365,6 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
         if not 0 <= node.mesh < len(gltf.meshes):
             raise FileFormatError(f"{path}: node {i} refers to mesh {node.mesh}, which does not exist")
         attach = next((int(node_to_joint[a]) for a in [i, *nodes.ancestors(i)] if node_to_joint[a] >= 0), -1)
-        if node.skin is None and attach < 0:
-            continue
         gmesh = gltf.meshes[node.mesh]
         base = gmesh.name or node.name or f"mesh{node.mesh}"
         for p, prim in enumerate(gmesh.primitives):
@@ -382,9 +382,14 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
                 raise FileFormatError(f"{path}: {what}: index {idx.max()} is out of range ({len(V)} vertices)")
             F = _triangles(path, what, 4 if prim.mode is None else prim.mode, idx.astype(np.int64))
             Vh = np.c_[V, np.ones(len(V))]
+            source = (i, node.mesh, p)
             if node.skin is None:
                 W = (Vh @ nodes.globals[i].T)[:, :3]
-                meshes.append(Mesh(name, W, F, np.full((len(V), 1), attach), np.ones((len(V), 1)), attach))
+                if attach < 0:
+                    static.append(Mesh(name, W, F, source=source))
+                else:
+                    meshes.append(Mesh(name, W, F, np.full((len(V), 1), attach), np.ones((len(V), 1)), attach,
+                                       source=source))
                 continue
             if not 0 <= node.skin < len(gltf.skins):
                 raise FileFormatError(f"{path}: node {i} refers to skin {node.skin}, which does not exist")
@@ -404,8 +409,8 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
             # this skin's inverse bind matrices, by skeleton joint (identity for joints it lacks)
             ibm = np.tile(np.eye(4), (int(node_to_joint.max()) + 1, 1, 1))
             ibm[node_to_joint[np.asarray(skin.joints)]] = binds[node.skin]
-            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64), ibm))
-    return meshes
+            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64), ibm, source))
+    return meshes, static
 
 
 def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleton: Skeleton) -> list[Clip]:
@@ -440,6 +445,12 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
     return clips
 
 
+def read_accessor(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes], index: int) -> np.ndarray:
+    """Accessor ``index`` of a document from :func:`read_document` as (count, width): float64
+    if float or normalised, else int64 (FileFormatError naming ``path`` when malformed)."""
+    return _Accessors(path, gltf, buffers).read(index)
+
+
 def joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes]) -> tuple[Skeleton, np.ndarray]:
     """The skeleton of a document from :func:`read_document` and the node index (J,) int64 of
     each of its joints, in :func:`load_gltf`'s joint order."""
@@ -458,6 +469,6 @@ def load_gltf(path: str | Path) -> Character:
     binds = _skin_binds(path, gltf, acc)
     nodes = _Nodes(path, gltf)
     skeleton, node_to_joint, inverse_bind = _skeleton(gltf, nodes, binds)
-    meshes = _meshes(path, gltf, nodes, acc, binds, node_to_joint)
+    meshes, static = _meshes(path, gltf, nodes, acc, binds, node_to_joint)
     clips = _clips(path, gltf, acc, node_to_joint, skeleton)
-    return Character(skeleton, tuple(meshes), tuple(clips), inverse_bind)
+    return Character(skeleton, tuple(meshes), tuple(clips), inverse_bind, tuple(static))
