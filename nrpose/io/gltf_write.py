@@ -34,14 +34,20 @@ A source that *requires* an extension nrpose cannot carry faithfully
 written.
 
 Compact bakes (``quantize=True``, ``KHR_mesh_quantization``): position deltas
-are normalised int16 (8 bytes per vertex with the 4-byte alignment glTF
-requires of vertex attributes), normal and tangent deltas normalised int8 (4
-bytes each). The dequantisation scale is the node's uniform scale ``S`` (the
-rest bounding-box diagonal; base positions are stored divided by S) times the
-frame's morph weight ``w_f`` (keys ``w_f`` instead of 1): position delta =
-``S w_f q / 32767``, normal delta = ``w_f q / 127``. A frame whose position
-error would exceed ``1e-4`` of the bounding-box diagonal is written in float.
-Identical frames are written once (their targets share accessors). The mesh's
+are normalised int16 (8 bytes per vertex: glTF aligns every vertex attribute
+element to 4 bytes), normal and tangent deltas normalised int8 (4 bytes each)
+(the target direction is scaled per vertex to keep its delta within int8's
+[-1, 1], as clients normalise morphed normals; a primitive's frame where some
+decoded direction would be off by more than :data:`DIRECTION_BOUND` degrees,
+i.e. turned by nearly 180 degrees, stays float).
+The dequantisation scale is the posed node's uniform scale ``S``, the largest
+position delta of the clip (base positions are stored divided by S; normals
+are unaffected by a uniform scale), so a position's error is at most
+``S / 65534``; when that exceeds :data:`QUANTIZATION_BOUND` of the rest
+bounding-box diagonal (clips travelling several body lengths) the node stays
+float. Morph weights stay 0 and 1 (Blender clamps larger shape-key values).
+Identical frames and primitives' arrays are written once (targets share
+accessors). The mesh's
 default ``weights`` select frame 0; ``mesh.extras.targetNames`` are
 ``frame0 ...``. Coordinates are written as given (glTF is Y-up, metres).
 Written through :func:`nrpose.io.files.atomic_path`.
@@ -73,12 +79,14 @@ from .files import atomic_path
 from .gltf_read import joint_nodes, read_accessor, read_document
 
 __all__ = ["write_animated_glb", "write_glb_with_clip", "check_copyable", "BakeReport", "Blob", "CARRIED",
-           "QUANTIZATION_BOUND"]
+           "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
 QUANTIZATION = "KHR_mesh_quantization"
 #: largest position error of a quantized frame, as a fraction of the rest bounding-box diagonal
 QUANTIZATION_BOUND = 1e-4
+#: largest angle (degrees) between a quantized frame's normal or tangent and the exact one
+DIRECTION_BOUND = 1.0
 #: required extensions a posed copy keeps faithfully (materials, textures, lights, quantized attributes)
 CARRIED = frozenset({
     QUANTIZATION, "KHR_texture_transform", "KHR_texture_basisu", "EXT_texture_webp", "EXT_texture_avif",
@@ -345,6 +353,8 @@ class _TargetWriter:
     """Morph-target accessors of one posed node, frame by frame (see the module docstring)."""
 
     def __init__(self, blob: Blob, node: _Node, scale: float, quantize: bool):
+        """scale: the node's uniform scale (quantized: the largest position delta, so that
+        deltas / scale lie in [-1, 1]; else 1)."""
         self.blob, self.node, self.scale, self.quantize = blob, node, scale, quantize
         rest = np.concatenate([p.rest for p in node.prims])
         self.base_positions = (rest / scale).astype(np.float32)
@@ -361,44 +371,53 @@ class _TargetWriter:
         self.target_bytes += view.byteLength
         return index
 
-    def frame(self, positions: np.ndarray, bound: float) -> tuple[list[dict], float]:
-        """Targets (one dict per primitive) and the morph weight of a posed frame (N, 3)."""
+    def frame(self, positions: np.ndarray) -> list[dict]:
+        """Targets (one dict per primitive) of a posed frame (N, 3) of the node."""
         _, normals, tangents = self.node.frame(positions)
-        scale = self.scale
-        d_pos = positions / scale - self.base_positions.astype(np.float64)
-        d_nrm = normals - self.base_normals
-        d_tan = tangents - self.base_tangents if tangents is not None else None
-        weight, kind = 1.0, np.float32
-        enc_pos = d_pos.astype(np.float32)
-        error = np.abs(scale * (self.base_positions.astype(np.float64) + enc_pos) - positions).max()
+        base = self.base_positions.astype(np.float64)
+        d_pos = positions / self.scale - base
         if self.quantize:
-            m = max(np.abs(d_nrm).max(), np.abs(d_tan).max() if d_tan is not None else 0.0)
-            w = max(np.abs(d_pos).max(), m, 1e-12)
-            q_pos = np.clip(np.round(d_pos / w * 32767), -32767, 32767).astype(np.int16)
-            got = scale * (self.base_positions.astype(np.float64) + np.float32(w) * (q_pos / 32767.0))
-            q_error = np.abs(got - positions).max()
-            if q_error <= bound:
-                weight, kind, enc_pos, error = float(np.float32(w)), np.int16, q_pos, q_error
-        self.max_error = max(self.max_error, error)
-        if kind == np.int16:
-            enc_nrm = np.clip(np.round(d_nrm / weight * 127), -127, 127).astype(np.int8)
-            enc_tan = np.clip(np.round(d_tan / weight * 127), -127, 127).astype(np.int8) if d_tan is not None else None
+            enc_pos = np.clip(np.round(d_pos * 32767), -32767, 32767).astype(np.int16)
+            got = self.scale * (base + enc_pos / 32767.0)
+            self.quantized += 1
         else:
-            enc_nrm = d_nrm.astype(np.float32)
-            enc_tan = d_tan.astype(np.float32) if d_tan is not None else None
-        key = (enc_pos.tobytes(), enc_nrm.tobytes(), enc_tan.tobytes() if enc_tan is not None else b"", weight)
-        self.quantized += kind == np.int16
-        if key not in self.seen:
-            self.unique += 1
-            targets = []
-            for p, a, b in zip(self.node.prims, self.node.cuts[:-1], self.node.cuts[1:]):
-                target = {"POSITION": self._accessor(enc_pos[a:b], enc_pos.dtype, True),
-                          "NORMAL": self._accessor(enc_nrm[a:b], enc_nrm.dtype, False)}
-                if enc_tan is not None:
-                    target["TANGENT"] = self._accessor(enc_tan[a:b], enc_tan.dtype, False)
-                targets.append(target)
-            self.seen[key] = targets
-        return self.seen[key], weight
+            enc_pos = d_pos.astype(np.float32)
+            got = self.scale * (base + enc_pos)
+        self.max_error = max(self.max_error, float(np.abs(got - positions).max()))
+        enc = {"POSITION": (enc_pos, None), "NORMAL": (normals, self.base_normals)}
+        if tangents is not None:
+            enc["TANGENT"] = (tangents, self.base_tangents)
+        targets, fresh = [{} for _ in self.node.prims], False
+        for k, (a, b) in enumerate(zip(self.node.cuts[:-1], self.node.cuts[1:])):
+            for attr, (values, base) in enc.items():
+                part = values[a:b] if base is None else _direction_delta(values[a:b], base[a:b], self.quantize)
+                key = (k, attr, part.dtype.str, part.tobytes())
+                if key not in self.seen:
+                    fresh = True
+                    self.seen[key] = self._accessor(part, part.dtype, attr == "POSITION")
+                targets[k][attr] = self.seen[key]
+        self.unique += fresh
+        return targets
+
+
+def _direction_delta(posed: np.ndarray, base: np.ndarray, quantize: bool) -> np.ndarray:
+    """Morph delta (N, 3) of unit directions (normals, tangents): float32 ``posed - base``; or,
+    quantized, int8 of ``a posed - base`` with the largest per-vertex ``a`` in (0, 1] that keeps
+    it in [-1, 1] (clients normalise morphed directions, so only the direction of ``a posed``
+    counts), unless a decoded direction is off by more than :data:`DIRECTION_BOUND` degrees
+    (directions turned by nearly 180 degrees, where ``a`` must be tiny): then float32."""
+    if quantize:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.where(posed > 0, (1 + base) / posed, np.where(posed < 0, (base - 1) / posed, np.inf))
+        a = np.minimum(room.min(axis=1), 1.0)
+        q = np.clip(np.round((a[:, None] * posed - base) * 127), -127, 127).astype(np.int8)
+        decoded = base + q / 127.0
+        length = np.linalg.norm(decoded, axis=1)
+        cosine = np.einsum("ij,ij->i", decoded, posed) / np.maximum(length, 1e-30)
+        moving = np.linalg.norm(posed, axis=1) > 0.5
+        if (cosine[moving] >= np.cos(np.radians(DIRECTION_BOUND))).all():
+            return q
+    return (posed - base).astype(np.float32)
 
 
 def _primitive(blob: Blob, template, base_positions, base_normals, base_tangents, targets,
@@ -470,8 +489,6 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         blob = Blob(gltf)
     rest_all = np.concatenate([m[1] for m in meshes])
     diagonal = float(np.linalg.norm(rest_all.max(axis=0) - rest_all.min(axis=0))) or 1.0
-    scale = diagonal if quantize else 1.0
-    bound = QUANTIZATION_BOUND * diagonal
 
     input_acc = blob.add(T.astype(np.float32), "SCALAR", _FLOAT, minmax=True)
     animation = pygltflib.Animation(name=str(animation_name), channels=[], samplers=[])
@@ -482,12 +499,18 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     scene = gltf.scenes[gltf.scene or 0]
     joints = {j for skin in gltf.skins or [] for j in skin.joints or []}
     for source_node, node in _posed_nodes(meshes, starts, source, gltf, buffers):
-        writer = _TargetWriter(blob, node, scale, quantize)
-        targets, weights = [[] for _ in node.prims], np.empty(n_frames)
-        for f in range(n_frames):
-            frame = np.concatenate([P[f, p.start:p.start + len(p.rest)] for p in node.prims]).astype(np.float64)
-            per_prim, weights[f] = writer.frame(frame, bound)
-            for k, t in enumerate(per_prim):
+        def frames():
+            for f in range(n_frames):
+                yield np.concatenate([P[f, p.start:p.start + len(p.rest)] for p in node.prims]).astype(np.float64)
+        rest = np.concatenate([p.rest for p in node.prims])
+        reach = max(float(np.abs(frame - rest).max()) for frame in frames())
+        # int16 steps of reach / 32767 keep the error within the bound, or the positions stay float
+        quantized = quantize and reach / 65534 <= 0.9 * QUANTIZATION_BOUND * diagonal
+        scale = max(reach, 1e-30) if quantized else 1.0
+        writer = _TargetWriter(blob, node, scale, quantized)
+        targets = [[] for _ in node.prims]
+        for frame in frames():
+            for k, t in enumerate(writer.frame(frame)):
                 targets[k].append(t)
         report.target_bytes += writer.target_bytes
         report.quantized_frames = max(report.quantized_frames, writer.quantized)
@@ -505,7 +528,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
             else:
                 prims.append(_primitive(blob, p.template, writer.base_positions[a:b], writer.base_normals[a:b],
                                         tangents, targets[k]))
-        keys = np.diag(weights).astype(np.float32)
+        keys = np.eye(n_frames, dtype=np.float32)
         old = gltf.meshes[gltf.nodes[source_node].mesh] if source_node is not None else None
         gltf.meshes.append(pygltflib.Mesh(
             name=(old.name if old is not None else node.name), primitives=prims, weights=keys[0].tolist(),
