@@ -23,10 +23,10 @@ without its mesh and skin, and the posed primitives lose ``JOINTS_n``/
 replaced by the bake (they moved the skeleton, which now deforms nothing); their
 data stays in the buffer, unreferenced, so that nothing is renumbered.
 
-Normals: per vertex, the file's ``NORMAL`` (and ``TANGENT``) is rotated by the
-smallest rotation taking the vertex's smooth normal of the source geometry to
-its smooth normal of the frame (:mod:`nrpose.model.normals`): custom normals,
-seams and hard edges keep their shape. Without ``NORMAL`` in the source, the
+Normals: per vertex, the file's ``NORMAL`` (and ``TANGENT``) is turned by the
+rotation of the vertex's welded neighbourhood from the source geometry to the
+frame (:func:`nrpose.model.normals.local_rotations`): custom normals, seams
+and hard edges keep their shape. Without ``NORMAL`` in the source, the
 smooth normals of the posed surface are written (positions welded across seams).
 
 A source that *requires* an extension nrpose cannot carry faithfully
@@ -35,11 +35,11 @@ written.
 
 Compact bakes (``quantize=True``, ``KHR_mesh_quantization``): position deltas
 are normalised int16 (8 bytes per vertex: glTF aligns every vertex attribute
-element to 4 bytes), normal and tangent deltas normalised int8 (4 bytes each)
-(the target direction is scaled per vertex to keep its delta within int8's
-[-1, 1], as clients normalise morphed normals; a primitive's frame where some
-decoded direction would be off by more than :data:`DIRECTION_BOUND` degrees,
-i.e. turned by nearly 180 degrees, stays float).
+element to 4 bytes), normal and tangent deltas normalised int8 (4 bytes each),
+or int16 (8) for a primitive's frame that int8 cannot hold within
+:data:`DIRECTION_BOUND` degrees, else float (:func:`_direction_delta`: the target
+direction is scaled per vertex to keep its delta within [-1, 1], as clients
+normalise morphed normals).
 The dequantisation scale is the posed node's uniform scale ``S``, the largest
 position delta of the clip (base positions are stored divided by S; normals
 are unaffected by a uniform scale), so a position's error is at most
@@ -74,7 +74,7 @@ import pygltflib
 
 from ..checks import real_rows, triangles, within_float32
 from ..errors import FileFormatError, InputError, NrposeError
-from ..model.normals import carry, smooth_normals, weld
+from ..model.normals import local_rotations, smooth_normals, weld
 from .files import atomic_path
 from .gltf_read import joint_nodes, read_accessor, read_document
 
@@ -310,19 +310,24 @@ class _Node:
         self.cuts = np.cumsum([0] + sizes)
         faces = np.concatenate([p.faces + c for p, c in zip(prims, self.cuts)])
         bind = np.concatenate([p.bind for p in prims])
-        self.faces, self.groups = faces, weld(bind)
-        self.smooth_bind = smooth_normals(bind, faces, self.groups)
-        self.source_normals = np.concatenate([p.normals if p.normals is not None else s for p, s in
-                                              zip(prims, np.split(self.smooth_bind, self.cuts[1:-1]))])
+        self.faces, self.groups, self.bind = faces, weld(bind), bind
+        self.authored = np.concatenate([np.full(len(p.rest), p.normals is not None) for p in prims])
+        self.source_normals = np.concatenate([p.normals if p.normals is not None else np.zeros((len(p.rest), 3))
+                                              for p in prims])
         self.has_tangents = all(p.tangents is not None for p in prims)
         self.source_tangents = np.concatenate([p.tangents for p in prims]) if self.has_tangents else None
 
     def frame(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Positions (N, 3), normals (N, 3) and tangent directions (N, 3) or None of the node's
-        vertices, given ``positions`` (N, 3) of one frame."""
-        smooth = smooth_normals(positions, self.faces, self.groups)
-        normals = carry(self.smooth_bind, smooth, self.source_normals)
-        tangents = carry(self.smooth_bind, smooth, self.source_tangents[:, :3]) if self.has_tangents else None
+        vertices, given ``positions`` (N, 3) of one frame: the source's own normals and tangents
+        turned with their neighbourhood, smooth normals where the source has none."""
+        normals = smooth_normals(positions, self.faces, self.groups)
+        tangents = None
+        if self.authored.any() or self.has_tangents:
+            R = local_rotations(self.bind, positions, self.faces, self.groups)
+            normals[self.authored] = np.einsum("nab,nb->na", R[self.authored], self.source_normals[self.authored])
+            if self.has_tangents:
+                tangents = np.einsum("nab,nb->na", R, self.source_tangents[:, :3])
         return positions, normals, tangents
 
 
@@ -402,21 +407,24 @@ class _TargetWriter:
 
 def _direction_delta(posed: np.ndarray, base: np.ndarray, quantize: bool) -> np.ndarray:
     """Morph delta (N, 3) of unit directions (normals, tangents): float32 ``posed - base``; or,
-    quantized, int8 of ``a posed - base`` with the largest per-vertex ``a`` in (0, 1] that keeps
-    it in [-1, 1] (clients normalise morphed directions, so only the direction of ``a posed``
-    counts), unless a decoded direction is off by more than :data:`DIRECTION_BOUND` degrees
-    (directions turned by nearly 180 degrees, where ``a`` must be tiny): then float32."""
+    quantized, normalised int8 (else int16) of ``a posed - base`` with the largest per-vertex
+    ``a`` in (0, 1] that keeps it in [-1, 1] (clients normalise morphed directions, so only the
+    direction of ``a posed`` counts), the first whose decoded directions are all within
+    :data:`DIRECTION_BOUND` degrees (a direction turned past 90 degrees may need a small ``a``,
+    which int8 resolves too coarsely); float32 if neither is."""
     if quantize:
+        # slack of half an int8 step: np.clip absorbs it (and rounding noise near +-1)
         with np.errstate(divide="ignore", invalid="ignore"):
-            room = np.where(posed > 0, (1 + base) / posed, np.where(posed < 0, (base - 1) / posed, np.inf))
-        a = np.minimum(room.min(axis=1), 1.0)
-        q = np.clip(np.round((a[:, None] * posed - base) * 127), -127, 127).astype(np.int8)
-        decoded = base + q / 127.0
-        length = np.linalg.norm(decoded, axis=1)
-        cosine = np.einsum("ij,ij->i", decoded, posed) / np.maximum(length, 1e-30)
+            room = np.where(posed > 0, (1.004 + base) / posed, np.where(posed < 0, (base - 1.004) / posed, np.inf))
+        target = np.minimum(room.min(axis=1), 1.0)[:, None] * posed
         moving = np.linalg.norm(posed, axis=1) > 0.5
-        if (cosine[moving] >= np.cos(np.radians(DIRECTION_BOUND))).all():
-            return q
+        for dtype in (np.int8, np.int16):
+            top = np.iinfo(dtype).max
+            q = np.clip(np.round((target - base) * top), -top, top).astype(dtype)
+            decoded = base + q / top
+            cosine = np.einsum("ij,ij->i", decoded, posed) / np.maximum(np.linalg.norm(decoded, axis=1), 1e-30)
+            if (cosine[moving] >= np.cos(np.radians(DIRECTION_BOUND))).all():
+                return q
     return (posed - base).astype(np.float32)
 
 

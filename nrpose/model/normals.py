@@ -1,18 +1,19 @@
-"""Smooth surface normals and the rotation that carries a file's own normals onto a posed surface.
+"""Smooth surface normals, and the rotation that carries a file's own normals onto a posed surface.
 
 A posed frame's normals are made from the file's normals (custom, split at
 seams and hard edges) rather than recomputed, so that what an artist authored
-survives: per vertex, :func:`carry` rotates the file's normal (and tangent) by
-the smallest rotation taking the vertex's *smooth* normal of the source
-geometry to its smooth normal of the posed geometry. Smooth normals are
-area-weighted face normals summed over every copy of a position
-(:func:`weld`), so seams (UV or material splits) do not show in them.
+survives: per vertex, the file's normal (and tangent) is turned by the rotation
+of the vertex's neighbourhood from the source geometry to the posed one
+(:func:`local_rotations`). Neighbourhoods and smooth normals (area-weighted
+face normals) are taken over every copy of a position (:func:`weld`), so seams
+(UV or material splits) do not show in them and the copies of a split vertex
+turn together: split normals stay split.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["weld", "smooth_normals", "carry"]
+__all__ = ["weld", "smooth_normals", "local_rotations"]
 
 
 def weld(vertices: np.ndarray, tolerance: float = 1e-7) -> np.ndarray:
@@ -43,24 +44,28 @@ def smooth_normals(vertices: np.ndarray, faces: np.ndarray, groups: np.ndarray) 
     return unit[groups]
 
 
-def carry(source: np.ndarray, target: np.ndarray, vectors: np.ndarray) -> np.ndarray:
-    """Rotate ``vectors`` (..., N, 3) by the smallest rotation taking unit ``source`` (N, 3) to
-    unit ``target`` (..., N, 3), per vertex; float64. Where either normal is zero the vector is
-    kept; where they are opposite the rotation is a half turn about an axis normal to ``source``.
-    """
-    a = np.broadcast_to(np.asarray(source, dtype=np.float64), np.shape(target))
-    b = np.asarray(target, dtype=np.float64)
-    v = np.asarray(vectors, dtype=np.float64)
-    c = np.einsum("...i,...i->...", a, b)[..., None]
-    w = np.cross(a, b)
-    opposite = (c[..., 0] < -1 + 1e-9)
-    safe = np.where(opposite[..., None], 1.0, 1.0 + c)
-    out = c * v + np.cross(w, v) + w * np.einsum("...i,...i->...", w, v)[..., None] / safe
-    if opposite.any():
-        helper = np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-        k = np.cross(a, helper)
-        k /= np.linalg.norm(k, axis=-1, keepdims=True)
-        half = 2 * np.einsum("...i,...i->...", k, v)[..., None] * k - v
-        out = np.where(opposite[..., None], half, out)
-    degenerate = (np.linalg.norm(a, axis=-1) < 0.5) | (np.linalg.norm(b, axis=-1) < 0.5)
-    return np.where(degenerate[..., None], v, out)
+def local_rotations(bind: np.ndarray, posed: np.ndarray, faces: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Rotation (N, 3, 3) float64 of each vertex's neighbourhood from ``bind`` (N, 3) to ``posed``
+    (N, 3): the closest rotation (polar factor) to ``sum e' e^T`` over the edges ``e`` and scaled
+    normals of the faces around the vertex's welded position (``groups`` from :func:`weld`), so a
+    rigidly moved neighbourhood gets exactly its rotation, twist about the normal included.
+    A vertex in no face gets the identity."""
+    F = np.asarray(faces, dtype=np.int64)
+
+    def frames(V):
+        e1, e2 = V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]
+        n = np.cross(e1, e2)
+        n = n / np.sqrt(np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))  # |n|^2 = 2 area
+        return np.stack([e1, e2, e2 - e1, n], axis=1)          # (M, 4, 3)
+
+    a, b = frames(np.asarray(bind, dtype=np.float64)), frames(np.asarray(posed, dtype=np.float64))
+    per_face = np.einsum("mki,mkj->mij", b, a).reshape(len(F), 9)
+    n_groups = int(groups.max()) + 1 if len(groups) else 0
+    corners = groups[F].reshape(-1)
+    total = np.stack([np.bincount(corners, np.repeat(per_face[:, c], 3), n_groups) for c in range(9)], axis=1)
+    U, S, Vt = np.linalg.svd(total.reshape(-1, 3, 3))
+    flip = np.sign(np.linalg.det(U @ Vt))
+    U[:, :, 2] *= np.where(flip == 0, 1.0, flip)[:, None]
+    R = U @ Vt
+    R[S[:, 0] <= 1e-300] = np.eye(3)
+    return R[groups]
