@@ -261,9 +261,14 @@ def test_split_normals_stay_split_and_smooth_normals_without_source(tmp_path):
     blob = gltf.binary_blob()
     prim = gltf.meshes[0].primitives[0]
     base = decoded(gltf, blob, prim.attributes.NORMAL)
-    centre = V.mean(axis=0)
-    outward = (V - centre) / np.linalg.norm(V - centre, axis=1, keepdims=True)   # a cube's smooth normals
+    outward = np.zeros_like(V)   # area-weighted face normals summed over each corner's 3 copies
+    for face in F:
+        n = np.cross(V[face[1]] - V[face[0]], V[face[2]] - V[face[0]])
+        for i in face:
+            outward[(V == V[i]).all(axis=1)] += n
+    outward /= np.linalg.norm(outward, axis=1, keepdims=True)
     assert np.allclose(base, outward, atol=1e-6)
+    assert (np.einsum("na,na->n", base, V - V.mean(axis=0)) > 0).all()    # and point outwards
     posed = base + decoded(gltf, blob, prim.targets[1]["NORMAL"])
     assert np.allclose(posed, outward @ R.T, atol=1e-6)
 
