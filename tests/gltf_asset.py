@@ -49,7 +49,7 @@ def tube_part(heights):
                 UV.append([(side + c) / 4, y / 2])
         for r in range(len(heights) - 1):
             i = base + 2 * r
-            F += [[i, i + 1, i + 3], [i, i + 3, i + 2]]
+            F += [[i, i + 3, i + 1], [i, i + 2, i + 3]]   # counter-clockwise from outside
     return (np.array(P, np.float32), np.array(N, np.float32), np.array(T, np.float32),
             np.array(UV, np.float32), np.array(F, np.uint16))
 
@@ -105,14 +105,15 @@ def build(path: Path, required: list[str] | None = None) -> Path:
             indices=accessor(F.reshape(-1), pygltflib.UNSIGNED_SHORT, "SCALAR",
                              target=pygltflib.ELEMENT_ARRAY_BUFFER),
             extras={"part": ["thigh", "shin"][material]}))
-    pedestal, _, _, _, pedestal_faces = tube_part((-0.4, -0.1))
+    pedestal, pedestal_normals, _, _, pedestal_faces = tube_part((-0.4, -0.1))
     pedestal = pedestal * np.float32([3, 1, 3]) + np.float32([0, 0, 0])
     ibm = np.stack([np.eye(4), np.eye(4)])
     ibm[1][1, 3] = -1.0   # the knee sits at y = 1
     gltf.meshes = [
         pygltflib.Mesh(name="leg", primitives=primitives, extras={"author": "tests"}),
         pygltflib.Mesh(name="pedestal", primitives=[pygltflib.Primitive(
-            attributes=pygltflib.Attributes(POSITION=accessor(pedestal, pygltflib.FLOAT, "VEC3", minmax=True)),
+            attributes=pygltflib.Attributes(POSITION=accessor(pedestal, pygltflib.FLOAT, "VEC3", minmax=True),
+                                            NORMAL=accessor(pedestal_normals, pygltflib.FLOAT, "VEC3")),
             indices=accessor(pedestal_faces.reshape(-1), pygltflib.UNSIGNED_SHORT, "SCALAR",
                              target=pygltflib.ELEMENT_ARRAY_BUFFER), material=1)])]
     gltf.nodes = [
@@ -136,10 +137,10 @@ def build(path: Path, required: list[str] | None = None) -> Path:
     gltf.materials = [
         pygltflib.Material(name="skin", pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
             baseColorTexture=pygltflib.TextureInfo(index=0), metallicFactor=0.0),
-            normalTexture=pygltflib.NormalMaterialTexture(index=0, texCoord=1),
+            occlusionTexture=pygltflib.OcclusionTextureInfo(index=0, texCoord=1, strength=0.3),
             extensions={"KHR_materials_emissive_strength": {"emissiveStrength": 2.0}}),
         pygltflib.Material(name="stone", pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(
-            baseColorFactor=[0.5, 0.5, 0.55, 1.0]), extras={"surface": "stone"})]
+            baseColorFactor=[0.5, 0.5, 0.55, 1.0], metallicFactor=0.0), extras={"surface": "stone"})]
     times = np.array([0.0, 0.5, 1.0], np.float32)
     turn = np.array([[0, 0, 0, 1], [0, 0, np.sin(np.pi / 8), np.cos(np.pi / 8)],
                      [0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)]], np.float32)
