@@ -45,6 +45,7 @@ from ..model.character import Character, Clip, Mesh, Track
 from ..model.rotation import Rotation
 from ..model.skeleton import Skeleton, local_matrices, polar_rotation
 from .files import read_input
+from .jsonfile import check_depth
 
 __all__ = ["load_gltf", "read_document", "read_accessor", "joint_nodes"]
 
@@ -92,6 +93,7 @@ def read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
             text, blob = data.decode("utf-8"), None
         except UnicodeDecodeError:
             raise FileFormatError(f"{path}: a .gltf file must be UTF-8 JSON") from None
+    check_depth(text, str(path), "glTF JSON")
     try:
         json.loads(text)
         gltf = pygltflib.GLTF2.gltf_from_json(text)

@@ -1,0 +1,29 @@
+"""JSON inputs nested deeper than any nrpose file are refused before Python's recursive decoder."""
+import pytest
+
+from nrpose.errors import FileFormatError
+from nrpose.io import load_character
+from nrpose.io.jsonfile import MAX_DEPTH, nesting_depth, read_json
+
+
+def test_nesting_depth_ignores_brackets_in_strings():
+    assert nesting_depth('{"a": [1, {"b": "[[[["}], "c": "\\"[["}') == 3
+    assert nesting_depth("3") == 0
+
+
+@pytest.mark.parametrize("depth", [MAX_DEPTH + 1, 100_000])
+def test_deep_json_refused_with_its_depth(tmp_path, depth):
+    path = tmp_path / "deep.json"
+    path.write_text("[" * depth + "]" * depth)
+    with pytest.raises(FileFormatError, match=f"{depth} deep"):
+        read_json(path, "pose file")
+    ok = tmp_path / "ok.json"
+    ok.write_text("[" * MAX_DEPTH + "]" * MAX_DEPTH)
+    assert isinstance(read_json(ok, "pose file"), list)
+
+
+def test_deep_gltf_refused(tmp_path):
+    path = tmp_path / "deep.gltf"
+    path.write_text('{"asset": ' + "[" * 5000 + "]" * 5000 + "}")
+    with pytest.raises(FileFormatError, match="5001 deep"):
+        load_character(path)
