@@ -63,6 +63,7 @@ becomes self-contained) and the new data is appended after it.
 from __future__ import annotations
 
 import base64
+import hashlib
 import mimetypes
 import urllib.parse
 from dataclasses import dataclass
@@ -396,7 +397,7 @@ class _TargetWriter:
         for k, (a, b) in enumerate(zip(self.node.cuts[:-1], self.node.cuts[1:])):
             for attr, (values, base) in enc.items():
                 part = values[a:b] if base is None else _direction_delta(values[a:b], base[a:b], self.quantize)
-                key = (k, attr, part.dtype.str, part.tobytes())
+                key = (k, attr, part.dtype.str, hashlib.blake2b(part.tobytes(), digest_size=32).digest())
                 if key not in self.seen:
                     fresh = True
                     self.seen[key] = self._accessor(part, part.dtype, attr == "POSITION")
