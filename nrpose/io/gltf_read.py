@@ -52,7 +52,7 @@ from .files import read_input
 from .gltf_schema import COMPONENTS, UNIT_TOLERANCE, WIDTHS, decode
 from .jsonfile import check_depth
 
-__all__ = ["load_gltf", "read_document", "joint_nodes"]
+__all__ = ["load_gltf", "read_document", "joint_nodes", "document_character"]
 
 GLB_JSON, GLB_BIN = 0x4E4F534A, 0x004E4942
 #: bytes an accessor without a bufferView (all zeros) may span beyond those of the buffers
@@ -415,19 +415,24 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
     if gltf.scenes:
         if not 0 <= (gltf.scene or 0) < len(gltf.scenes):
             raise FileFormatError(f"{path}: default scene {gltf.scene} does not exist")
-        scene = gltf.scenes[gltf.scene or 0]
-        roots = set(scene.nodes or [])
-        in_scene = [i for i in nodes.order if i in roots or any(a in roots for a in nodes.ancestors(i))]
+        roots = set(gltf.scenes[gltf.scene or 0].nodes or [])
     else:
-        in_scene = nodes.order
+        roots = set(nodes.order)
+    # per node, in depth-first order (parents first): in the scene, and the nearest joint at or above it
+    parents, joint_of = nodes.parents.tolist(), node_to_joint.tolist()
+    inside, nearest = [False] * len(parents), [-1] * len(parents)
+    for i in nodes.order:
+        p = parents[i]
+        inside[i] = i in roots or (p >= 0 and inside[p])
+        nearest[i] = joint_of[i] if joint_of[i] >= 0 else nearest[p] if p >= 0 else -1
     meshes = []
-    for i in in_scene:
+    for i in (i for i in nodes.order if inside[i]):
         node = gltf.nodes[i]
         if node.mesh is None:
             continue
         if not 0 <= node.mesh < len(gltf.meshes):
             raise FileFormatError(f"{path}: node {i} refers to mesh {node.mesh}, which does not exist")
-        attach = next((int(node_to_joint[a]) for a in [i, *nodes.ancestors(i)] if node_to_joint[a] >= 0), -1)
+        attach = nearest[i]
         if node.skin is None and attach < 0:
             continue
         gmesh = gltf.meshes[node.mesh]
@@ -531,6 +536,13 @@ def load_gltf(path: str | Path) -> Character:
     """Character from a ``.glb`` or ``.gltf`` file (see the module docstring)."""
     path = Path(path)
     _, gltf, buffers = _load(path)
+    return document_character(path, gltf, buffers)
+
+
+def document_character(path: Path, gltf, buffers: list[bytes]) -> Character:
+    """Character of a document: typed records of :func:`.gltf_schema.decode` (what
+    :func:`load_gltf` reads) or a pygltflib document from :func:`read_document`; ``path``
+    names the file in errors."""
     acc = _Accessors(path, gltf, buffers)
     binds = _skin_binds(path, gltf, acc)
     nodes = _Nodes(path, gltf)

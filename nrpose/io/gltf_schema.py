@@ -16,6 +16,7 @@ that need the bytes of the buffers (accessors against their views) are the reade
 """
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -148,28 +149,17 @@ class _Fields:
             raise self.error(field, obj[key], "true or false")
         return obj[key]
 
-    def numbers(self, obj: dict, key: str, field: str, length: int | None = None, float32: bool = False):
-        """(length,) float64 of finite JSON numbers (within float32's range if asked), or None."""
+    def numbers(self, obj: dict, key: str, field: str, length: int | None = None) -> list | None:
+        """A list of ``length`` finite JSON numbers within float32's range, or None if absent."""
         if key not in obj:
             return None
         value = obj[key]
-        what = f"an array of {length} numbers" if length else "an array of numbers"
         if not isinstance(value, list) or (length is not None and len(value) != length):
-            raise self.error(field, value, what)
+            raise self.error(field, value, f"an array of {length} numbers" if length else "an array of numbers")
         for i, v in enumerate(value):
-            if type(v) not in (int, float):
-                raise self.error(f"{field}[{i}]", v, "a number")
-        try:
-            out = np.array(value, dtype=np.float64)
-        except OverflowError:
-            out = np.full(len(value), np.inf)
-        limit = FLOAT32_MAX if float32 else np.inf
-        bad = ~(np.abs(out) <= limit)
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise self.error(f"{field}[{i}]", value[i], "a finite number" + (" within float32's range "
-                                                                             "(±3.4e38)" if float32 else ""))
-        return out
+            if type(v) not in (int, float) or not abs(v) <= FLOAT32_MAX:
+                raise self.error(f"{field}[{i}]", v, "a finite number within float32's range (±3.4e38)")
+        return value
 
 
 def _asset(f: _Fields, root: dict) -> None:
@@ -260,16 +250,16 @@ def _node(f: _Fields, n: dict, field: str):
         mesh=f.index(n, "mesh", f"{field}.mesh", "meshes"),
         skin=f.index(n, "skin", f"{field}.skin", "skins"),
         camera=f.index(n, "camera", f"{field}.camera", "cameras"),
-        matrix=f.numbers(n, "matrix", f"{field}.matrix", 16, float32=True),
-        translation=f.numbers(n, "translation", f"{field}.translation", 3, float32=True),
-        rotation=f.numbers(n, "rotation", f"{field}.rotation", 4, float32=True),
-        scale=f.numbers(n, "scale", f"{field}.scale", 3, float32=True),
+        matrix=f.numbers(n, "matrix", f"{field}.matrix", 16),
+        translation=f.numbers(n, "translation", f"{field}.translation", 3),
+        rotation=f.numbers(n, "rotation", f"{field}.rotation", 4),
+        scale=f.numbers(n, "scale", f"{field}.scale", 3),
         weights=f.numbers(n, "weights", f"{field}.weights"))
     if node.matrix is not None and any(k in n for k in ("translation", "rotation", "scale")):
         raise FileFormatError(f"{f.where}: {field} has both a matrix and translation/rotation/scale; "
                               "a node holds one or the other")
     if node.rotation is not None:
-        length = float(np.linalg.norm(node.rotation / 2.0)) * 2.0  # halved: no overflow for |q_i| < 3.4e38
+        length = math.hypot(*node.rotation)
         if not abs(length - 1.0) <= UNIT_TOLERANCE:
             raise f.error(f"{field}.rotation", n["rotation"], f"a unit quaternion (x, y, z, w); its length "
                           f"is {length:.3g}")
