@@ -510,7 +510,7 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
                 bad = np.flatnonzero(~(np.abs(length - 1.0) <= UNIT_TOLERANCE))
                 if bad.size:
                     raise FileFormatError(f"{path}: {field}.output: rotation key {bad[0]} has length "
-                                          f"{length[bad[0]]:.3g}; rotation keys must be unit quaternions (x, y, z, w)")
+                                          f"{length[bad[0]]:.3g}; rotation keys must be unit quaternions")
             try:
                 tracks.append(Track(int(node_to_joint[node]), target, times, values, mode))
             except InputError as exc:

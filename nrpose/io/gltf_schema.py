@@ -4,11 +4,12 @@
 names are pygltflib's (``gltf.nodes[i].children``, ``acc.sparse.indices.componentType``...),
 absent optional fields being None (arrays: empty lists). Before a record exists, its fields
 are checked: JSON type (an index is an int, never a bool, float or string), range (indices
-inside their arrays, counts ≥ 1, offsets ≥ 0, byteStride a multiple of 4 in 4..252), enums
-(componentType, type, mode, interpolation, path), shapes (node TRS and matrix, accessor
-min/max), finiteness and float32 range of node transforms, unit rotation quaternions, unique
-skin joints and children. A violation raises one FileFormatError naming the file and the
-field's JSON path, e.g. ``body.glb: accessors[3].count = true: expected an integer ≥ 1``.
+inside their arrays, counts ≥ 1, offsets ≥ 0, byteStride a multiple of 4 in 4..252, at most
+:data:`MAX_ITEMS` entries per array), enums (componentType, type, mode, interpolation, path),
+shapes (node TRS and matrix, accessor min/max), finiteness and float32 range of node
+transforms, unit rotation quaternions, unique skin joints and children. A violation raises
+one FileFormatError naming the file and the field's JSON path, e.g.
+``body.glb: accessors[3].count = true: expected an integer ≥ 1``.
 
 Only the parts a character needs are decoded (asset, buffers, bufferViews, accessors, nodes,
 meshes, skins, animations, scenes); cameras, materials and textures are passed over. Checks
@@ -33,6 +34,9 @@ INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
 PATHS = ("translation", "rotation", "scale", "weights", "pointer")
 #: required extensions that change how mesh data is stored, which nrpose cannot decode
 UNREADABLE = ("KHR_draco_mesh_compression", "EXT_meshopt_compression")
+#: most entries of one array of objects (accessors, nodes, channels...): a budget that keeps the
+#: writers' pygltflib decoding of a document within seconds
+MAX_ITEMS = 10_000
 #: largest integer a glTF field may hold (JSON numbers are exact up to 2^53)
 MAX_INT = 2 ** 53
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -69,6 +73,9 @@ class _Fields:
         value = obj[key]
         if not isinstance(value, list) or (required and not value):
             raise self.error(field, value, "a non-empty array of objects" if required else "an array of objects")
+        if len(value) > MAX_ITEMS:
+            raise FileFormatError(f"{self.where}: {field} has {len(value)} entries, more than a character "
+                                  f"file holds (at most {MAX_ITEMS}); is it the right file?")
         for i, item in enumerate(value):
             if not isinstance(item, dict):
                 raise self.error(f"{field}[{i}]", item, "an object")
