@@ -52,7 +52,7 @@ from .files import read_input
 from .gltf_schema import COMPONENTS, UNIT_TOLERANCE, WIDTHS, decode
 from .jsonfile import check_depth
 
-__all__ = ["load_gltf", "read_document", "joint_nodes", "document_character"]
+__all__ = ["load_gltf", "read_document", "joint_nodes", "node_globals", "document_character"]
 
 GLB_JSON, GLB_BIN = 0x4E4F534A, 0x004E4942
 #: bytes an accessor without a bufferView (all zeros) may span beyond those of the buffers
@@ -530,6 +530,13 @@ def joint_nodes(path: Path, gltf, buffers: list[bytes]) -> tuple[Skeleton, np.nd
     nodes = np.empty(skeleton.num_joints, np.int64)
     nodes[node_to_joint[node_to_joint >= 0]] = np.flatnonzero(node_to_joint >= 0)
     return skeleton, nodes
+
+
+def node_globals(path: Path, gltf) -> tuple[np.ndarray, np.ndarray]:
+    """Parent (N,) int64 (-1 for roots) and rest world matrix (N, 4, 4) float64 of every node of a
+    document from :func:`read_document`."""
+    nodes = _Nodes(Path(path), gltf)
+    return nodes.parents, nodes.globals
 
 
 def load_gltf(path: str | Path) -> Character:
