@@ -6,7 +6,7 @@ import time
 import numpy as np
 
 from ..bind.distances import surface_distances
-from ..pose.blend import BLENDS, LEVERS
+from ..pose.blend import BLENDS, DEFAULT_BLEND, LEVERS
 from ..pose.mls import BACKENDS, Deformer
 from ..errors import NrposeError
 from ..io.meshes import SUFFIXES, read_geometry, write_geometry
@@ -25,7 +25,8 @@ def add_parser(sub) -> None:
     p.add_argument("-H", "--handles", required=True, help="handle file (JSON)")
     p.add_argument("-o", "--output", required=True, help="output mesh or point cloud")
     p.add_argument("--alpha", type=float, help="weight exponent: w = 1/d^(2 alpha) (overrides the file; default 1)")
-    p.add_argument("--blend", choices=BLENDS, default="relative", help="rotation blend (default: relative)")
+    p.add_argument("--blend", choices=BLENDS, default=DEFAULT_BLEND,
+                   help=f"rotation blend (default: {DEFAULT_BLEND})")
     p.add_argument("--lever", choices=LEVERS, default="weight", help="segment lever rule (default: weight)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--weights", choices=("euclidean", "heat", "exact", "graph", "knn"), default="euclidean",

@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pose.blend import BLENDS
+from ..pose.blend import BLENDS, DEFAULT_BLEND
 from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
@@ -36,9 +36,9 @@ def add_parser(sub) -> None:
     p.add_argument("--method", choices=METHODS, default="nrmls", help="posing method (default nrmls)")
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
-    p.add_argument("--blend", choices=BLENDS, default="relative",
-                   help="nrmls rotation blend (default: relative; quaternion is continuous where the "
-                        "dominant bone changes, for bones less than 90 degrees apart)")
+    p.add_argument("--blend", choices=BLENDS, default=DEFAULT_BLEND,
+                   help=f"nrmls rotation blend (default: {DEFAULT_BLEND}, continuous at any spread of the "
+                        "bones' rotations; relative jumps where the dominant bone changes among three or more)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
     p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")
