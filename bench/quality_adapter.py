@@ -1,42 +1,47 @@
 """The quality suites' only contact with nrpose: every import, and posing a shape or a
-character by each method. After the package layout changes (pose/mls.py, pose/skinning.py,
-pose/poser.py, bind/bone_weights.py, io/, model/) only the imports and :func:`joint_weights`
-here change.
+character by each method.
 
-Methods (:data:`METHODS`): ``nrmls-<blend>`` (the OpenCL NR-MLS deformer, float32), ``lbs``
-and ``dqs`` (the OpenCL skinning deformers, float32), ``cor`` (optimized centers of
-rotation, :mod:`nrpose.cor`: float64 reference; no device kernel yet), and ``nrmls-proto``: the
-float64 prototype of the proposed NR-MLS fixes (:mod:`nrpose.blend_variants`: tree-signed
-quaternion blend, segment parameters (and, for authored weights, the joint-to-bone split) at
-weight-group centroids).
+Methods (:data:`METHODS`), all on the device (float32): ``nrmls-<blend>`` (the NR-MLS
+deformer with each blend, :data:`nrpose.pose.blend.BLENDS`; ``nrmls-quaternion`` is the
+default, tree-signed blend), with the segment parameters that come with the weights
+(:func:`nrpose.bind.bone_weights.bone_weights` ``t``: weight-group centroids for authored
+weights, arrival parameters for topological ones); ``nrmls-closest``: the default blend with
+the closest-point parameters (fixes for rigid parts and topological weights off: what they
+change); ``lbs``, ``dqs`` and ``cor`` (:mod:`nrpose.pose.skinning`, :mod:`nrpose.pose.cor`).
+Shapes take their weights as authored ones (one weight set for every method; groups of
+equal rows get one parameter, as the poser does for authored weights).
 """
 from __future__ import annotations
 
 import numpy as np
 
 # every nrpose import of the quality suites (bench/quality.py and bench/quality_fixes.py use these names)
-from nrpose import Deformer, HandleSet, Pose, blend, blend_variants, cor, skinning
-from nrpose import deformation_metrics, topological_fixes
-from nrpose.character import Character, load_character
-from nrpose.distances import distance_matrix, handle_sources, point_segment_distances
-from nrpose.posing import CharacterPoser, concatenate_meshes, surface_distances
+from nrpose import Deformer, HandleSet, Pose
+from nrpose.bind.bone_weights import bone_weights, group_centers
+from nrpose.bind.distances import (arrival_parameters, distance_matrix, point_segment_distances,
+                                   segment_parameters)
+from nrpose.bind.weights import dense_weights
+from nrpose.io import load_character
+from nrpose.model import deformation_metrics
+from nrpose.model.character import Character
+from nrpose.model.meshset import concatenate_meshes
+from nrpose.model.rotation import Rotation
+from nrpose.pose import blend, cor, skinning
+from nrpose.pose.poser import CharacterPoser
 from nrpose.rigs import cylinder, sleeve, yjunction
 from nrpose.rigs.fingers import fingers_shape
 from nrpose.rigs.humanoid import humanoid
-from nrpose.rotation import Rotation
-from nrpose.weights import dense_weights, keep_top_k
 
 __all__ = [  # the re-exported nrpose names the suites use, then this module's own
-    "Deformer", "HandleSet", "Pose", "blend", "blend_variants", "cor", "skinning", "deformation_metrics",
-    "topological_fixes", "Character", "load_character", "distance_matrix", "handle_sources",
+    "Deformer", "HandleSet", "Pose", "blend", "cor", "skinning", "deformation_metrics", "Character",
+    "load_character", "distance_matrix", "arrival_parameters", "segment_parameters", "group_centers",
     "point_segment_distances", "cylinder", "sleeve", "yjunction", "fingers_shape", "humanoid", "Rotation",
-    "dense_weights", "METHODS", "bone_matrices", "compact", "pose_shape", "joint_weights", "pose_character",
-    "character_geometry", "character_bones", "proto_frames"]
+    "dense_weights", "METHODS", "DEFAULT_METHOD", "bone_matrices", "compact", "pose_shape", "joint_weights",
+    "pose_character", "character_geometry", "character_bones", "continuity_bound"]
 
-BLENDS = ("relative", "quaternion", "paper")
-METHODS = tuple(f"nrmls-{b}" for b in BLENDS) + ("lbs", "dqs", "cor", "nrmls-proto")
-SKELETON_K = 8          # as nrpose.posing: segment slots per vertex for NR-MLS on larger skeletons
-SKIN_INFLUENCES = 4     # as nrpose.posing: bones kept per vertex for skinning with distance weights
+METHODS = tuple(f"nrmls-{b}" for b in blend.BLENDS) + ("nrmls-closest", "lbs", "dqs", "cor")
+DEFAULT_METHOD = f"nrmls-{blend.DEFAULT_BLEND}"
+SKIN_INFLUENCES = 4     # as nrpose.pose.poser: bones kept per vertex for skinning with distance weights
 
 
 def bone_matrices(rest: HandleSet, pose: Pose) -> np.ndarray:
@@ -60,33 +65,27 @@ def compact(W: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
 def pose_shape(method: str, V, F, rest: HandleSet, poses: list[Pose], W: np.ndarray) -> np.ndarray:
     """(frames, N, 3) float64: points V (N, 3) (triangles F) bound to segment handles ``rest``
     with bone weights W (N, B), posed by ``method`` (a rigid transform per bone for skinning)."""
-    if method == "nrmls-proto":
-        return proto_frames(V, rest, poses, blend.rest_terms(V, rest, weights=W), deformation_metrics.weight_groups(W))
     if method.startswith("nrmls-"):
-        dev = Deformer(V, rest, weights=W, blend=method.split("-", 1)[1])
+        blend_name = method.split("-", 1)[1]
+        t = None
+        if blend_name != "closest":
+            t = segment_parameters(group_centers(V, deformation_metrics.weight_groups(W)), rest.segments)
+        dev = Deformer(V, rest, weights=W, t=t, blend=blend.DEFAULT_BLEND if blend_name == "closest" else blend_name)
         return np.array(dev.pose_frames(poses), np.float64)
     joints, weights = compact(W, SKIN_INFLUENCES)
     mats = np.stack([bone_matrices(rest, p) for p in poses])
     if method == "cor":
-        C = cor.centers(V, F, joints, weights)
-        return np.stack([cor.cor_reference(V, joints, weights, m, C) for m in mats])
-    dev = skinning.Deformer(V, joints, weights, method)
+        dev = cor.CorSkinner(V, joints, weights, F if F is not None and len(F) else None)
+    else:
+        dev = skinning.Skinner(V, joints, weights, method)
     return np.array(dev.pose_frames(mats), np.float64)
 
 
-def proto_frames(V, rest: HandleSet, poses, T, labels) -> np.ndarray:
-    """(frames, N, 3) float64 of the prototype fixes from rest terms T; labels (N,): the weight
-    groups (:func:`nrpose.deformation_metrics.weight_groups`) that must move rigidly."""
-    T = blend_variants.with_parameters(T, V, rest, blend.segment_parameters(
-        blend_variants.group_centers(V, labels), rest.segments))
-    tree = blend_variants.coinfluence_tree(T)
-    return np.stack([blend_variants.pose_variant(T, rest, p, "tree", tree) for p in poses])
-
-
 def joint_weights(character: Character, kind: str, alpha: float = 1.0) -> np.ndarray:
-    """(V, J) joint weights of the character's concatenated meshes as nrpose.posing's skinning
+    """(V, J) joint weights of the character's concatenated meshes as nrpose.pose.poser's skinning
     methods use them: ``authored`` (the files' skins) or a bone-distance kind (``heat``, ...),
-    4 nearest bones summed per driving joint. Rigidly attached meshes: one-hot on their joint."""
+    4 nearest bones summed per driving joint. Rigidly attached meshes: one-hot on their joint.
+    (The weight groups of the rigidity metric.)"""
     skel, meshes = character.skeleton, character.meshes
     geo = concatenate_meshes(meshes)
     W = np.zeros((len(geo.vertices), skel.num_joints))
@@ -98,49 +97,30 @@ def joint_weights(character: Character, kind: str, alpha: float = 1.0) -> np.nda
                 np.add.at(W[at:at + n], (np.repeat(np.arange(n), m.joints.shape[1]), m.joints.ravel()), m.weights.ravel())
             at += n
     else:
-        bones = skel.bones()
-        D = surface_distances(geo.vertices, geo.faces, np.zeros((0, 3)), bones.segments, kind)
-        bone_w = keep_top_k(dense_weights(D, alpha), SKIN_INFLUENCES)
-        np.add.at(W.T, bones.joints, bone_w.T)
+        bones = character.skeleton.bones()
+        np.add.at(W.T, bones.joints, bone_weights(character, kind, SKIN_INFLUENCES, alpha).weights.T)
     rigid = geo.rigid >= 0
     W[rigid] = 0.0
     W[np.flatnonzero(rigid), geo.rigid[rigid]] = 1.0
     return W / W.sum(axis=1, keepdims=True)
 
 
-def pose_character(method: str, character: Character, kind: str, local, W_joint: np.ndarray | None = None
-                   ) -> np.ndarray:
-    """(frames, V, 3) float64 posed vertices of the character for a batch local pose (F, J, ...).
-    W_joint: :func:`joint_weights` (for ``cor``; computed when not given)."""
-    if method == "nrmls-proto":
-        geo = concatenate_meshes(character.meshes)
+def pose_character(method: str, character: Character, kind: str, local) -> np.ndarray:
+    """(frames, V, 3) float64 posed vertices of the character for a batch local pose (F, J, ...)."""
+    if method == "nrmls-closest":
         bones = character.skeleton.bones()
-        rest = HandleSet.make(segments=bones.segments)
-        k = SKELETON_K if len(bones) > SKELETON_K else None
-        if kind == "authored":
-            Wj = joint_weights(character, kind) if W_joint is None else W_joint
-            labels = deformation_metrics.weight_groups(Wj)
-            Wb = blend_variants.joint_to_bone_weights(Wj, geo.vertices, bones.segments, bones.joints,
-                                                      character.skeleton.parents, labels)
-            T = blend.rest_terms(geo.vertices, rest, weights=Wb, k=k)
-        else:
-            D = surface_distances(geo.vertices, geo.faces, np.zeros((0, 3)), bones.segments, kind)
-            T = blend.rest_terms(geo.vertices, rest, distances=D, k=k)
-            labels = deformation_metrics.weight_groups(T.weights)
+        bw = bone_weights(character, kind)
+        geo = concatenate_meshes(character.meshes)
+        k = bw.k if bw.k < len(bones) else None
+        dev = Deformer(geo.vertices, HandleSet.make(segments=bones.segments), weights=bw.weights, k=k)
         segs, rots = bones.pose(character.skeleton.forward_kinematics(local))
-        poses = [Pose(HandleSet(np.zeros((0, 3)), segs[f]), rots[f]) for f in range(len(segs))]
-        return proto_frames(geo.vertices, rest, poses, T, labels)
+        return np.array(dev.pose_frames([Pose(HandleSet(np.zeros((0, 3)), segs[f]), rots[f])
+                                         for f in range(len(segs))]), np.float64)
     if method.startswith("nrmls-"):
         poser = CharacterPoser(character, "nrmls", kind, blend=method.split("-", 1)[1])
-        return np.array(poser.pose(local).positions, np.float64)
-    if method in ("lbs", "dqs"):
-        return np.array(CharacterPoser(character, method, kind).pose(local).positions, np.float64)
-    W = joint_weights(character, kind) if W_joint is None else W_joint
-    geo = concatenate_meshes(character.meshes)
-    joints, weights = compact(W, int(np.count_nonzero(W, axis=1).max()))
-    C = cor.centers(geo.vertices, geo.faces, joints, weights)
-    mats = character.skin_matrices(character.skeleton.forward_kinematics(local))
-    return np.stack([cor.cor_reference(geo.vertices, joints, weights, m, C) for m in mats])
+    else:
+        poser = CharacterPoser(character, method, kind)
+    return np.array(poser.pose(local).positions, np.float64)
 
 
 def character_geometry(character: Character):
@@ -155,3 +135,22 @@ def character_bones(character: Character, local=None):
     if local is None:
         return bones.segments
     return bones.pose(character.skeleton.forward_kinematics(local))[0]
+
+
+def continuity_bound(pts, rest: HandleSet, pose: Pose, pairs, W=None) -> tuple[np.ndarray, np.ndarray]:
+    """The default blend's derived continuity bound per pair of points (nrpose/pose/blend.py's
+    docstring, 2 + L_p* + L_q* + 2 |u| L_λ / |a|, in finite-difference form over each pair:
+    differences over the rest distance, the larger |u| and the smaller |a| of the two), and
+    |a| (N,), for points pts (N, 3) bound to segment handles ``rest`` (weights W, default
+    Euclidean) posed by ``pose``; pairs (E, 2)."""
+    T = blend.rest_terms(pts, rest) if W is None else blend.rest_terms(pts, rest, weights=W)
+    S = len(rest.segments)
+    Q = blend.reference_rotations(rest, pose, "relative").as_quat()[:S]
+    signs = blend.tree_signs(Q, blend.sign_tree(T.weights))
+    q_star = np.einsum("nh,nhk->nk", T.weights, blend.handle_points(pose.handles, T.t))
+    a = np.linalg.norm(T.lever @ (signs[:, None] * Q), axis=1)
+    i, j = np.asarray(pairs).T
+    delta = np.linalg.norm(pts[i] - pts[j], axis=1)
+    u = np.maximum(np.linalg.norm(T.u[i], axis=1), np.linalg.norm(T.u[j], axis=1))
+    return 2 + (np.linalg.norm(T.p_star[i] - T.p_star[j], axis=1) + np.linalg.norm(q_star[i] - q_star[j], axis=1)
+                + 2 * u * np.abs(T.lever[i] - T.lever[j]).sum(axis=1) / np.minimum(a[i], a[j])) / delta, a

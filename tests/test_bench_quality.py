@@ -1,7 +1,8 @@
 """Smoke test of bench/quality.py on one small case: it runs end to end, writes the JSON
 document with every metric finite for every method, and the table and close-up PNGs. No quality
 thresholds here beyond the candy wrapper
-(tests/test_deformation_metrics.py, test_cor.py and test_blend_variants.py hold those)."""
+(tests/test_deformation_metrics.py, test_cor.py and test_quality_fixes.py hold those); and the
+suite runs through ``python -m bench --suite quality`` (bench/suites.py)."""
 from __future__ import annotations
 
 import importlib.util
@@ -29,7 +30,7 @@ def quality():
 
 
 def test_quality_suite_runs_on_a_cylinder(quality, tmp_path):
-    methods = ["nrmls-relative", "lbs", "dqs", "cor", "nrmls-proto"]
+    methods = ["nrmls-quaternion", "nrmls-relative", "nrmls-closest", "lbs", "dqs", "cor"]
     code = quality.main(["--cases", "cylinder twist 90", "--methods", *methods, "--json", str(tmp_path / "q.json"),
                          "--png-dir", str(tmp_path), "--closeups", "all"])
     assert code == 0
@@ -43,3 +44,27 @@ def test_quality_suite_runs_on_a_cylinder(quality, tmp_path):
     assert res["lbs"]["volume"] < 0.9 < res["dqs"]["volume"]
     assert (tmp_path / "table.png").stat().st_size > 0
     assert (tmp_path / "closeup_cylinder_twist_90.png").stat().st_size > 0
+    # the default blend's targets on this case: volume judged, p99.9 against LBS/DQS/CoR
+    targets = {t["target"].split(" ")[0]: t for t in doc["targets"]}
+    assert set(targets) == {"p99.9", "volume"}
+    assert targets["volume"]["measured"] == res["nrmls-quaternion"]["volume"]
+
+
+def test_quality_is_a_bench_suite(tmp_path, monkeypatch):
+    sys.path.insert(0, str(BENCH))
+    import quality
+    import suites
+
+    seen = {}
+
+    def fake_run(quick=False, **kw):
+        seen.update(quick=quick, **kw)
+        return {"schema": quality.SCHEMA, "methods": ["nrmls-quaternion"], "cases": [],
+                "targets": [{"case": "c", "target": "volume >= 0.97", "measured": 0.99, "met": True}]}
+
+    monkeypatch.setattr(quality, "run", fake_run)
+    monkeypatch.setattr(suites, "QUALITY_PNG_DIR", tmp_path)
+    doc = suites.run(["quality"], quick=True)
+    assert seen["quick"] and seen["png_dir"] == tmp_path
+    assert doc["suites"]["quality"]["schema"] == quality.SCHEMA
+    assert [t["name"] for t in doc["targets"]] == ["quality c: volume >= 0.97"]

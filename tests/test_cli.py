@@ -166,13 +166,13 @@ def test_pose_clip_to_npz_and_directory(tmp_path, capsys):
                       "-o", tmp_path / "frames", "--format", "obj"], capsys)
     assert code == 0 and sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_0000.obj",
                                                                                       "frame_0001.obj"]
-    # --blend reaches the poser: the quaternion blend's frames are those of the API's
-    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "quaternion",
+    # --blend reaches the poser: the relative blend's frames (not the default's) are those of the API's
+    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "relative",
                       "-o", tmp_path / "walk_q.npz"], capsys)
     assert code == 0
     character = load_character(fox)
     clip = next(c for c in character.clips if c.name == "Walk")
-    expect = CharacterPoser(character, blend="quaternion").pose(clip.sample(np.arange(4) * 2 / 24)).positions
+    expect = CharacterPoser(character, blend="relative").pose(clip.sample(np.arange(4) * 2 / 24)).positions
     got = np.load(tmp_path / "walk_q.npz")["positions"]
     assert np.abs(got - expect).max() <= 1e-5 and np.abs(got - z["positions"]).max() > 0
 

@@ -875,7 +875,8 @@ def test_bound_block_layout_is_the_kernels():
     assert [(n.lower(), int(i)) for n, i in names] == [(n, i) for i, n in enumerate(BOUND_CONSTANTS + BOUND_ARRAYS)]
     rng = np.random.default_rng(5)
     arrays = {"frec": rng.normal(size=77).astype(np.float32), "irec": np.arange(-5, 40, dtype=np.int32),
-              "len2": np.float32([2.5]), "pairs": np.zeros(0, np.int32), "fit": rng.normal(size=(4, 3))}
+              "len2": np.float32([2.5]), "pairs": np.zeros(0, np.int32), "fit": rng.normal(size=(4, 3)),
+              "tree": np.array([[1, -1], [0, 1]], np.int32)}
     constants = {n: 1000 + i for i, n in enumerate(BOUND_CONSTANTS)}
     block, where = bound_block(constants, arrays)
     assert block.dtype == np.uint8 and block.size % BOUND_ALIGN == 0

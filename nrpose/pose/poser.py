@@ -135,7 +135,7 @@ class CharacterPoser:
                 joints = joints + offset[:, None]
                 if method == "cor":
                     faces = submesh_faces(geo.faces, self._deform_idx, self.n)
-                    centers = cor_centers(src, faces, joints, wts)
+                    centers = cor_centers(src, faces if len(faces) else None, joints, wts)
                     self._deformer = (skinning.Skinner(src, joints, wts, method="cor", centers=centers)
                                       if backend == "opencl" else None)
                     self._skin_ref = (src, joints, wts, centers)
