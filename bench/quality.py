@@ -23,7 +23,7 @@ rest-nearest bone of their centroid, apex the bone's midpoint); ``continuity``: 
 |Δ displacement| / rest length over mesh edges, and on the Y-junction ``probe_continuity``
 over a line of points 1e-4 apart crossing the place where the dominant upper bone changes;
 ``rigidity``: largest edge strain inside parts whose vertices share one joint-weight set
-(≥ 3 vertices); ``collapse``: smallest distance-to-local-skeleton ratio posed/rest;
+(≥ 3 vertices; shapes and authored weights only); ``collapse``: smallest distance-to-local-skeleton ratio posed/rest;
 ``bulge``: largest such ratio − 1. Writes one JSON (schema ``nrpose-bench-quality/1``), a
 table PNG (one panel per metric: cases × methods) and per case a PNG of close-ups of the
 worst strain spot (of the default method, the same window for every method), faces
@@ -115,7 +115,9 @@ def character_case(name, ch, kind, times) -> Case:
     clip, t = times if isinstance(times, tuple) else (clip, times)
     local = clip.sample(np.asarray(t, np.float64))
     V, F = qa.character_geometry(ch)
-    W = qa.joint_weights(ch, kind)
+    # rigid parts: vertices sharing one authored weight set (topological weights differ per vertex
+    # under NR-MLS's 8 bones, so the 4-bone skinning weights' groups say nothing about them)
+    W = qa.joint_weights(ch, kind) if kind == "authored" else np.zeros((len(V), 1))
     return Case(name, V, F, qa.character_bones(ch), qa.character_bones(ch, local), W,
                 lambda m: qa.pose_character(m, ch, kind, local))
 
@@ -241,7 +243,7 @@ def closeups(case: Case, posed: dict, results: dict, path: pathlib.Path, radius_
     fig.suptitle(f"{case.name}: strain around {next(iter(results))}'s worst edge, frame {fr} "
                  f"(colour 0 → {vmax}+)", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=70)
+    fig.savefig(path, dpi=60)
     plt.close(fig)
 
 
@@ -279,7 +281,7 @@ def table_png(doc: dict, path: pathlib.Path) -> None:
     fig.suptitle("deformation quality, cases × methods (colour: badness over the row's best, each plus a floor; "
                  "green: best, red: ≥ 30× worse)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=75)
+    fig.savefig(path, dpi=60)
     plt.close(fig)
 
 
@@ -380,6 +382,40 @@ def run(quick: bool = False, frames: int = 6, cases=None, methods=METHODS_ALL, p
     return doc
 
 
+#: the columns of the markdown table (docs/quality.md): metric, header, format
+MARKDOWN_METRICS = (("p99.9", "p99.9 strain", "{:.3f}"), ("max", "max strain", "{:.2f}"),
+                    ("volume", "volume", "{:.3f}"), ("region_volume_min", "region vol. min", "{:.2f}"),
+                    ("continuity", "continuity", "{:.2f}"), ("probe_continuity", "probe continuity", "{:.3g}"),
+                    ("rigidity", "rigid parts", "{:.1e}"), ("collapse", "collapse", "{:.2f}"),
+                    ("bulge", "bulge", "{:.2f}"))
+
+
+def markdown_table(doc: dict) -> str:
+    """The table a user picks a method from: one row per (case, method), a column per metric;
+    the best value of each case in bold (volume, region volume, collapse: closest to 1)."""
+    cols = [m for m in MARKDOWN_METRICS if any(m[0] in r for c in doc["cases"] for r in c["methods"].values())]
+    lines = ["| case | method | " + " | ".join(h for _, h, _ in cols) + " |",
+             "|---|---|" + "---:|" * len(cols)]
+    for c in doc["cases"]:
+        res = c["methods"]
+        best = {}
+        for key, _, fmt in cols:
+            vals = {m: r[key] for m, r in res.items() if r.get(key) is not None}
+            if key in ("rigidity",) and max(vals.values(), default=0) == 0:
+                continue
+            bad = {m: abs(v - 1) if key in ("volume", "region_volume_min", "collapse") else v for m, v in vals.items()}
+            if bad:
+                best[key] = {m for m, b in bad.items() if fmt.format(b) == fmt.format(min(bad.values()))}
+        for k, (m, r) in enumerate(res.items()):
+            cells = []
+            for key, _, fmt in cols:
+                v = r.get(key)
+                txt = "–" if v is None or (key == "rigidity" and key not in best) else fmt.format(v)
+                cells.append(f"**{txt}**" if m in best.get(key, ()) else txt)
+            lines.append(f"| {c['case'] if k == 0 else ''} | {m} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="fewer cases and frames")
@@ -391,7 +427,12 @@ def main(argv=None) -> int:
     ap.add_argument("--data", type=pathlib.Path, default=DEFAULT_DATA)
     ap.add_argument("--closeups", nargs="*", default=list(CLOSEUPS),
                     help="case name prefixes whose close-ups are drawn ('all': every case)")
+    ap.add_argument("--markdown", action="store_true",
+                    help="print the markdown table of the existing --json (docs/quality.md) and exit")
     args = ap.parse_args(argv)
+    if args.markdown:
+        print(markdown_table(json.loads(args.json.read_text())), end="")
+        return 0
     doc = run(args.quick, args.frames, args.cases, args.methods, args.png_dir, args.data, args.closeups,
               log=lambda msg: print(msg, flush=True))
     args.json.parent.mkdir(parents=True, exist_ok=True)

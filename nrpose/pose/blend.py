@@ -31,7 +31,8 @@ not vanish and does not grow with distance:
 
 Point handles always use ``w_i |p̂_i|²``.
 
-Blends (``blend=``): ``"quaternion"`` (default) is the normalised lever-weighted
+Blends (``blend=``; the default, :func:`default_blend`: ``"quaternion"`` on rigs with
+segments, ``"relative"`` on point handles only): ``"quaternion"`` is the normalised lever-weighted
 sum of the handles' unit quaternions, ``R = Σ λ̃_i s_i Q_i / |Σ λ̃_i s_i Q_i|``, with
 **one sign s_i per segment and pose for every point**: along a spanning tree of the
 segments' co-influence (:func:`sign_tree`, rest only: a maximum spanning forest of
@@ -97,8 +98,16 @@ from ..bind.distances import segment_parameters
 from ..bind.weights import dense_weights, keep_top_k
 
 BLENDS = ("quaternion", "relative", "paper")
-#: the default blend (continuous at any spread, equivariant)
+#: the default blend of rigs with segments (skeletons): continuous at any spread, equivariant
 DEFAULT_BLEND = "quaternion"
+
+
+def default_blend(rest: HandleSet) -> str:
+    """The default blend of a rig: :data:`DEFAULT_BLEND` with segment handles; ``"relative"``
+    on point handles only, where every point's reference is R_g, one rotation for all points
+    (the reference never switches: the blend is continuous), and whose tuned device path poses
+    the Table-1 point rows 1.3-2x faster than the quaternion blend's."""
+    return DEFAULT_BLEND if len(rest.segments) else "relative"
 LEVERS = ("weight", "length", "paper")
 
 
@@ -321,12 +330,14 @@ def rotation_table(rest: HandleSet, pose: Pose, blend: str) -> tuple[np.ndarray,
     return refs.as_matrix(), table
 
 
-def pose_reference(terms: RestTerms, rest: HandleSet, pose: Pose, blend: str = DEFAULT_BLEND,
+def pose_reference(terms: RestTerms, rest: HandleSet, pose: Pose, blend: str | None = None,
                    tree: np.ndarray | None = None) -> np.ndarray:
     """Float64 reference of the pose kernel: posed points (N, 3).
 
-    tree: the quaternion blend's :func:`sign_tree` (None: that of ``terms.weights``)."""
+    blend: one of :data:`BLENDS` (None: :func:`default_blend`); tree: the quaternion blend's
+    :func:`sign_tree` (None: that of ``terms.weights``)."""
     rest.same_layout(pose.handles, "posed handles")
+    blend = default_blend(rest) if blend is None else blend
     P = len(rest.points)
     q = handle_points(pose.handles, terms.t)
     q_star = np.einsum("nh,nhk->nk", terms.weights, q)
@@ -432,7 +443,7 @@ def quaternion_rotations(terms: RestTerms, rest: HandleSet, pose: Pose, q: np.nd
     return Rotation.from_quat(np.where(norm > QUAT_FLOOR, acc, Q_ref))
 
 
-def deform_reference(points, rest: HandleSet, pose: Pose, alpha: float = 1.0, blend: str = DEFAULT_BLEND,
+def deform_reference(points, rest: HandleSet, pose: Pose, alpha: float = 1.0, blend: str | None = None,
                      lever: str = "weight", distances=None, weights=None, k: int | None = None) -> np.ndarray:
     """One-shot float64 reference deformation: posed points (N, 3)."""
     terms = rest_terms(points, rest, alpha, lever, distances, weights, k)

@@ -30,7 +30,7 @@ import numpy as np
 from .. import device
 from ..errors import DeviceError, InputError
 from ..model.handles import HandleSet, Pose
-from .blend import BLENDS, DEFAULT_BLEND, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers, sign_tree
+from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers, sign_tree, default_blend
 
 BACKENDS = ("opencl", "numpy")
 #: points per block of work taken from the job mailbox (share.h): at least BLOCK_POINTS,
@@ -75,9 +75,10 @@ class Deformer(device.BoundKernel):
     """A point set bound to rest handles (a :class:`nrpose.device.BoundKernel`).
 
     points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
-    blend: "quaternion" (default: equivariant, continuous at any spread of the rotations),
-    "relative" (equivariant, jumps where the dominant handle changes among three or more
-    handles with different rotations) or "paper"; lever: "weight"
+    blend: "quaternion" (equivariant, continuous at any spread of the rotations), "relative"
+    (equivariant; jumps where the dominant segment changes among three or more with different
+    rotations) or "paper"; None: :func:`nrpose.pose.blend.default_blend` (quaternion with
+    segments, relative on point handles only); lever: "weight"
     (default), "length" or "paper" (see :mod:`nrpose.pose.blend`); distances / weights:
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
     k: keep the k most influential handles of each point (None: all, dense); t: optional
@@ -103,12 +104,13 @@ class Deformer(device.BoundKernel):
 
     PROLOGUE = True
 
-    def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = DEFAULT_BLEND,
+    def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str | None = None,
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
                  backend: str = "opencl", t=None):
         self.lever = lever
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        blend = default_blend(rest) if blend is None else blend
         if blend not in BLENDS:
             raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
         self.rest = rest
