@@ -315,12 +315,13 @@ VOLUME_MIN = 0.97          # on every standard bend and twist
 RIGID_MAX = 1e-4           # largest in-group strain: rigid to float32 precision
 #: why a target is missed, where the figures show it (docs/quality.md has the discussion)
 WHY = {
-    "volume": "NR-MLS turns each vertex rigidly about its weighted centroid p*; in a bend the inner side's "
-              "vertices of both bones are pushed past each other and the outer side stretches (no volume "
-              "term); DQS keeps volume by blending rigid transforms but collapses less only because it bulges",
-    "strain": "where authored weights change fast (Ely: hundreds of joints' weights on small faces), the blend of "
-              "segment rotations stretches edges across the weight change as LBS's matrix blend does, and "
-              "more than it where LBS's shrinkage happens to shorten them",
+    "volume": "NR-MLS turns each vertex rigidly about its weighted centroid p*: in a bend the inner sides of "
+              "both bones are pushed past each other and nothing in the blend restores volume (DQS keeps it "
+              "and bulges instead: see bulge)",
+    "strain": "the method under the best p99.9 here shrinks (LBS: see volume and collapse) or the retargeted "
+              "motion folds the surface (strain > 1 for every method); where authored weights change within "
+              "a few faces, segment rotations blended per vertex stretch edges across the change more than "
+              "the skinning blends (docs/quality.md)",
 }
 
 

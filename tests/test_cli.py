@@ -305,3 +305,17 @@ def test_library_argument_names_become_the_commands_flags():
             == 'give a joint map (--map MAP.json, {"T": "S"}); check it (see --show-map)')
     # names a command does not know, and name=value pairs that are not arguments, stay as they are
     assert flag_text("blend= in x=1, f(), alpha=2", {"blend": "--blend"}) == "--blend in x=1, f(), alpha=2"
+
+
+@needs_data
+def test_pose_default_method_follows_the_weights(tmp_path, capsys):
+    """Without --method: cor with authored weights, nrmls with distance weights or with --blend
+    (docs/quality.md); the frames are those of that method's poser."""
+    fox = DATA / "gltf" / "Fox.glb"
+    for extra, method in (([], "cor"), (["--weights", "euclidean"], "nrmls"), (["--blend", "relative"], "nrmls")):
+        out = tmp_path / f"{method}_{len(extra)}.npz"
+        code, stdout, _ = run(["pose", fox, "--clip", "Run", "--time", "0.3", "-o", out, *extra], capsys)
+        assert code == 0 and f", {method} (" in stdout
+    character = load_character(fox)
+    expect = CharacterPoser(character, method="cor").pose(character.clip("Run").sample(np.array([0.3]))).positions
+    assert np.abs(np.load(tmp_path / "cor_0.npz")["positions"] - expect).max() <= 1e-5
