@@ -98,7 +98,7 @@ def joint_weights(character: Character, kind: str, alpha: float = 1.0) -> np.nda
             at += n
     else:
         bones = character.skeleton.bones()
-        np.add.at(W.T, bones.joints, bone_weights(character, kind, SKIN_INFLUENCES, alpha).weights.T)
+        np.add.at(W.T, bones.joints, bone_weights(character, kind, SKIN_INFLUENCES, alpha, parameters=False).weights.T)
     rigid = geo.rigid >= 0
     W[rigid] = 0.0
     W[np.flatnonzero(rigid), geo.rigid[rigid]] = 1.0
@@ -109,7 +109,7 @@ def pose_character(method: str, character: Character, kind: str, local) -> np.nd
     """(frames, V, 3) float64 posed vertices of the character for a batch local pose (F, J, ...)."""
     if method == "nrmls-closest":
         bones = character.skeleton.bones()
-        bw = bone_weights(character, kind)
+        bw = bone_weights(character, kind, parameters=False)
         geo = concatenate_meshes(character.meshes)
         k = bw.k if bw.k < len(bones) else None
         dev = Deformer(geo.vertices, HandleSet.make(segments=bones.segments), weights=bw.weights, k=k)

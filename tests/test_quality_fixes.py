@@ -143,3 +143,25 @@ def test_arrival_parameters_cut_the_fingers_leakage():
     fixed = tip_motion(blend.rest_terms(V, rest, distances=D, t=arrival_parameters(V, F, s.bones)))
     assert before / euclid > 0.12          # over the issue's 10 %
     assert fixed / euclid < 0.06
+
+
+def test_arrival_parameters_start_where_the_path_starts():
+    """Two parallel bones; a U-shaped strip of points joined only at the far end of bone 0:
+    points beside bone 1's far end but reached over the strip arrive from bone 1's sources
+    (their own closest points); a duplicated vertex (a seam) changes nothing; a point cloud
+    (k nearest neighbours) gives the closest-point parameters where the graph is dense."""
+    segs = np.array([[[0.0, 0, 0], [1, 0, 0]], [[0.0, 1, 0], [1, 1, 0]]])
+    x = np.linspace(0, 1, 21)
+    V = np.concatenate([np.c_[x, np.full(21, 0.2), np.zeros(21)], np.c_[x, np.full(21, 0.8), np.zeros(21)]])
+    t = arrival_parameters(V, None, segs)
+    assert t.shape == (42, 2) and (t >= 0).all() and (t <= 1).all()
+    near = segment_parameters(V, segs)
+    # each strip's own bone: its sources are the strip's points, each arriving from itself
+    assert np.allclose(t[:21, 0], near[:21, 0]) and np.allclose(t[21:, 1], near[21:, 1])
+    F = np.array([[i, i + 1, 21 + i] for i in range(20)] + [[i + 1, 22 + i, 21 + i] for i in range(20)])
+    tm = arrival_parameters(V, F, segs)
+    Vd = np.concatenate([V, V[:1]])                   # vertex 42: a copy of vertex 0 (a seam)
+    Fd = F.copy()
+    Fd[Fd == 0] = 42
+    td = arrival_parameters(Vd, Fd, segs)
+    assert np.allclose(td[:42], tm) and np.allclose(td[42], tm[0])

@@ -75,11 +75,13 @@ class BoneWeights:
 
 
 def bone_weights(character, weights: str = "authored", k: int | str | None = None,
-                 alpha: float = 1.0) -> BoneWeights:
+                 alpha: float = 1.0, parameters: bool = True) -> BoneWeights:
     """Weights of a character's vertices on its bones (see the module docstring).
 
     weights: one of :data:`WEIGHTS`; k: bones kept per vertex (a positive integer, "all",
-    or None for the default); alpha: the exponent of distance weights.
+    or None for the default); alpha: the exponent of distance weights; parameters: compute
+    the blend's segment parameters ``t`` of topological weights (False: ``t`` None there,
+    for callers that only want the weights).
     """
     if weights not in WEIGHTS:
         raise InputError(f"weights must be one of {', '.join(WEIGHTS)}, got {weights!r}")
@@ -124,8 +126,9 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
                     raise InputError(f"the character's deforming meshes have no faces: {weights!r} distances "
                                      "run over a surface; use weights='euclidean'")
                 D[deform] = surface_distances(V[deform], faces, np.zeros((0, 3)), bones.segments, weights)
-                t = segment_parameters(V, bones.segments)
-                t[deform] = arrival_parameters(V[deform], faces, bones.segments)
+                if parameters:
+                    t = segment_parameters(V, bones.segments)
+                    t[deform] = arrival_parameters(V[deform], faces, bones.segments)
             dense = dense_weights(D[deform], alpha)
         W[deform] = keep_top_k(dense, k_eff if k_eff < B else None)
     for j in np.unique(rigid[rigid >= 0]):

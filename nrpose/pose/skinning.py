@@ -46,6 +46,10 @@ launch. DQS converts matrices to dual quaternions on the host;
 
 The numpy references :func:`lbs_reference` and :func:`dqs_reference` compute
 the same in float64 and apply the same validation and weight normalisation.
+
+CoR (``method="cor"``, kernels/cor.cl): skinning with optimized centers of rotation, bound
+through the same class with the vertices' centers (:class:`nrpose.pose.cor.CorSkinner`
+computes them; :func:`nrpose.pose.cor.cor_reference` is its float64 reference).
 """
 from __future__ import annotations
 
