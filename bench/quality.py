@@ -56,7 +56,7 @@ DEFAULT_PNG_DIR = HERE / "results" / "quality"
 DEFAULT_DATA = HERE.parent.parent / "shared" / "data"
 SPREADS = (30, 60, 90, 120, 150, 179)
 #: cases whose close-ups are drawn by default (prefixes; --closeups all: every case)
-CLOSEUPS = ("cylinder bend 135", "cylinder twist 180", "Y spread 179", "Y opposed 150", "sleeve bend 135",
+CLOSEUPS = ("Y spread 179", "Y opposed 150", "sleeve bend 135",
             "Fox Run [heat]", "Mannequin 131_03 [heat]", "Ely 131_03 [authored]", "humanoid walk [authored]")
 #: differences below these do not count in the table's colours (float32 rounding, a percent of volume)
 COLOUR_FLOOR = {"volume": 0.01, "region_volume_min": 0.01, "collapse": 0.05, "rigidity": 1e-3, "bulge": 0.02,
