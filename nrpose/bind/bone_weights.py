@@ -36,10 +36,14 @@ rigid motions are kept):
 A mesh attached rigidly to a joint does not deform: its vertices get weight 1
 on the first bone of that joint (or of its nearest ancestor that drives a bone)
 and their Euclidean bone distances.
+
+:func:`with_skin_weights` gives a character skin weights from elsewhere (a
+libigl weight DMAT, :func:`nrpose.io.tgf.read_dmat_weights`); ``authored``
+then means those.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -51,7 +55,8 @@ from ..model.skeleton import Bones
 from .distances import arrival_parameters, point_segment_distances, segment_parameters, surface_distances
 from .weights import dense_weights, keep_top_k
 
-__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "group_centers"]
+__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "group_centers",
+           "with_skin_weights"]
 
 WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
@@ -167,6 +172,23 @@ def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
         rows.append(W)
     W = np.concatenate(rows)
     return W / W.sum(axis=1, keepdims=True)
+
+
+def with_skin_weights(character, joint_weights: np.ndarray):
+    """The character with ``joint_weights`` (V, J) float64 (rows summing to 1; V = the
+    vertices of all its meshes, concatenated in order) as its meshes' skin weights."""
+    W = np.asarray(joint_weights, dtype=np.float64)
+    sizes = [len(m.vertices) for m in character.meshes]
+    if W.shape != (sum(sizes), character.skeleton.num_joints):
+        raise InputError(f"skin weights: expected {sum(sizes)} vertices × {character.skeleton.num_joints} joints, "
+                         f"got {W.shape}")
+    J = W.shape[1]
+    meshes, start = [], 0
+    for m, n in zip(character.meshes, sizes):
+        rows = W[start:start + n]
+        meshes.append(replace(m, joints=np.tile(np.arange(J), (n, 1)), weights=rows))
+        start += n
+    return replace(character, meshes=tuple(meshes))
 
 
 def _joint_to_bone_weights(joint_w: np.ndarray, D: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
