@@ -14,6 +14,7 @@ from nrpose.io import load_character
 from nrpose.cli import main
 from nrpose.model.handles import handles_document
 from nrpose.io.meshes import read_geometry, write_geometry
+from nrpose.pose.blend import DEFAULT_BLEND
 from nrpose.pose.poser import CharacterPoser
 from nrpose.rigs import box, cylinder
 
@@ -308,14 +309,15 @@ def test_library_argument_names_become_the_commands_flags():
 
 
 @needs_data
-def test_pose_default_method_follows_the_weights(tmp_path, capsys):
-    """Without --method: cor with authored weights, nrmls with distance weights or with --blend
-    (docs/quality.md); the frames are those of that method's poser."""
+def test_pose_default_method_is_nrmls_with_the_default_blend(tmp_path, capsys):
+    """Without --method: nrmls for every kind of weights, with the default (tree-signed
+    quaternion) blend; the frames are that poser's."""
     fox = DATA / "gltf" / "Fox.glb"
-    for extra, method in (([], "cor"), (["--weights", "euclidean"], "nrmls"), (["--blend", "relative"], "nrmls")):
-        out = tmp_path / f"{method}_{len(extra)}.npz"
+    for extra in ([], ["--weights", "euclidean"]):
+        out = tmp_path / f"default_{len(extra)}.npz"
         code, stdout, _ = run(["pose", fox, "--clip", "Run", "--time", "0.3", "-o", out, *extra], capsys)
-        assert code == 0 and f", {method} (" in stdout
+        assert code == 0 and ", nrmls (" in stdout
     character = load_character(fox)
-    expect = CharacterPoser(character, method="cor").pose(character.clip("Run").sample(np.array([0.3]))).positions
-    assert np.abs(np.load(tmp_path / "cor_0.npz")["positions"] - expect).max() <= 1e-5
+    expect = CharacterPoser(character, method="nrmls", blend=DEFAULT_BLEND).pose(
+        character.clip("Run").sample(np.array([0.3]))).positions
+    assert np.abs(np.load(tmp_path / "default_0.npz")["positions"] - expect).max() <= 1e-5

@@ -19,13 +19,6 @@ from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
 from ..render.sheet import save_contact_sheet
 from .common import check_outputs, frames_output_kind, progress, write_frames
 
-#: the method ``nrpose pose`` takes without --method, per --weights (others: nrmls). From the quality
-#: suite (docs/quality.md): with authored skin weights skinning with optimized centers of rotation
-#: has the lowest (or within 2 % of the lowest) 99.9th-percentile edge strain on the characters,
-#: keeps volume and moves parts with one weight set rigidly; with distance weights the NR-MLS
-#: blend's strain is 1.1-4x lower than every skinning method's.
-DEFAULT_METHODS = {"authored": "cor"}
-
 #: library argument name -> the flag users type
 FLAGS = {"method": "--method", "weights": "--weights", "alpha": "--alpha", "blend": "--blend",
          "backend": "--backend", "skeleton": "--skeleton"}
@@ -44,8 +37,8 @@ def add_parser(sub) -> None:
     p.add_argument("--time", type=float, nargs="+", help="clip times in seconds")
     p.add_argument("--frames", help="frame range A:B[:STEP] at --fps")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
-    p.add_argument("--method", choices=METHODS, default=None,
-                   help="posing method (default: cor with authored weights, nrmls with the others or with --blend)")
+    p.add_argument("--method", choices=METHODS, default="nrmls",
+                   help="posing method (default nrmls; docs/quality.md compares them)")
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
     p.add_argument("--weights-file", help="libigl weight DMAT for a mesh + TGF character (rows = vertices, "
                                           "columns = bones in TGF order); used as its authored weights")
@@ -159,8 +152,6 @@ def run(args) -> None:
             raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
                               "write .npz or a directory")
         local = clip.sample(times)
-    if args.method is None:
-        args.method = "nrmls" if args.blend is not None else DEFAULT_METHODS.get(args.weights, "nrmls")
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
     frames = poser.pose(local, progress=progress)
