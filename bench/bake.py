@@ -61,10 +61,10 @@ def library(data: pathlib.Path, fps: int = 30) -> dict:
     g, bvh = data / "gltf", str(data / "bvh" / "131_03.bvh")
     jobs = []
     for clip in ("Survey", "Walk", "Run"):
-        for method, blend in (("nrmls", "relative"), ("nrmls", "quaternion"), ("lbs", "relative"),
-                              ("dqs", "relative")):
-            jobs.append({"character": str(g / "Fox.glb"), "clip": clip, "method": method, "blend": blend,
-                         "output": f"fox/{clip}_{method}_{blend}.npz"})
+        for method, blend in (("nrmls", "relative"), ("nrmls", "quaternion"), ("lbs", None), ("dqs", None)):
+            job = {"character": str(g / "Fox.glb"), "clip": clip, "method": method,
+                   "output": f"fox/{clip}_{method}{'_' + blend if blend else ''}.npz"}
+            jobs.append(dict(job, blend=blend) if blend else job)
     for name in ("Mannequin", "Ely"):
         for motion in ("own", "131", "131_in_place"):
             for method in ("nrmls", "lbs", "dqs"):
@@ -86,7 +86,7 @@ def separate_commands(doc: dict, out: pathlib.Path) -> list[list[list[str]]]:
         dest.parent.mkdir(parents=True, exist_ok=True)
         character, cmds = job["character"], []
         fps = str(doc["defaults"]["fps"])
-        opts = ["--method", job["method"], "--blend", job.get("blend", "relative"), "--fps", fps]
+        opts = ["--method", job["method"], "--fps", fps] + (["--blend", job["blend"]] if "blend" in job else [])
         if "retarget" in job:
             glb = out / f"retargeted_{i}.glb"
             cmds.append(NRPOSE + ["retarget", job["retarget"]["source"], character, "--fps", fps, "-o", str(glb)]

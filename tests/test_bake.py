@@ -197,6 +197,7 @@ BAD_JOBS = [
     ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "root": "keep", "in_place": True}}]},
      "contradict"),
     ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh", "roots": "keep"}}]}, "unknown key 'roots'"),
+    ({"jobs": [{"output": "a.npz", "clip": "walk", "quantize": True}]}, "the output is not .glb"),
     ({"jobs": [{"output": "a.npz", "retarget": {"source": "walk.bvh"}}]}, "'retarget' drives a glTF character"),
     ({"defaults": {"output": "a.npz"}, "jobs": [{"output": "a.npz", "clip": "walk"}]},
      "defaults: unknown key 'output'"),

@@ -5,7 +5,7 @@ A job has the options of ``nrpose pose`` as keys (the table: docs/bake.md):
 ``character``, ``skeleton``; exactly one of ``clip``, ``motion``, ``pose``, ``rest``,
 ``retarget`` (``{"source", "map", "source_clip", "root", "in_place", "force"}``); at most one of
 ``time``, ``frames``; ``fps``, ``method``, ``weights``, ``alpha``, ``blend``,
-``backend``, ``format``; ``output`` (a relative name under OUTDIR).
+``backend``, ``format``, ``quantize``; ``output`` (a relative name under OUTDIR).
 
 ``defaults`` takes every key but ``output``; a job's keys override them, and
 the motion keys (clip, motion, pose, rest, retarget) and the sampling keys
@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 
 from ...errors import InputError, NrposeError
-from ...pose.blend import BLENDS
+from ...pose.blend import BLENDS, DEFAULT_BLEND
 from ...pose.mls import BACKENDS
 from ...pose.poser import METHODS, WEIGHTS
 from ...pose.retarget import ROOT_MODES
@@ -39,7 +39,7 @@ from ..retarget import SOURCE_SUFFIXES, TARGET_SUFFIXES
 MOTION_KEYS = ("clip", "motion", "pose", "rest", "retarget")
 SAMPLING_KEYS = ("time", "frames")
 OPTION_KEYS = ("character", "skeleton") + MOTION_KEYS + SAMPLING_KEYS + (
-    "fps", "method", "weights", "alpha", "blend", "backend", "format")
+    "fps", "method", "weights", "alpha", "blend", "backend", "format", "quantize")
 JOB_KEYS = OPTION_KEYS + ("output",)
 RETARGET_KEYS = ("source", "map", "source_clip", "root", "in_place", "force")
 FORMATS = ("ply", "obj")
@@ -77,9 +77,10 @@ class Job:
     method: str = "nrmls"
     weights: str = "authored"
     alpha: float = 1.0
-    blend: str = "relative"
+    blend: str = DEFAULT_BLEND
     backend: str = "opencl"
     format: str = "ply"
+    quantize: bool = False
 
     @property
     def label(self) -> str:
@@ -219,6 +220,10 @@ def _job(index: int, d: dict, base: Path) -> Job:
         if Path(character).suffix.lower() not in TARGET_SUFFIXES:
             raise InputError(f"'retarget' drives a glTF character ({', '.join(TARGET_SUFFIXES)}), "
                              f"not {Path(character).name}")
+        if frames_output_kind(output) == "glb":
+            # `nrpose pose` of the retargeted .glb copies that file, retargeted animation and all
+            raise InputError("a 'retarget' job writes .npz or a directory; for a .glb, run nrpose retarget "
+                             "and bake the clip of its output")
     return Job(index=index, output=output, character=character,
                skeleton=_input_file(base, skeleton, "skeleton") if skeleton else None,
                clip=_string(d, "clip"),
@@ -227,9 +232,18 @@ def _job(index: int, d: dict, base: Path) -> Job:
                rest=d.get("rest") is True, retarget=retarget, time=time, frames=frames, fps=fps,
                method=_choice(d, "method", METHODS, "nrmls"),
                weights=_choice(d, "weights", WEIGHTS, "authored"),
-               alpha=_number(d, "alpha", 1.0), blend=_choice(d, "blend", BLENDS, "relative"),
+               alpha=_number(d, "alpha", 1.0), blend=_choice(d, "blend", BLENDS, DEFAULT_BLEND),
                backend=_choice(d, "backend", BACKENDS, "opencl"),
-               format=_choice(d, "format", FORMATS, "ply"))
+               format=_choice(d, "format", FORMATS, "ply"), quantize=_quantize(d, output))
+
+
+def _quantize(d: dict, output: str) -> bool:
+    value = d.get("quantize", False)
+    if not isinstance(value, bool):
+        raise InputError(f"'quantize' must be true or false, got {value!r}")
+    if value and frames_output_kind(output) != "glb":
+        raise InputError("'quantize' compacts the morph targets of a .glb output; the output is not .glb")
+    return value
 
 
 def _retarget(spec, base: Path) -> Retarget:

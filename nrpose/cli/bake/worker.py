@@ -126,14 +126,15 @@ def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None)
                 clip, seconds = cache.clip(job, character, outdir)
                 record["load_seconds"] += seconds
             kind = frames_output_kind(job.output)
-            local, times = pose_input(character, clip=clip, motion=job.motion, pose=job.pose, rest=job.rest,
-                                      time=list(job.time) if job.time else None, frames=job.frames,
-                                      fps=job.fps, kind=kind)
+            local, times, name = pose_input(character, clip=clip, motion=job.motion, pose=job.pose,
+                                            rest=job.rest, time=list(job.time) if job.time else None,
+                                            frames=job.frames, fps=job.fps, kind=kind)
             poser, record["bind_seconds"] = cache.poser(job, character)
             frames = posed_frames(poser, local)
             tmp_dir = scratch(outdir)
             tmp = tmp_dir / Path(job.output).name
-            write_frames(str(tmp), frames, times, job.format, character)
+            source = job.character if Path(job.character).suffix.lower() in (".glb", ".gltf") else None
+            write_frames(str(tmp), frames, times, job.format, character, source, job.quantize, name)
             record["size"], record["sha256"] = digest(tmp)
             publish(tmp, outdir / job.output)
         record.update(status="done", frames=int(len(times)))
