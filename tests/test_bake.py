@@ -64,7 +64,7 @@ def library(rig: Path, fps: float = 30.0) -> dict:
             "jobs": [{"output": "a.npz"},
                      {"output": "b.glb", "method": "lbs"},
                      {"output": "c", "method": "dqs", "frames": "0:10:2", "format": "obj"},
-                     {"output": "d.npz", "motion": "walk.bvh", "blend": "quaternion", "time": [0.1, 0.5]},
+                     {"output": "d.npz", "motion": "walk.bvh", "blend": "relative", "time": [0.1, 0.5]},
                      {"output": "e.npz", "rest": True},
                      {"output": "f.npz", "pose": "bend.json", "method": "lbs"},
                      {"output": "sub/g.npz", "alpha": 2.0, "fps": 60},
@@ -158,8 +158,8 @@ def test_local_bake_equals_pose_command_and_bad_job_is_recorded(rig, reference, 
     assert [r["status"] for r in rows] == ["done"] * 7 + ["failed"] and doc["failed"] == 1
     assert [r["frames"] for r in rows] == [31, 31, 6, 2, 1, 1, 61, 0]
     # each worker loads the character once and binds each binding once
-    bindings = {("nrmls", 1.0, "relative"), ("lbs", 1.0, "relative"), ("dqs", 1.0, "relative"),
-                ("nrmls", 1.0, "quaternion"), ("nrmls", 2.0, "relative")}
+    bindings = {("nrmls", 1.0, "quaternion"), ("lbs", 1.0, "quaternion"), ("dqs", 1.0, "quaternion"),
+                ("nrmls", 1.0, "relative"), ("nrmls", 2.0, "quaternion")}
     per_worker = {}
     for r in rows[:-1]:
         per_worker.setdefault(r["worker"], []).append(r)
