@@ -24,11 +24,11 @@ process (start to reaped), peak RSS (the child's own ru_maxrss from os.wait4), C
 medians with p10/p90 over ``--repeat`` rounds; the ratio Blender / nrpose of the medians
 and per round (paired).
 
-Breakdown: per character and method (into .npz, warm caches), two instrumented runs of
-the same job: ``-X importtime`` (module import time, the modules imported) and cProfile
-of the job after every one of those modules is imported beforehand (so the profile has
-no import time in it), its time attributed to the stages load / bind / pose / write by
-:data:`STAGE_RULES` (function names).
+Breakdown: per character and method (into .npz, warm caches), instrumented runs of the
+same job: ``-X importtime`` (module import time, the modules imported); then, with every
+one of those modules imported beforehand (so no import time falls in a stage), the
+functions of :data:`STAGE_RULES` (load / bind / pose / write) timed by wrappers; and the
+same under cProfile for the functions that bound each stage.
 
 Not a test: no assertions; the machine is shared, so the record keeps load averages and
 CPU steal beside the figures.
@@ -72,14 +72,14 @@ BPY_PYTHON = (3, 11)            # the only CPython the bpy 5 wheels are built fo
 # Blender vs nrpose lbs, max distance / rest bounding-box diagonal: float32 round-off where
 # the frames fall on the clip's keys (measured ~1e-5)
 AGREEMENT_TOLERANCE = 1e-4
-# (stage, module path regex, function name regex): a profiled function counts for the
-# first rule it matches; a stage's time is its functions' cumulative time from callers
-# outside the stage. Update the paths when the package moves.
+# (stage, module path regex, qualified function name regex): the functions timed as the
+# stages of a job; nested calls within a stage count once. Update the paths when the
+# package moves.
 STAGE_RULES = (
     ("load", r"nrpose/(character|io/__init__)\.py$", r"load_character"),
-    ("bind", r"nrpose/(posing|pose/poser)\.py$", r"__init__"),
-    ("pose", r"nrpose/(posing|pose/poser)\.py$", r"pose"),
-    ("pose", r"nrpose/(character|model/character)\.py$", r"sample"),        # the clip's local poses
+    ("bind", r"nrpose/(posing|pose/poser)\.py$", r"CharacterPoser\.__init__"),
+    ("pose", r"nrpose/(posing|pose/poser)\.py$", r"CharacterPoser\.pose"),
+    ("pose", r"nrpose/(character|model/character)\.py$", r"(Clip|Track)\.sample"),   # the clip's local poses
     ("write", r"nrpose/cli(/pose)?\.py$", r"_?write_frames"),
 )
 STAGES = ("load", "bind", "pose", "write")
@@ -87,26 +87,71 @@ HEAVY_MODULES = ("matplotlib", "pymeshlab", "igl", "scipy.spatial", "pygltflib")
 TARGETS = {"nrmls_warm_vs_blender_min": 3.0, "lbs_warm_vs_blender_min": 4.0, "cold_vs_blender_min": 1.5,
            "imports_s_max": 0.25, "gltf_load_mannequin_s_max": 0.030}
 
-# run inside the job's interpreter: import argv[1]'s modules, then profile `nrpose` with argv[3:]
+# Runs in the job's interpreter: python -c PROBE MODULES.json RULES.json OUT MODE nrpose-args...
+# Imports every module in MODULES.json first (the job then imports nothing), then runs
+# `nrpose` with MODE "timers" (the functions of RULES.json wrapped in timers; OUT gets
+# {stage: seconds}) or "profile" (cProfile; OUT gets its stats). Last stdout line: JSON
+# {"job_s"}: the job's wall time after the imports.
 PROBE = r"""
-import cProfile, importlib, json, runpy, sys, time
-mods, out = json.load(open(sys.argv[1])), sys.argv[2]
+import cProfile, functools, importlib, inspect, json, os, re, runpy, sys, time
+mods, rules, out, mode = json.load(open(sys.argv[1])), json.load(open(sys.argv[2])), sys.argv[3], sys.argv[4]
 for m in mods:
     try:
         importlib.import_module(m)
     except Exception:
         pass
-sys.argv = ["nrpose"] + sys.argv[3:]
+spent, busy, wrapped = {}, set(), {}
+
+def timer(f, stage):
+    @functools.wraps(f)
+    def timed(*a, **k):
+        if stage in busy:
+            return f(*a, **k)
+        busy.add(stage)
+        t = time.perf_counter()
+        try:
+            return f(*a, **k)
+        finally:
+            spent[stage] = spent.get(stage, 0.0) + time.perf_counter() - t
+            busy.discard(stage)
+    return timed
+
+if mode == "timers":
+    for mod in list(sys.modules.values()):
+        path = (getattr(mod, "__file__", None) or "").replace(os.sep, "/")
+        for stage, mod_re, fn_re in rules:
+            if not re.search(mod_re, path):
+                continue
+            for name, obj in list(vars(mod).items()):
+                if getattr(obj, "__module__", None) != mod.__name__:
+                    continue
+                owners = [(mod, name, obj)] if inspect.isfunction(obj) else [
+                    (obj, n, v) for n, v in vars(obj).items() if inspect.isfunction(v)] if inspect.isclass(obj) else []
+                for owner, n, f in owners:
+                    if f not in wrapped and re.fullmatch(fn_re, f.__qualname__):
+                        wrapped[f] = timer(f, stage)
+                        setattr(owner, n, wrapped[f])
+    for mod in list(sys.modules.values()):    # names imported elsewhere at module level
+        if getattr(mod, "__name__", "").startswith("nrpose"):
+            for name, obj in list(vars(mod).items()):
+                if inspect.isfunction(obj) and obj in wrapped:
+                    setattr(mod, name, wrapped[obj])
+sys.argv = ["nrpose"] + sys.argv[5:]
 prof, code, t = cProfile.Profile(), 0, time.perf_counter()
-prof.enable()
+if mode == "profile":
+    prof.enable()
 try:
     runpy.run_module("nrpose", run_name="__main__", alter_sys=True)
 except SystemExit as e:
     code = e.code or 0
 prof.disable()
-wall = time.perf_counter() - t
-prof.dump_stats(out)
-print(json.dumps({"profiled_s": wall}))
+job = time.perf_counter() - t
+if mode == "profile":
+    prof.dump_stats(out)
+else:
+    json.dump({"stages": spent, "wrapped": sorted(f"{f.__module__}.{f.__qualname__}" for f in wrapped)},
+              open(out, "w"))
+print(json.dumps({"job_s": job}))
 sys.exit(code)
 """
 
@@ -233,9 +278,11 @@ def agreement(nrpose_npz: pathlib.Path, blender_npz: pathlib.Path) -> dict:
 
 # --------------------------------------------------------------------------- breakdown
 
-def import_times(stderr: str) -> dict:
-    """``-X importtime`` lines -> {"total_s" (sum of the top-level imports' cumulative
-    times), "modules" (every module, in import order), "top" (the 12 slowest top-level)}."""
+def import_times(stderr: str, startup=()) -> dict:
+    """``-X importtime`` lines -> {"total_s": the top-level imports' cumulative times,
+    those of the interpreter's own start (``startup``: module names) left out;
+    "startup_s": those; "modules": every module in import order; "top": the 12 slowest
+    top-level imports; "heavy_imported": {module: imported?} for :data:`HEAVY_MODULES`}."""
     rows = []
     for line in stderr.splitlines():
         m = re.match(r"import time:\s+(\d+)\s+\|\s+(\d+)\s+\|( *)(\S+)", line)
@@ -243,50 +290,44 @@ def import_times(stderr: str) -> dict:
             rows.append((m.group(4), int(m.group(2)) * 1e-6, len(m.group(3)) - 1))
     top = [(name, cum) for name, cum, depth in rows if depth == 0]
     mods = [name for name, _, _ in rows]
-    return {"total_s": sum(c for _, c in top), "modules": mods,
-            "top": [{"module": n, "cumulative_s": c} for n, c in sorted(top, key=lambda r: -r[1])[:12]],
+    job = [(n, c) for n, c in top if n not in startup]
+    return {"total_s": sum(c for _, c in job), "startup_s": sum(c for n, c in top if n in startup),
+            "modules": mods, "top": [{"module": n, "cumulative_s": c} for n, c in sorted(job, key=lambda r: -r[1])[:12]],
             "heavy_imported": {h: any(m == h or m.startswith(h + ".") for m in mods) for h in HEAVY_MODULES}}
 
 
-def stage_seconds(stats: dict) -> tuple[dict, dict]:
-    """pstats' ``stats`` dict -> ({stage: seconds}, {stage: [matched "file:function"]})."""
-    stage_of = {}
-    for key in stats:
-        path = key[0].replace(os.sep, "/")
-        for stage, mod, fn in STAGE_RULES:
-            if re.search(mod, path) and re.fullmatch(fn, key[2]):
-                stage_of[key] = stage
-                break
-    secs, matched = {s: 0.0 for s in STAGES}, {s: [] for s in STAGES}
-    for key, stage in stage_of.items():
-        _, _, _, ct, callers = stats[key]
-        outside = [v[3] for c, v in callers.items() if stage_of.get(c) != stage]
-        secs[stage] += sum(outside) if callers else ct
-        matched[stage].append(f"{pathlib.Path(key[0]).name}:{key[2]}")
-    return secs, matched
+def _probe(py: str, mode: str, args: list, env: dict, tmp: pathlib.Path) -> float:
+    r = subprocess.run([py, "-c", PROBE, str(tmp / "modules.json"), str(tmp / "rules.json"), str(tmp / mode), mode,
+                        *args], env=env, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"instrumented run ({mode}) failed: {r.stderr[-2000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])["job_s"]
 
 
 def breakdown(py: str, args: list, env: dict, tmp: pathlib.Path) -> dict:
-    """Import times and the stage profile of one job (``args`` after ``nrpose``)."""
+    """Imports and stages of one job (``args`` after ``nrpose``), from three runs of it:
+    ``-X importtime``; with every module it imports imported beforehand and the
+    :data:`STAGE_RULES` functions timed; the same under cProfile (its 15 functions of
+    most own time)."""
+    r = subprocess.run([py, "-X", "importtime", "-c", "pass"], env=env, capture_output=True, text=True)
+    startup = set(import_times(r.stderr)["modules"])
     r = subprocess.run([py, "-X", "importtime", "-m", "nrpose", *args], env=env, capture_output=True, text=True)
     if r.returncode != 0:
         raise RuntimeError(f"importtime run failed: {r.stderr[-2000:]}")
-    imports = import_times(r.stderr)
-    mods = [m for m in imports["modules"] if not m.endswith("__main__")]
-    (tmp / "modules.json").write_text(json.dumps(mods))
-    r = subprocess.run([py, "-c", PROBE, str(tmp / "modules.json"), str(tmp / "job.prof"), *args], env=env,
-                       capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"profiled run failed: {r.stderr[-2000:]}")
-    profiled = json.loads(r.stdout.strip().splitlines()[-1])["profiled_s"]
-    st = pstats.Stats(str(tmp / "job.prof"))
-    secs, matched = stage_seconds(st.stats)
-    left = [v for k, v in st.stats.items() if k[2] == "_find_and_load"]
+    imports = import_times(r.stderr, startup)
+    (tmp / "modules.json").write_text(json.dumps([m for m in imports["modules"] if not m.endswith("__main__")]))
+    (tmp / "rules.json").write_text(json.dumps(STAGE_RULES))
+    job = _probe(py, "timers", args, env, tmp)
+    timed = json.loads((tmp / "timers").read_text())
+    secs = {s: timed["stages"].get(s, 0.0) for s in STAGES}
+    profiled = _probe(py, "profile", args, env, tmp)
+    st = pstats.Stats(str(tmp / "profile"))
     top = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:15]
-    return {"imports_s": imports["total_s"], "stages_s": secs, "profiled_s": profiled,
-            "other_s": profiled - sum(secs.values()), "imports_in_profile_s": sum(v[3] for v in left),
-            "stage_functions": matched, "import_top": imports["top"], "heavy_imported": imports["heavy_imported"],
-            "modules_imported": len(imports["modules"]),
+    return {"imports_s": imports["total_s"], "interpreter_start_imports_s": imports["startup_s"],
+            "stages_s": secs, "job_s": job, "other_s": job - sum(secs.values()),
+            "stage_functions": timed["wrapped"], "import_top": imports["top"],
+            "heavy_imported": imports["heavy_imported"], "modules_imported": len(imports["modules"]),
+            "profiled_job_s": profiled,
             "top_tottime": [{"function": f"{pathlib.Path(k[0]).name}:{k[1]}({k[2]})", "tottime_s": v[2],
                              "cumtime_s": v[3], "calls": v[1]} for k, v in top]}
 
@@ -447,7 +488,7 @@ def _character(ch, methods, rounds, script, py, bpy_python, tmp, warm, doc, quic
         doc["breakdown"].append(b)
         if log:
             log(f"e2e {name} {method} stages: imports {b['imports_s']:.3f} s; " + ", ".join(
-                f"{s} {v:.3f}" for s, v in b["stages_s"].items()) + f"; other {b['other_s']:.3f} (profiled)")
+                f"{s} {v:.3f}" for s, v in b["stages_s"].items()) + f"; other {b['other_s']:.3f}")
     if log:
         for row in rows:
             log(f"e2e {name:9s} {row['who']:7s} {row['method'] or '':5s} {row['output']} {row['mode']}: "
@@ -496,7 +537,7 @@ def targets(doc: dict) -> list[dict]:
                 "met": bool(worst and worst["imports_s"] <= TARGETS["imports_s_max"]), "meaningful": not q})
     man = [r for r in b if r["character"] == "mannequin"]
     load = min(r["stages_s"]["load"] for r in man) if man else None
-    out.append({"name": "glTF load of Mannequin <= 30 ms (profiled load stage, best of the methods' runs)",
+    out.append({"name": "glTF load of Mannequin <= 30 ms (timed load stage, best of the methods' runs)",
                 "target": TARGETS["gltf_load_mannequin_s_max"], "measured": load, "where": "mannequin",
                 "met": bool(load is not None and load <= TARGETS["gltf_load_mannequin_s_max"]), "meaningful": not q})
     rs = [r for r in rows if r["vs_blender"]]
