@@ -256,12 +256,13 @@ def agreement(nrpose_npz: pathlib.Path, blender_npz: pathlib.Path) -> dict:
     from scipy.spatial import cKDTree
 
     a, b = np.load(nrpose_npz), np.load(blender_npz)
-    pos, offsets, names = a["positions"], a["mesh_offsets"], [str(n) for n in a["mesh_names"]]
+    pos, names = a["positions"], [str(n) for n in a["mesh_names"]]
+    edges = np.append(a["mesh_offsets"][:len(names)], pos.shape[1])     # mesh_offsets: each mesh's first vertex
     theirs = {str(n): b[f"positions_{i}"] for i, n in enumerate(b["names"])}
     diag = float(np.linalg.norm(pos[0].max(axis=0) - pos[0].min(axis=0)))
     errs = []
     for i, name in enumerate(names):
-        ours = pos[:, offsets[i]:offsets[i + 1]]
+        ours = pos[:, edges[i]:edges[i + 1]]
         other = theirs.get(name)
         if other is None or other.shape[0] != ours.shape[0]:
             return {"error": f"mesh {name!r}: Blender has {None if other is None else other.shape}, "

@@ -47,7 +47,7 @@ def test_agreement_matches_vertices_by_position(tmp_path):
     rng = np.random.default_rng(1)
     pos = rng.normal(size=(4, 50, 3)).astype(np.float32)
     perm = rng.permutation(50)
-    np.savez(tmp_path / "ours.npz", positions=pos, mesh_names=np.array(["body"]), mesh_offsets=np.array([0, 50]))
+    np.savez(tmp_path / "ours.npz", positions=pos, mesh_names=np.array(["body"]), mesh_offsets=np.array([0]))
     np.savez(tmp_path / "same.npz", names=np.array(["body"]), positions_0=pos[:, perm])
     moved = pos[:, perm].copy()
     moved[2, 7] += np.float32([0.0, 0.01, 0.0])        # one vertex of frame 2 off by 0.01
