@@ -384,7 +384,8 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
            "environment": common.environment(), "load_start": common.load(),
            "modes": {"cold": "each run: fresh empty NRPOSE_CACHE_DIR and POCL_CACHE_DIR, the input .glb dropped "
                              "from the OS page cache (posix_fadvise DONTNEED on that file; no system-wide "
-                             "drop_caches); interpreter and library files stay in the page cache",
+                             "drop_caches); interpreter and library files stay in the page cache. pyopencl keeps no "
+                             "binary cache of its own on PoCL (it leaves caching to PoCL)",
                      "warm": "binding and PoCL caches filled by an untimed run of the same job; the input "
                              "file read just before the run"},
            "measure": "wall: process start to reaped (perf_counter around Popen + os.wait4); peak_rss: the "

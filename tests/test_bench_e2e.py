@@ -62,6 +62,20 @@ def test_agreement_matches_vertices_by_position(tmp_path):
     assert "error" in e2e.agreement(tmp_path / "ours.npz", tmp_path / "other.npz")
 
 
+def test_agreement_splits_meshes_at_their_offsets(tmp_path):
+    rng = np.random.default_rng(2)
+    pos = rng.normal(size=(3, 30, 3)).astype(np.float32)
+    np.savez(tmp_path / "ours.npz", positions=pos, mesh_names=np.array(["a", "b"]), mesh_offsets=np.array([0, 10]))
+    # Blender's meshes in another order; "b" (20 vertices) exactly, "a" shifted by 0.5 in frame 1
+    a = pos[:, :10].copy()
+    a[1] += 0.5
+    np.savez(tmp_path / "theirs.npz", names=np.array(["b", "a"]), positions_0=pos[:, 10:], positions_1=a)
+    diag = float(np.linalg.norm(pos[0].max(axis=0) - pos[0].min(axis=0)))
+    r = e2e.agreement(tmp_path / "ours.npz", tmp_path / "theirs.npz")
+    assert r["vertices"] == 30 and r["worst_frame"] == 1
+    assert r["max_rel"] == pytest.approx(0.5 * np.sqrt(3) / diag, rel=1e-5)
+
+
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     if not (DATA / "gltf" / "Fox.glb").exists():
