@@ -20,7 +20,7 @@ cache (POCL_CACHE_DIR) per run, and the input .glb dropped from the OS page cach
 and the libraries' files stay cached. ``warm`` -- caches filled by an untimed run of the
 same job, input file read just before. Runs are alternated: per round every contestant
 runs once per mode, the order rotated by round. Reported per contestant: wall time of the
-process (start to reaped), peak RSS (the child's own ru_maxrss from os.wait4), CPU time;
+process (start to reaped), peak RSS (the job's ru_maxrss, seen from a small launcher process), CPU time;
 medians with p10/p90 over ``--repeat`` rounds; the ratio Blender / nrpose of the medians
 and per round (paired).
 
@@ -158,37 +158,38 @@ sys.exit(code)
 
 # --------------------------------------------------------------------------- processes
 
-def nrpose_script() -> pathlib.Path:
-    """The ``nrpose`` console script beside this interpreter (a venv's bin/), else on PATH."""
-    here = pathlib.Path(sys.executable).parent / "nrpose"
-    found = here if here.exists() else shutil.which("nrpose")
-    if not found:
-        raise RuntimeError("no nrpose console script beside this Python or on PATH: run from the venv "
-                           "(make venv; .venv/bin/python bench/e2e.py)")
-    return pathlib.Path(found)
-
-
-def script_python(script: pathlib.Path) -> str:
-    """The interpreter a console script runs under (its #! line)."""
-    first = script.read_text(errors="replace").splitlines()[0]
-    return first[2:].strip().split()[0] if first.startswith("#!") else sys.executable
+#: a small Python that runs the job and writes its wall time, peak RSS and CPU time
+#: (argv: OUT.json job...): see :func:`run_process`
+LAUNCHER = r"""
+import json, resource, subprocess, sys, time
+t = time.perf_counter()
+code = subprocess.call(sys.argv[2:])
+wall = time.perf_counter() - t
+ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+with open(sys.argv[1], "w") as f:
+    json.dump({"wall_s": wall, "peak_rss_kib": ru.ru_maxrss, "cpu_s": ru.ru_utime + ru.ru_stime}, f)
+sys.exit(code)
+"""
 
 
 def run_process(cmd: list, env: dict, log_path: pathlib.Path) -> dict:
     """Run ``cmd`` to completion, stdout and stderr to ``log_path``. Returns
     {"wall_s", "peak_rss_mib", "cpu_s", "stdout"}; RuntimeError with the output's tail on
-    a non-zero exit."""
+    a non-zero exit.
+
+    The job is started and timed by :data:`LAUNCHER` in a small interpreter (``-I -S``):
+    Linux counts the memory of the process that forks a job into the job's peak RSS
+    (ru_maxrss covers the forked copy before exec), so forked from this benchmark every
+    job would show at least the benchmark's own size."""
+    stats = log_path.with_suffix(".rusage.json")
     with open(log_path, "wb") as log:
-        t = time.perf_counter()
-        p = subprocess.Popen([str(c) for c in cmd], stdout=log, stderr=subprocess.STDOUT, env=env)
-        _, status, ru = os.wait4(p.pid, 0)      # this child's own rusage (peak RSS in KiB)
-        wall = time.perf_counter() - t
-        p.returncode = os.waitstatus_to_exitcode(status)
+        code = subprocess.call([sys.executable, "-I", "-S", "-c", LAUNCHER, str(stats), *map(str, cmd)],
+                               stdout=log, stderr=subprocess.STDOUT, env=env)
     text = log_path.read_text(errors="replace")
-    if p.returncode != 0:
-        raise RuntimeError(f"{' '.join(map(str, cmd))} exited {p.returncode}: {text[-2000:]}")
-    return {"wall_s": wall, "peak_rss_mib": ru.ru_maxrss / 1024, "cpu_s": ru.ru_utime + ru.ru_stime,
-            "stdout": text}
+    if code != 0:
+        raise RuntimeError(f"{' '.join(map(str, cmd))} exited {code}: {text[-2000:]}")
+    r = json.loads(stats.read_text())
+    return {"wall_s": r["wall_s"], "peak_rss_mib": r["peak_rss_kib"] / 1024, "cpu_s": r["cpu_s"], "stdout": text}
 
 
 def evict(path: pathlib.Path) -> bool:
@@ -391,8 +392,9 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
                              "binary cache of its own on PoCL (it leaves caching to PoCL)",
                      "warm": "binding and PoCL caches filled by an untimed run of the same job; the input "
                              "file read just before the run"},
-           "measure": "wall: process start to reaped (perf_counter around Popen + os.wait4); peak_rss: the "
-                      "child's ru_maxrss; cpu: its user + system time; medians, p10, p90 over rounds; "
+           "measure": "wall: process start to reaped (perf_counter around subprocess.call in a small launcher "
+                      "process); peak_rss: the job's ru_maxrss (RUSAGE_CHILDREN of the launcher); cpu: its user + "
+                      "system time; medians, p10, p90 over rounds; "
                       "vs_blender: Blender's median wall / this row's (same mode, same character; > 1: nrpose "
                       "faster), paired: the same ratio per round",
            "rows": [], "agreement": {}, "breakdown": [], "skipped": []}
