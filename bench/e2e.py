@@ -158,6 +158,22 @@ sys.exit(code)
 
 # --------------------------------------------------------------------------- processes
 
+def nrpose_script() -> pathlib.Path:
+    """The ``nrpose`` console script beside this interpreter (a venv's bin/), else on PATH."""
+    here = pathlib.Path(sys.executable).parent / "nrpose"
+    found = here if here.exists() else shutil.which("nrpose")
+    if not found:
+        raise RuntimeError("no nrpose console script beside this Python or on PATH: run from the venv "
+                           "(make venv; .venv/bin/python bench/e2e.py)")
+    return pathlib.Path(found)
+
+
+def script_python(script: pathlib.Path) -> str:
+    """The interpreter a console script runs under (its #! line)."""
+    first = script.read_text(errors="replace").splitlines()[0]
+    return first[2:].strip().split()[0] if first.startswith("#!") else sys.executable
+
+
 #: a small Python that runs the job and writes its wall time, peak RSS and CPU time
 #: (argv: OUT.json job...): see :func:`run_process`
 LAUNCHER = r"""
