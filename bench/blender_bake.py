@@ -2,7 +2,7 @@
 
     PYTHON_WITH_BPY blender_bake.py CHARACTER.glb CLIP FPS FRAMES OUT.npz
 
-Runs in the benchmark's own ``bpy`` environment (bench/e2e.py installs it), not in
+Runs in the project's ``bpy`` environment (.venv-blender, `make blender`), not in
 nrpose's: it imports nothing of nrpose. Imports the .glb (Blender's glTF importer),
 plays the animation named CLIP on every armature at FPS frames per second for FRAMES
 frames (times k / FPS, k = 0 .. FRAMES - 1, as ``nrpose pose --clip CLIP --fps FPS``

@@ -1,14 +1,17 @@
 """e2e suite: the whole job, file to file, as a user runs it, against Blender 5 doing the same.
 
-    .venv/bin/python bench/e2e.py [--repeat 5] [--quick] [--no-blender] [--json OUT.json]
-                                  [--characters fox,mannequin,ely] [--data DIR]
+    .venv/bin/python -m bench --suite e2e [--repeat 5] [--quick] [--no-blender] [--json OUT.json]
+                                             [--characters fox,mannequin,ely] [--data DIR]
+
+(``.venv/bin/python bench/e2e.py`` takes the same options.)
 
 Every timed job is a whole process: ``nrpose pose CHARACTER --clip CLIP --method M -o OUT``
 (the console script next to the interpreter running this file, as a user starts it), for
 each method (nrmls, lbs, dqs; authored weights, 30 fps, the whole clip) into ``.npz`` and
 into ``.glb``, on Fox (clip Run), Mannequin and Ely (each with CMU 131_03 retargeted onto
 it by ``nrpose retarget`` into a temporary folder at the start). The anchor: Blender 5
-(``bpy``, installed by this benchmark into bench/.venv-blender) importing the same .glb,
+(``bpy`` in the project's .venv-blender, made by ``make blender``, which this
+benchmark runs when it is missing) importing the same .glb,
 playing the same clip at the same frames, reading back every frame's deformed vertices
 and writing them with ``np.savez`` (bench/blender_bake.py). Its positions are checked
 against ``nrpose pose --method lbs`` (the same job, linear blend skinning of the authored
@@ -66,8 +69,8 @@ MOTION = "bvh/131_03.bvh"
 # name, file under the data folder, clip (None: retarget MOTION onto it)
 CHARACTERS = (("fox", "gltf/Fox.glb", "Run"), ("mannequin", "gltf/Mannequin.glb", None),
               ("ely", "gltf/Ely.glb", None))
-BLENDER_ENV = HERE / ".venv-blender"
-BPY_REQUIREMENT = "bpy>=5.0,<6"
+ROOT = HERE.parent
+BLENDER_ENV = ROOT / ".venv-blender"      # the Makefile's `blender` target makes it
 BPY_PYTHON = (3, 11)            # the only CPython the bpy 5 wheels are built for
 # Blender vs nrpose lbs, max distance / rest bounding-box diagonal: float32 round-off where
 # the frames fall on the clip's keys (measured ~1e-5)
@@ -76,11 +79,11 @@ AGREEMENT_TOLERANCE = 1e-4
 # stages of a job; nested calls within a stage count once. Update the paths when the
 # package moves.
 STAGE_RULES = (
-    ("load", r"nrpose/(character|io/__init__)\.py$", r"load_character"),
-    ("bind", r"nrpose/(posing|pose/poser)\.py$", r"CharacterPoser\.__init__"),
-    ("pose", r"nrpose/(posing|pose/poser)\.py$", r"CharacterPoser\.pose"),
-    ("pose", r"nrpose/(character|model/character)\.py$", r"(Clip|Track)\.sample"),   # the clip's local poses
-    ("write", r"nrpose/cli(/pose)?\.py$", r"_?write_frames"),
+    ("load", r"nrpose/io/__init__\.py$", r"load_character"),
+    ("bind", r"nrpose/pose/poser\.py$", r"CharacterPoser\.__init__"),
+    ("pose", r"nrpose/pose/poser\.py$", r"CharacterPoser\.pose"),
+    ("pose", r"nrpose/model/character\.py$", r"(Clip|Track)\.sample"),   # the clip's local poses
+    ("write", r"nrpose/cli/(pose|common)\.py$", r"write_frames"),       # the pose command's writer
 )
 STAGES = ("load", "bind", "pose", "write")
 HEAVY_MODULES = ("matplotlib", "pymeshlab", "igl", "scipy.spatial", "pygltflib")
@@ -232,9 +235,9 @@ def read_through(path: pathlib.Path) -> None:
 # --------------------------------------------------------------------------- Blender
 
 def blender_python(log=None) -> tuple[str | None, dict]:
-    """The interpreter of the benchmark's own ``bpy`` environment, installing it on first
-    use; (None, info with "reason") where it cannot be had."""
-    info = {"env": str(BLENDER_ENV), "requirement": BPY_REQUIREMENT}
+    """The interpreter of the project's ``bpy`` environment (.venv-blender), made by ``make
+    blender`` on first use; (None, info with "reason") where it cannot be had."""
+    info = {"env": str(BLENDER_ENV), "made_by": "make blender"}
     py = BLENDER_ENV / "bin" / "python"
     if not py.exists():
         base = next((c for c in (shutil.which(f"python{BPY_PYTHON[0]}.{BPY_PYTHON[1]}"),
@@ -245,16 +248,15 @@ def blender_python(log=None) -> tuple[str | None, dict]:
             info["reason"] = (f"bpy 5 needs CPython {BPY_PYTHON[0]}.{BPY_PYTHON[1]}; found "
                               f"{'.'.join(version) or 'no python3'} ({base})")
             return None, info
+        if shutil.which("make") is None:
+            info["reason"] = f"no bpy environment at {BLENDER_ENV} and no make to run `make blender`"
+            return None, info
         if log:
-            log(f"e2e: installing {BPY_REQUIREMENT} into {BLENDER_ENV} (once; a few minutes)")
-        r = subprocess.run([base, "-m", "venv", str(BLENDER_ENV)], capture_output=True, text=True)
-        if r.returncode == 0:
-            r = subprocess.run([str(py), "-m", "pip", "install", "--quiet", "--disable-pip-version-check",
-                                BPY_REQUIREMENT, "numpy"], capture_output=True, text=True)
+            log(f"e2e: make blender (bpy into {BLENDER_ENV}; once, a few minutes)")
+        r = subprocess.run(["make", "-C", str(ROOT), "blender", f"PYTHON={base}"], capture_output=True, text=True)
         if r.returncode != 0:
-            shutil.rmtree(BLENDER_ENV, ignore_errors=True)
             tail = (r.stderr or r.stdout).strip().splitlines()
-            info["reason"] = f"pip install {BPY_REQUIREMENT} failed: {tail[-1] if tail else r.returncode}"
+            info["reason"] = f"make blender failed: {tail[-1] if tail else r.returncode}"
             return None, info
     r = subprocess.run([str(py), "-c", "import sys, bpy; print(bpy.app.version_string); print(sys.version.split()[0])"],
                        capture_output=True, text=True)
@@ -602,8 +604,8 @@ def write_json(doc: dict, path) -> None:
     os.replace(tmp, path)
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def main(argv=None, prog: str | None = None) -> int:
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("--repeat", type=int, default=5, help="rounds (default 5)")
     ap.add_argument("--quick", action="store_true",
                     help="Fox, nrmls, one round, no Blender (smoke test: timings mean nothing)")
