@@ -81,7 +81,9 @@ class Deformer(device.BoundKernel):
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
     k: keep the k most influential handles of each point (None: all, dense).
     With k < S the kernel stores, per point, k segment slots (which segment,
-    its coefficients) instead of all S segments.
+    its coefficients) instead of all S segments. kept: on OpenCL, :func:`kept_terms` of
+    these same arguments from an earlier bind (the binding cache), used instead of
+    computing them.
 
     ``terms``: the :class:`nrpose.pose.blend.RestTerms` (float64, dense (N, H)). The
     numpy backend keeps them. The OpenCL deformer never holds them for all points:
@@ -101,7 +103,7 @@ class Deformer(device.BoundKernel):
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
-                 backend: str = "opencl"):
+                 backend: str = "opencl", kept: dict | None = None):
         self.lever = lever
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -116,8 +118,8 @@ class Deformer(device.BoundKernel):
         if backend == "opencl":
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
             # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
-            kept = rest_terms(points, rest, alpha, lever, distances, weights, k,
-                              per_block=lambda T: slot_terms(T, k, lever))
+            if kept is None:
+                kept = kept_terms(points, rest, alpha, lever, distances, weights, k)
             self._terms: RestTerms | None = None
             self.n = len(kept["u"])
             self._bind_device(kept)
@@ -395,6 +397,15 @@ class GlobalFit:
             cl.enqueue_nd_range_kernel(queue, kernel, (len(poses),), None)
         block.download()
         return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
+
+
+def kept_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight", distances=None,
+               weights=None, k: int | None = None) -> dict:
+    """What an OpenCL :class:`Deformer` of these arguments keeps of its rest terms
+    (:func:`slot_terms`, all points), computed block by block: the ``kept`` a Deformer of
+    the same arguments can be given instead (the binding cache stores it)."""
+    return rest_terms(points, rest, alpha, lever, distances, weights, k,
+                      per_block=lambda T: slot_terms(T, k, lever))
 
 
 def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:

@@ -34,8 +34,9 @@ import numpy as np
 
 from . import skinning
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
+from ..bind.cache import cached_status, code_version
 from .blend import BLENDS
-from .mls import Deformer
+from .mls import Deformer, kept_terms
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose
@@ -46,6 +47,10 @@ __all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames"]
 
 METHODS = ("nrmls", "lbs", "dqs")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
+#: the modules whose code an NR-MLS bind runs: their source is part of the binding cache's key
+BIND_MODULES = ("nrpose.pose.poser", "nrpose.pose.mls", "nrpose.pose.blend", "nrpose.bind.bone_weights",
+                "nrpose.bind.weights", "nrpose.bind.distances", "nrpose.model.skeleton", "nrpose.model.meshset",
+                "nrpose.model.rotation", "nrpose.model.handles")
 BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
 
@@ -98,14 +103,17 @@ class CharacterPoser:
         self._rest_inv = np.linalg.inv(skel.rest_globals())
         self.bones = skel.bones()
         deform_meshes = [m for m in meshes if m.rigid_joint is None]
-        self._deformer, self._bind_space = None, False
+        self._deformer, self._bind_space, self.bind_cache = None, False, None
         if deform_meshes:
             V = self._rest_world[self._deform_idx]
             if method == "nrmls":
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
-                W = bone_weights(character, weights, kk, alpha).weights[self._deform_idx]
-                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
+                if backend == "opencl":
+                    W, kept = self._nrmls_bind(character, V, rest, weights, kk, alpha, blend)
+                else:
+                    W, kept = bone_weights(character, weights, kk, alpha).weights[self._deform_idx], None
+                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend, kept=kept)
             else:
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
@@ -129,6 +137,36 @@ class CharacterPoser:
                 self._skin_ref = (src, joints, wts)
         self._backend = backend
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
+
+    def _nrmls_bind(self, character, V, rest, weights, k, alpha, blend) -> tuple[np.ndarray, dict]:
+        """(bone weights (V, B) of the deforming vertices, the Deformer's :func:`kept_terms`),
+        from the binding cache (:mod:`nrpose.bind.cache`) when the same character, options
+        and code were bound before (``self.bind_cache``: "hit", "miss" or "rebuilt")."""
+        skel = character.skeleton
+        deform = [m for m in character.meshes if m.rigid_joint is None]
+        skinned = weights == "authored"
+        parts = {"kind": "nrmls-character-bind", "code": code_version(BIND_MODULES),
+                 "vertices": np.ascontiguousarray(V, np.float64), "faces": np.ascontiguousarray(self.faces, np.int64),
+                 "deform": self._deform_idx, "bones": np.ascontiguousarray(rest.segments, np.float64),
+                 "bone_joints": np.asarray(self.bones.joints, np.int64),
+                 "parents": np.asarray(skel.parents, np.int64),
+                 "skin_joints": np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in deform])
+                 if skinned else np.zeros(0, np.int64),
+                 "skin_weights": np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in deform])
+                 if skinned else np.zeros(0),
+                 "options": {"weights": weights, "k": k, "alpha": float(alpha), "blend": blend,
+                             "skin_shapes": [list(np.shape(m.joints)) for m in deform] if skinned else []}}
+
+        def compute() -> dict:
+            W = bone_weights(character, weights, k, alpha).weights[self._deform_idx]
+            cols = np.argsort(W == 0, axis=1, kind="stable")[:, :max(int((W != 0).sum(axis=1).max(initial=0)), 1)]
+            return {**{f"kept_{n}": a for n, a in kept_terms(V, rest, weights=W, k=k).items()},
+                    "weight_bones": cols, "weight_values": np.take_along_axis(W, cols, axis=1)}
+
+        got, self.bind_cache = cached_status(parts, compute)
+        W = np.zeros((len(V), len(rest.segments)))
+        np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
+        return W, {n[5:]: a for n, a in got.items() if n.startswith("kept_")}
 
     # ------------------------------------------------------------------ posing
     @property
