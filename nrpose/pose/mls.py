@@ -118,6 +118,7 @@ class Deformer(device.BoundKernel):
         if backend == "opencl":
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
             # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
+            prefetch_program(rest, k, lever, blend)
             if kept is None:
                 kept = kept_terms(points, rest, alpha, lever, distances, weights, k)
             self._terms: RestTerms | None = None
@@ -175,9 +176,7 @@ class Deformer(device.BoundKernel):
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
-        options = ((f"-DVW={self.lanes}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
-                   + (() if levers_stored(self.lever, S) else ("-DDERIVED_LEVER",)) + (("-DQUAT_BLEND",) if quat else ())
-                   + (("-DGLOBAL_FIT",) if self._global is not None else ()))
+        options = kernel_options(self.lanes, P, S, K, self.lever, quat, self._global is not None)
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         # the pose kernel's job mailbox (kernels/share.h)
@@ -397,6 +396,26 @@ class GlobalFit:
             cl.enqueue_nd_range_kernel(queue, kernel, (len(poses),), None)
         block.download()
         return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
+
+
+def kernel_options(lanes: int, P: int, S: int, K: int, lever: str, quat: bool, global_fit: bool) -> tuple[str, ...]:
+    """Build options of kernels/nrmls.cl for a bind: lanes per work-item, P point handles,
+    S segments, K slots per point, the lever rule, the quaternion blend, R_g on the device."""
+    return ((f"-DVW={lanes}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
+            + (() if levers_stored(lever, S) else ("-DDERIVED_LEVER",)) + (("-DQUAT_BLEND",) if quat else ())
+            + (("-DGLOBAL_FIT",) if global_fit else ()))
+
+
+def prefetch_program(rest: HandleSet, k: int | None = None, lever: str = "weight", blend: str = "relative") -> None:
+    """Start compiling the pose kernel an OpenCL :class:`Deformer` of these arguments will
+    use (:func:`nrpose.device.prefetch`), where its options are known before the rest
+    terms: without point handles (or with the paper blend) no point takes the global
+    rotation as reference, so R_g is not fitted on the device."""
+    P, S = len(rest.points), len(rest.segments)
+    if P and blend != "paper":
+        return
+    K = S if k is None or k >= S else int(k)
+    device.prefetch("nrmls.cl", kernel_options(lanes_for(S), P, S, K, lever, blend == "quaternion", False))
 
 
 def kept_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight", distances=None,

@@ -36,7 +36,8 @@ from . import skinning
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
 from ..bind.cache import cached_status, code_version
 from .blend import BLENDS
-from .mls import Deformer, kept_terms
+from .mls import Deformer, kept_terms, prefetch_program
+from .. import device
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose
@@ -110,11 +111,14 @@ class CharacterPoser:
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
                 if backend == "opencl":
+                    prefetch_program(rest, kk, blend=blend)     # compiles while the host binds
                     W, kept = self._nrmls_bind(character, V, rest, weights, kk, alpha, blend)
                 else:
                     W, kept = bone_weights(character, weights, kk, alpha).weights[self._deform_idx], None
                 self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend, kept=kept)
             else:
+                if backend == "opencl":
+                    device.prefetch("skinning.cl")
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
                     joint_w = authored_joint_weights(deform_meshes, skel.num_joints)

@@ -92,3 +92,20 @@ def test_quat_slerp_equals_scipy_composition():
     r0 = Rotation.from_quat(q0)
     ref = (r0 * Rotation.from_rotvec(s * (r0.inv() * Rotation.from_quat(q1)).as_rotvec())).as_quat()
     np.testing.assert_allclose(quat_slerp(q0, q1, s), ref, rtol=0, atol=1e-12)
+
+
+def test_write_npz_reads_back_as_savez(tmp_path):
+    from nrpose.io.npz import write_npz
+    rng = np.random.default_rng(6)
+    arrays = {"positions": rng.normal(size=(5, 7, 3)).astype(np.float32), "faces": np.arange(12).reshape(4, 3),
+              "times": np.linspace(0, 1, 5), "mesh_names": np.array(["body", "hat"]),
+              "mesh_offsets": np.array([0, 4]), "empty": np.zeros((0, 3), np.float32),
+              "strided": np.arange(20.0)[::2], "many_axes": np.zeros((1,) * 30, np.int8)}
+    with open(tmp_path / "ours.npz", "wb") as fh:
+        write_npz(fh, arrays)
+    np.savez(tmp_path / "numpy.npz", **arrays)
+    with np.load(tmp_path / "ours.npz") as ours, np.load(tmp_path / "numpy.npz") as ref:
+        assert ours.files == ref.files == list(arrays)
+        for name in arrays:
+            assert ours[name].dtype == ref[name].dtype and ours[name].shape == ref[name].shape, name
+            assert ours[name].tobytes() == ref[name].tobytes(), name
