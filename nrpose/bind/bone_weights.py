@@ -25,6 +25,7 @@ and their Euclidean bone distances.
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -36,7 +37,8 @@ from ..model.skeleton import Bones
 from .distances import point_segment_distances, surface_distances
 from .weights import dense_weights, keep_top_k
 
-__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights"]
+__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "authored_bone_weights",
+           "skin_entries"]
 
 WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
@@ -44,17 +46,28 @@ SKELETON_K = 8        # bones kept per vertex by default on skeletons with more 
 
 @dataclass(frozen=True)
 class BoneWeights:
-    """weights (V, B) float64 rows summing to 1 (at most ``k`` non-zero); distances (V, B)
-    float64 vertex-to-bone distances (over the surface for deforming vertices with heat,
-    exact, graph; else straight-line); bones; k (bones kept per vertex, B when dense);
-    alpha; meshes: the concatenated meshes the rows belong to."""
+    """weights (V, B) float64 rows summing to 1 (at most ``k`` non-zero); bones; k (bones
+    kept per vertex, B when dense); alpha; meshes: the concatenated meshes the rows belong
+    to; surface: (D, B) float64 distances over the surface of the deforming vertices (heat,
+    exact, graph), or None. :attr:`distances`: (V, B) float64 vertex-to-bone distances,
+    computed on first use."""
 
     weights: np.ndarray
-    distances: np.ndarray
     bones: Bones
     k: int
     alpha: float
     meshes: MeshSet
+    surface: np.ndarray | None = None
+
+    @functools.cached_property
+    def distances(self) -> np.ndarray:
+        """(V, B) float64: over the surface for deforming vertices with heat, exact, graph;
+        else straight-line (:func:`nrpose.bind.distances.point_segment_distances`)."""
+        V = self.meshes.vertices
+        D = point_segment_distances(V, self.bones.segments)[0] if len(V) else np.zeros((0, len(self.bones)))
+        if self.surface is not None:
+            D[self.meshes.rigid < 0] = self.surface
+        return D
 
 
 def bone_weights(character, weights: str = "authored", k: int | str | None = None,
@@ -86,62 +99,90 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
     geo = concatenate_meshes(character.meshes)
     V, rigid = geo.vertices, geo.rigid
     deform = np.flatnonzero(rigid < 0)
-    D = point_segment_distances(V, bones.segments)[0] if len(V) else np.zeros((0, B))
-    W = np.zeros((len(V), B))
+    W, surface = np.zeros((len(V), B)), None
     if len(deform):
         if weights == "authored":
-            joint_w = authored_joint_weights([m for m in character.meshes if m.rigid_joint is None],
-                                             skel.num_joints)
-            dense = _joint_to_bone_weights(joint_w, D[deform], bones, skel.parents)
+            dense = authored_bone_weights([m for m in character.meshes if m.rigid_joint is None], V[deform],
+                                          bones, skel.parents)
+        elif weights == "euclidean":
+            dense = dense_weights(point_segment_distances(V[deform], bones.segments)[0], alpha)
         else:
-            if weights != "euclidean":
-                faces = submesh_faces(geo.faces, deform, len(V))
-                if len(faces) == 0:
-                    raise InputError(f"the character's deforming meshes have no faces: {weights!r} distances "
-                                     "run over a surface; use weights='euclidean'")
-                D[deform] = surface_distances(V[deform], faces, np.zeros((0, 3)), bones.segments, weights)
-            dense = dense_weights(D[deform], alpha)
+            faces = submesh_faces(geo.faces, deform, len(V))
+            if len(faces) == 0:
+                raise InputError(f"the character's deforming meshes have no faces: {weights!r} distances "
+                                 "run over a surface; use weights='euclidean'")
+            surface = surface_distances(V[deform], faces, np.zeros((0, 3)), bones.segments, weights)
+            dense = dense_weights(surface, alpha)
         W[deform] = keep_top_k(dense, k_eff if k_eff < B else None)
     for j in np.unique(rigid[rigid >= 0]):
         W[rigid == j, _rigid_owner_bone(int(j), bones, skel.parents)] = 1.0
-    return BoneWeights(W, D, bones, k_eff, alpha, geo)
+    return BoneWeights(W, bones, k_eff, alpha, geo, surface)
 
 
-def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
-    """Dense (V, J) skin weights of the meshes (concatenated), rows summing to 1."""
+def skin_entries(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every authored skin weight of the meshes (concatenated) as (row (E,) int64, joint (E,)
+    int64, weight (E,) float64), weights divided by their row's sum."""
     missing = [m.name for m in meshes if m.joints is None or m.weights is None]
     if missing:
         raise InputError(f"mesh {missing[0]!r} has no skin weights; use weights='euclidean' "
                          "(or heat, exact, graph)")
-    rows = []
+    rows, base = [], 0
     for m in meshes:
-        W = np.zeros((len(m.vertices), n_joints))
-        np.add.at(W, (np.repeat(np.arange(len(m.vertices)), m.joints.shape[1]), m.joints.ravel()),
-                  m.weights.ravel())
-        rows.append(W)
-    W = np.concatenate(rows)
-    return W / W.sum(axis=1, keepdims=True)
+        rows.append(np.repeat(np.arange(base, base + len(m.vertices)), m.joints.shape[1]))
+        base += len(m.vertices)
+    r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    j = np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in meshes]) if meshes else r
+    w = np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in meshes]) if meshes else np.zeros(0)
+    return r, j, w / np.bincount(r, weights=w, minlength=base)[r]
 
 
-def _joint_to_bone_weights(joint_w: np.ndarray, D: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
-    """(V, B) bone weights from (V, J) joint weights and (V, B) bone distances (module docstring)."""
-    owner = np.arange(joint_w.shape[1])
-    driven = np.zeros(joint_w.shape[1], bool)
+def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
+    """Dense (V, J) skin weights of the meshes (concatenated), rows summing to 1."""
+    r, j, w = skin_entries(meshes)
+    n = sum(len(m.vertices) for m in meshes)
+    return np.bincount(r * n_joints + j, weights=w, minlength=n * n_joints).reshape(n, n_joints)
+
+
+def authored_bone_weights(meshes, X: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
+    """(V, B) bone weights of the meshes' vertices X (V, 3) (concatenated) from their authored
+    skin weights (module docstring): a vertex's weight on a joint is shared between that
+    joint's bones by inverse squared distance. Distances are taken only to the bones of the
+    joints each vertex is weighted on."""
+    n_joints = len(parents)
+    owner = np.arange(n_joints)
+    driven = np.zeros(n_joints, bool)
     driven[bones.joints] = True
-    for j in range(len(owner)):                      # parents come first: resolve in order
+    for j in range(n_joints):                        # parents come first: resolve in order
         if not driven[j]:
             p = parents[j]
             owner[j] = owner[p] if p >= 0 else -1
-    lost = (owner < 0) & (joint_w.sum(axis=0) > 0)
+    r, j, w = skin_entries(meshes)
+    lost = (owner[j] < 0) & (w > 0)
     if lost.any():
-        raise InputError(f"joint {int(np.flatnonzero(lost)[0])} carries skin weight but neither it nor "
+        raise InputError(f"joint {int(j[lost].min())} carries skin weight but neither it nor "
                          "an ancestor drives a bone")
-    jw = np.zeros_like(joint_w)
-    np.add.at(jw.T, owner[owner >= 0], joint_w.T[owner >= 0])
-    share = 1.0 / np.maximum(D ** 2, 1e-12)
-    per_joint = np.zeros((len(D), jw.shape[1]))
-    np.add.at(per_joint.T, bones.joints, share.T)
-    return jw[:, bones.joints] * share / per_joint[:, bones.joints]
+    use = (w != 0) & (owner[j] >= 0)
+    # one entry per (vertex, owning joint): weights of joints with the same owner add up
+    key, inverse = np.unique(r[use] * n_joints + owner[j[use]], return_inverse=True)
+    weight = np.bincount(inverse, weights=w[use], minlength=len(key))
+    ev, ej = key // n_joints, key % n_joints
+    # each entry expanded to its joint's bones
+    order = np.argsort(bones.joints, kind="stable")
+    count = np.bincount(bones.joints, minlength=n_joints)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    per = count[ej]
+    entry = np.repeat(np.arange(len(key)), per)
+    bone = order[first[ej][entry] + np.arange(len(entry)) - np.repeat(np.cumsum(per) - per, per)]
+    A = bones.segments[bone, 0]
+    AB = bones.segments[bone, 1] - A
+    L2 = np.einsum("ij,ij->i", AB, AB)
+    x = X[ev[entry]]
+    t = np.clip(np.einsum("ij,ij->i", x - A, AB) * np.where(L2 > 0, 1.0 / np.where(L2 > 0, L2, 1.0), 0.0), 0.0, 1.0)
+    d = np.linalg.norm(x - (A + t[:, None] * AB), axis=1)
+    share = 1.0 / np.maximum(d ** 2, 1e-12)
+    W = np.zeros((len(X), len(bones)))
+    W[ev[entry], bone] = weight[entry] * share / np.bincount(entry, weights=share, minlength=len(key))[entry]
+    return W
 
 
 def _rigid_owner_bone(j: int, bones: Bones, parents: np.ndarray) -> int:

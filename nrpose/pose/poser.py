@@ -148,7 +148,7 @@ class CharacterPoser:
         and code were bound before (``self.bind_cache``: "hit", "miss" or "rebuilt")."""
         skel = character.skeleton
         deform = [m for m in character.meshes if m.rigid_joint is None]
-        skinned = weights == "authored"
+        skinned = weights == "authored" and all(m.joints is not None and m.weights is not None for m in deform)
         parts = {"kind": "nrmls-character-bind", "code": code_version(BIND_MODULES),
                  "vertices": np.ascontiguousarray(V, np.float64), "faces": np.ascontiguousarray(self.faces, np.int64),
                  "deform": self._deform_idx, "bones": np.ascontiguousarray(rest.segments, np.float64),
