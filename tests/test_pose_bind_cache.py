@@ -57,7 +57,7 @@ def test_cached_bind_equals_fresh_bitwise(fox):
     assert pa.tobytes() == pb.tobytes()
 
 
-def test_cached_kept_terms_equal_fresh_bitwise(fox, monkeypatch):
+def test_cached_layout_equals_fresh_bitwise(fox, monkeypatch):
     stored = {}
     real = poser_module.cached_status
 

@@ -81,9 +81,9 @@ class Deformer(device.BoundKernel):
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
     k: keep the k most influential handles of each point (None: all, dense).
     With k < S the kernel stores, per point, k segment slots (which segment,
-    its coefficients) instead of all S segments. kept: on OpenCL, :func:`kept_terms` of
-    these same arguments from an earlier bind (the binding cache), used instead of
-    computing them.
+    its coefficients) instead of all S segments. layout: on OpenCL, :func:`bind_layout`
+    of these same arguments from an earlier bind (the binding cache), used instead of
+    computing it.
 
     ``terms``: the :class:`nrpose.pose.blend.RestTerms` (float64, dense (N, H)). The
     numpy backend keeps them. The OpenCL deformer never holds them for all points:
@@ -103,7 +103,7 @@ class Deformer(device.BoundKernel):
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
-                 backend: str = "opencl", kept: dict | None = None):
+                 backend: str = "opencl", layout: dict | None = None):
         self.lever = lever
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -119,11 +119,12 @@ class Deformer(device.BoundKernel):
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
             # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
             prefetch_program(rest, k, lever, blend)
-            if kept is None:
-                kept = kept_terms(points, rest, alpha, lever, distances, weights, k)
+            if layout is None:
+                layout = bind_layout(kept_terms(points, rest, alpha, lever, distances, weights, k), rest, lever,
+                                     blend)
             self._terms: RestTerms | None = None
-            self.n = len(kept["u"])
-            self._bind_device(kept)
+            self.n = int(layout["points"])
+            self._bind_device(layout)
         else:
             self._terms = rest_terms(points, rest, alpha, lever, distances, weights, k)
             self.n = len(self._terms.u)
@@ -138,17 +139,17 @@ class Deformer(device.BoundKernel):
         return rest_terms(points, self.rest, alpha, lever, distances, weights, k)
 
     # -- device ---------------------------------------------------------------
-    def _bind_device(self, kept: dict) -> None:
-        """Upload the per-point terms the kernel keeps (:func:`slot_terms`, all points)."""
+    def _bind_device(self, layout: dict) -> None:
+        """Upload the per-point terms the kernel keeps (:func:`bind_layout`, all points)."""
         import pyopencl as cl
 
         ctx, self._queue = device.context()
         blend = self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
-        refs_global = bool((kept["ref"] == S).any())
+        refs_global, K = bool(layout["refs_global"]), int(layout["slots"])
         quat = blend == "quaternion"
-        arrays, K = device_layout(kept, self.rest, self.lever, self.lanes, quat)
-        del kept
+        arrays = {name: a for name, a in layout.items() if name not in BIND_SCALARS}
+        del layout
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
         self._frame_floats = 3 * npad
@@ -416,6 +417,22 @@ def prefetch_program(rest: HandleSet, k: int | None = None, lever: str = "weight
         return
     K = S if k is None or k >= S else int(k)
     device.prefetch("nrmls.cl", kernel_options(lanes_for(S), P, S, K, lever, blend == "quaternion", False))
+
+
+#: the entries of :func:`bind_layout` besides :func:`device_layout`'s arrays
+BIND_SCALARS = ("points", "slots", "refs_global")
+
+
+def bind_layout(kept: dict, rest: HandleSet, lever: str = "weight", blend: str = "relative") -> dict:
+    """What an OpenCL :class:`Deformer` uploads of the kept terms (:func:`kept_terms`):
+    :func:`device_layout`'s arrays, and (0-d arrays) ``points`` (n), ``slots`` (K) and
+    ``refs_global`` (whether some point takes R_g as reference). A Deformer of the same
+    arguments can be given it (``layout=``) instead of computing it: the binding cache
+    stores it."""
+    S = len(rest.segments)
+    arrays, K = device_layout(kept, rest, lever, lanes_for(S), blend == "quaternion")
+    return {**arrays, "points": np.array(len(kept["u"])), "slots": np.array(K),
+            "refs_global": np.array(bool((kept["ref"] == S).any()))}
 
 
 def kept_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight", distances=None,

@@ -36,7 +36,7 @@ from . import skinning
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
 from ..bind.cache import cached_status, code_version
 from .blend import BLENDS
-from .mls import Deformer, kept_terms, prefetch_program
+from .mls import Deformer, bind_layout, kept_terms, prefetch_program
 from .. import device
 from ..errors import InputError
 from ..model.character import Character
@@ -112,10 +112,10 @@ class CharacterPoser:
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
                 if backend == "opencl":
                     prefetch_program(rest, kk, blend=blend)     # compiles while the host binds
-                    W, kept = self._nrmls_bind(character, V, rest, weights, kk, alpha, blend)
+                    W, layout = self._nrmls_bind(character, V, rest, weights, kk, alpha, blend)
                 else:
-                    W, kept = bone_weights(character, weights, kk, alpha).weights[self._deform_idx], None
-                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend, kept=kept)
+                    W, layout = bone_weights(character, weights, kk, alpha).weights[self._deform_idx], None
+                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend, layout=layout)
             else:
                 if backend == "opencl":
                     device.prefetch("skinning.cl")
@@ -143,7 +143,7 @@ class CharacterPoser:
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
 
     def _nrmls_bind(self, character, V, rest, weights, k, alpha, blend) -> tuple[np.ndarray, dict]:
-        """(bone weights (V, B) of the deforming vertices, the Deformer's :func:`kept_terms`),
+        """(bone weights (V, B) of the deforming vertices, the Deformer's :func:`bind_layout`),
         from the binding cache (:mod:`nrpose.bind.cache`) when the same character, options
         and code were bound before (``self.bind_cache``: "hit", "miss" or "rebuilt")."""
         skel = character.skeleton
@@ -164,13 +164,14 @@ class CharacterPoser:
         def compute() -> dict:
             W = bone_weights(character, weights, k, alpha).weights[self._deform_idx]
             cols = np.argsort(W == 0, axis=1, kind="stable")[:, :max(int((W != 0).sum(axis=1).max(initial=0)), 1)]
-            return {**{f"kept_{n}": a for n, a in kept_terms(V, rest, weights=W, k=k).items()},
+            layout = bind_layout(kept_terms(V, rest, weights=W, k=k), rest, blend=blend)
+            return {**{f"layout_{n}": a for n, a in layout.items()},
                     "weight_bones": cols, "weight_values": np.take_along_axis(W, cols, axis=1)}
 
         got, self.bind_cache = cached_status(parts, compute)
         W = np.zeros((len(V), len(rest.segments)))
         np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
-        return W, {n[5:]: a for n, a in got.items() if n.startswith("kept_")}
+        return W, {n[7:]: a for n, a in got.items() if n.startswith("layout_")}
 
     # ------------------------------------------------------------------ posing
     @property
