@@ -22,11 +22,15 @@ others are 0). Default: all bones up to :data:`SKELETON_K`, else ``SKELETON_K``.
 A mesh attached rigidly to a joint does not deform: its vertices get weight 1
 on the first bone of that joint (or of its nearest ancestor that drives a bone)
 and their Euclidean bone distances.
+
+:func:`with_skin_weights` gives a character skin weights from elsewhere (a
+libigl weight DMAT, :func:`nrpose.io.tgf.read_dmat_weights`); ``authored``
+then means those.
 """
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -38,7 +42,7 @@ from .distances import point_segment_distances, surface_distances
 from .weights import dense_weights, keep_top_k
 
 __all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "authored_bone_weights",
-           "skin_entries"]
+           "skin_entries", "with_skin_weights"]
 
 WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
@@ -134,6 +138,23 @@ def skin_entries(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     j = np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in meshes]) if meshes else r
     w = np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in meshes]) if meshes else np.zeros(0)
     return r, j, w / np.bincount(r, weights=w, minlength=base)[r]
+
+
+def with_skin_weights(character, joint_weights: np.ndarray):
+    """The character with ``joint_weights`` (V, J) float64 (rows summing to 1; V = the
+    vertices of all its meshes, concatenated in order) as its meshes' skin weights."""
+    W = np.asarray(joint_weights, dtype=np.float64)
+    sizes = [len(m.vertices) for m in character.meshes]
+    if W.shape != (sum(sizes), character.skeleton.num_joints):
+        raise InputError(f"skin weights: expected {sum(sizes)} vertices × {character.skeleton.num_joints} joints, "
+                         f"got {W.shape}")
+    J = W.shape[1]
+    meshes, start = [], 0
+    for m, n in zip(character.meshes, sizes):
+        rows = W[start:start + n]
+        meshes.append(replace(m, joints=np.tile(np.arange(J), (n, 1)), weights=rows))
+        start += n
+    return replace(character, meshes=tuple(meshes))
 
 
 def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:

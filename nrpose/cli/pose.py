@@ -10,6 +10,8 @@ from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
 from ..io.poses import load_pose
+from ..io.tgf import read_dmat_animation, read_dmat_weights
+from ..bind.bone_weights import with_skin_weights
 from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
@@ -27,7 +29,8 @@ def add_parser(sub) -> None:
     p.add_argument("--skeleton", help="skeleton for a mesh character (.tgf or .bvh)")
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--clip", help="animation clip of the character, by name")
-    src.add_argument("--motion", help="BVH motion recorded on the character's skeleton")
+    src.add_argument("--motion", help="BVH motion recorded on the character's skeleton, or a libigl animation "
+                                      "DMAT (per frame, a stacked 4x3 transform per TGF bone; frame k at k / --fps)")
     src.add_argument("--pose", help="pose file (JSON local rotations/translations, or libigl DMAT)")
     src.add_argument("--rest", action="store_true", help="the rest pose")
     p.add_argument("--time", type=float, nargs="+", help="clip times in seconds")
@@ -35,6 +38,8 @@ def add_parser(sub) -> None:
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--method", choices=METHODS, default="nrmls", help="posing method (default nrmls)")
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
+    p.add_argument("--weights-file", help="libigl weight DMAT for a mesh + TGF character (rows = vertices, "
+                                          "columns = bones in TGF order); used as its authored weights")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
     p.add_argument("--blend", choices=BLENDS, default="relative",
                    help="nrmls rotation blend (default: relative; quaternion is continuous where the "
@@ -75,6 +80,14 @@ def run(args) -> None:
         raise NrposeError("--time and --frames sample a clip; with --rest or --pose there is one frame: drop them")
     character = load_character(args.character, args.skeleton)
     skel = character.skeleton
+    if args.weights_file:
+        if args.skeleton is None:
+            raise NrposeError("--weights-file gives the weights of a mesh character (a mesh with --skeleton "
+                              "SKELETON.tgf); a glTF file carries its own")
+        if args.weights != "authored":
+            raise NrposeError(f"--weights-file gives the weights; drop --weights {args.weights}")
+        W = read_dmat_weights(args.weights_file, skel, sum(len(m.vertices) for m in character.meshes))
+        character = with_skin_weights(character, W)
     if args.rest:
         local, times = skel.rest_pose, np.zeros(1)
     elif args.pose:
@@ -82,6 +95,8 @@ def run(args) -> None:
     else:
         if args.clip:
             clip = character.clip(args.clip)
+        elif Path(args.motion).suffix.lower() == ".dmat":
+            clip = read_dmat_animation(args.motion, skel, args.fps)
         else:
             motion = load_character(args.motion)
             clip = motion_clip(motion, skel, args.motion)

@@ -45,7 +45,7 @@ from ..model.skeleton import Skeleton, local_matrices, polar_rotation
 from .files import read_input
 from .jsonfile import check_depth
 
-__all__ = ["load_gltf"]
+__all__ = ["load_gltf", "node_globals"]
 
 COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
@@ -450,6 +450,12 @@ def joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes]) -> tupl
     nodes = np.empty(skeleton.num_joints, np.int64)
     nodes[node_to_joint[node_to_joint >= 0]] = np.flatnonzero(node_to_joint >= 0)
     return skeleton, nodes
+
+
+def node_globals(path: Path, gltf: pygltflib.GLTF2) -> tuple[np.ndarray, np.ndarray]:
+    """Parent (N,) int64 (-1 for roots) and rest world matrix (N, 4, 4) float64 of every node."""
+    nodes = _Nodes(Path(path), gltf)
+    return nodes.parents, nodes.globals
 
 
 def load_gltf(path: str | Path) -> Character:

@@ -20,7 +20,8 @@ Written through :func:`nrpose.io.files.atomic_path`.
 :func:`write_glb_with_clip` writes a glTF character file again with one more
 animation: a :class:`~nrpose.model.character.Clip` of its skeleton, one
 sampler per track on its joint's node (float32, the track's times and
-interpolation). The original content (meshes, skins, materials, textures,
+interpolation; a joint node given as a ``matrix`` is rewritten as its TRS, as
+animated nodes must be). The original content (meshes, skins, materials, textures,
 other animations) is kept: every buffer is copied into the single GLB buffer
 (a ``.gltf`` with external buffers or images becomes self-contained) and the
 new data is appended after it.
@@ -38,9 +39,11 @@ import pygltflib
 from ..checks import real_rows, triangles, within_float32
 from ..errors import InputError, NrposeError
 from .files import atomic_path
-from .gltf_read import joint_nodes, read_document
+from ..model.rotation import Rotation
+from ..model.skeleton import polar_rotation
+from .gltf_read import joint_nodes, node_globals, read_document
 
-__all__ = ["write_animated_glb", "write_glb_with_clip", "Blob"]
+__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "Blob"]
 
 _FLOAT, _UINT = pygltflib.FLOAT, pygltflib.UNSIGNED_INT
 
@@ -205,18 +208,22 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         gltf.save_binary(str(tmp))
 
 
-def write_glb_with_clip(target_path, out_path, target, clip) -> str:
+def write_glb_with_clip(target_path, out_path, target, clip, bounds=None) -> str:
     """Write the target glTF plus ``clip`` (a Clip of its skeleton) as a new animation, as a GLB.
 
     Returns the animation's name. Every track of the clip becomes a channel on
     its joint's node (float32, the track's times and interpolation; CUBICSPLINE
-    is not written).
+    is not written). bounds: optional world-space box (min (3,), max (3,)) the
+    animated geometry stays in: each skinned mesh node is then placed
+    (:func:`fit_skinned_nodes`) so that viewers' culling bounds hold it.
     """
     path = Path(target_path)
     gltf, buffers = read_document(path)
     skeleton, nodes = joint_nodes(path, gltf, buffers)
     if tuple(skeleton.names) != tuple(target.skeleton.names):
         raise NrposeError(f"{path}: its skeleton changed since it was loaded")
+    if bounds is not None:
+        fit_skinned_nodes(path, gltf, bounds)
     blob = Blob(gltf)
     starts = [blob.append(bytes(b)) for b in buffers]
     for view in gltf.bufferViews:
@@ -236,6 +243,13 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
         name, k = f"{clip.name} ({k})", k + 1
     animation = pygltflib.Animation(name=name, channels=[], samplers=[])
     inputs = {}
+    skel = target.skeleton
+    for j in sorted({t.joint for t in clip.tracks}):
+        node = gltf.nodes[int(nodes[j])]
+        if node.matrix is not None:     # animated nodes must use TRS (glTF 2.0, 5.25)
+            node.matrix = None
+            node.translation, node.rotation, node.scale = (skel.translation[j].tolist(),
+                                                           skel.rotation[j].tolist(), skel.scale[j].tolist())
     for track in clip.tracks:
         if track.interpolation == "CUBICSPLINE":
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
@@ -257,3 +271,46 @@ def write_glb_with_clip(target_path, out_path, target, clip) -> str:
     with atomic_path(Path(out_path)) as tmp:
         gltf.save_binary(str(tmp))
     return name
+
+
+def fit_skinned_nodes(path, gltf: pygltflib.GLTF2, bounds) -> None:
+    """Place each skinned mesh node so that its culling sphere holds the box ``bounds``.
+
+    The glTF specification ignores a skinned mesh node's transform (its vertices follow the
+    joints only), but viewers cull and frame it by its ``POSITION`` min/max times the node's
+    world matrix: three.js culls a character whose root motion leaves the rest bounds (or
+    whose mesh sits under a 0.01-scaled armature, as Mixamo exports do). The node gets the
+    uniform scale and translation (in its parent's frame) that map the sphere around its
+    rest box onto the sphere around ``bounds`` (min (3,), max (3,), world). Nodes whose
+    parent's world matrix is not a rotation times a uniform scale are left as they are.
+    """
+    lo, hi = (np.asarray(b, dtype=np.float64) for b in bounds)
+    parents, world = node_globals(Path(path), gltf)
+    centre, radius = (lo + hi) / 2, np.linalg.norm(hi - lo) / 2
+    for i, node in enumerate(gltf.nodes):
+        if node.mesh is None or node.skin is None:
+            continue
+        accessors = [gltf.accessors[p.attributes.POSITION] for p in gltf.meshes[node.mesh].primitives
+                     if p.attributes.POSITION is not None]
+        box = [(a.min, a.max) for a in accessors if a.min is not None and a.max is not None]
+        if not box:
+            continue
+        mn = np.min([b[0] for b in box], axis=0)
+        mx = np.max([b[1] for b in box], axis=0)
+        r = np.linalg.norm(mx - mn) / 2
+        if not (r > 0 and radius > 0):
+            continue
+        scale = radius / r
+        desired = np.eye(4)
+        desired[:3, :3] *= scale
+        desired[:3, 3] = centre - scale * (mn + mx) / 2
+        P = world[parents[i]] if parents[i] >= 0 else np.eye(4)
+        local = np.linalg.inv(P) @ desired
+        R = polar_rotation(local[:3, :3])
+        s = np.linalg.norm(local[:3, :3], axis=0)
+        if not np.allclose(local[:3, :3], R * s.mean(), rtol=0, atol=1e-6 * s.mean()):
+            continue
+        node.matrix = None
+        node.translation = local[:3, 3].tolist()
+        node.rotation = Rotation.from_matrix(R).as_quat().tolist()
+        node.scale = [float(s.mean())] * 3

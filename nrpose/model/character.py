@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import InputError
 from .rotation import quat_slerp
 from .skeleton import LocalPose, Skeleton
+from .timing import clip_times
 
 __all__ = ["Track", "Clip", "Mesh", "Character"]
 
@@ -97,14 +98,14 @@ class Clip:
         """Local pose at time(s) t in [0, duration] seconds.
 
         A scalar t gives arrays (J, ...); an array of F times gives (F, J, ...).
-        Times outside the clip raise InputError.
+        Times outside the clip (to within a float32 step, :func:`nrpose.model.timing.clip_times`)
+        raise InputError.
         """
         times = np.asarray(t, dtype=np.float64)
-        flat = times.reshape(-1)
-        tol = 1e-9 * max(self.duration, 1.0)
-        if not np.isfinite(flat).all() or (flat < -tol).any() or (flat > self.duration + tol).any():
-            bad = flat[~(np.isfinite(flat) & (flat >= -tol) & (flat <= self.duration + tol))][0]
-            raise InputError(f"clip {self.name!r}: time {bad} is outside [0, {self.duration:g}] seconds")
+        try:
+            flat = clip_times(times, self.duration).reshape(-1)
+        except InputError as exc:
+            raise InputError(f"clip {self.name!r}: {exc}") from None
         out = {p: np.repeat(getattr(self.rest, p)[None], len(flat), axis=0) for p in PATH_WIDTH}
         for track in self.tracks:
             out[track.path][:, track.joint] = track.sample(flat)
