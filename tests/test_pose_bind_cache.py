@@ -69,7 +69,7 @@ def test_cached_layout_equals_fresh_bitwise(fox, monkeypatch):
     monkeypatch.setattr(poser_module, "cached_status", spy)
     CharacterPoser(fox, method="nrmls")
     monkeypatch.setattr(poser_module, "cached_status", real)
-    files = list(Path(cache.cache_dir()).glob("*.npz"))      # the first bind's file: the same arrays, bit for bit
+    files = list((cache.cache_dir() / poser_module.BIND_CACHE_FOLDER).glob("*.npz"))   # the first bind's file: the same arrays, bit for bit
     assert len(files) == 1
     with np.load(files[0]) as z:
         for name, arr in stored["fresh"].items():

@@ -34,7 +34,7 @@ import numpy as np
 
 from . import skinning
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
-from ..bind.cache import cached_status, code_version
+from ..bind.cache import cache_dir, cached_status, code_version
 from .blend import BLENDS
 from .mls import Deformer, bind_layout, kept_terms, prefetch_program
 from .. import device
@@ -52,6 +52,7 @@ SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
 BIND_MODULES = ("nrpose.pose.poser", "nrpose.pose.mls", "nrpose.pose.blend", "nrpose.bind.bone_weights",
                 "nrpose.bind.weights", "nrpose.bind.distances", "nrpose.model.skeleton", "nrpose.model.meshset",
                 "nrpose.model.rotation", "nrpose.model.handles")
+BIND_CACHE_FOLDER = "binds"   # character binds, beside the topological distances in the cache directory
 BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
 
@@ -144,8 +145,9 @@ class CharacterPoser:
 
     def _nrmls_bind(self, character, V, rest, weights, k, alpha, blend) -> tuple[np.ndarray, dict]:
         """(bone weights (V, B) of the deforming vertices, the Deformer's :func:`bind_layout`),
-        from the binding cache (:mod:`nrpose.bind.cache`) when the same character, options
-        and code were bound before (``self.bind_cache``: "hit", "miss" or "rebuilt")."""
+        from the binding cache (:mod:`nrpose.bind.cache`, its folder :data:`BIND_CACHE_FOLDER`)
+        when the same character, options and code were bound before (``self.bind_cache``:
+        "hit", "miss" or "rebuilt")."""
         skel = character.skeleton
         deform = [m for m in character.meshes if m.rigid_joint is None]
         skinned = weights == "authored" and all(m.joints is not None and m.weights is not None for m in deform)
@@ -168,7 +170,7 @@ class CharacterPoser:
             return {**{f"layout_{n}": a for n, a in layout.items()},
                     "weight_bones": cols, "weight_values": np.take_along_axis(W, cols, axis=1)}
 
-        got, self.bind_cache = cached_status(parts, compute)
+        got, self.bind_cache = cached_status(parts, compute, cache_dir() / BIND_CACHE_FOLDER)
         W = np.zeros((len(V), len(rest.segments)))
         np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
         return W, {n[7:]: a for n, a in got.items() if n.startswith("layout_")}
