@@ -17,7 +17,7 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 FOX = ROOT.parent / "shared" / "data" / "gltf" / "Fox.glb"
-HEAVY = ("matplotlib", "pymeshlab", "igl", "scipy.spatial", "scipy.sparse")
+HEAVY = ("matplotlib", "pymeshlab", "igl", "scipy.spatial")
 
 PROBE = """
 import json, sys

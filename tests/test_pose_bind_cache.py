@@ -104,7 +104,7 @@ def test_a_change_is_a_new_bind(fox, change, monkeypatch):
     elif change == "alpha":
         opts = {"alpha": 2.0}
     elif change == "blend":
-        opts = {"blend": "quaternion"}
+        opts = {"blend": "relative"}          # the default is the quaternion blend
     elif change == "weights":
         opts = {"weights": "euclidean"}
     else:
