@@ -13,17 +13,18 @@ flags of the command that ran (each command module's ``FLAGS``).
 from __future__ import annotations
 
 import argparse
+import importlib
 import re
 import sys
 
 import numpy as np
 
 from ..errors import NrposeError
-from . import bake, deform, demo, info, pose, retarget, weights
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
-COMMANDS = (deform, pose, weights, retarget, bake, info, demo)
+#: the commands, each a module of this package (imported when its parser is built)
+COMMANDS = ("deform", "pose", "weights", "retarget", "bake", "info", "demo")
 
 # name='value' | name= (before a space, punctuation or the end) | name()
 _ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
@@ -38,11 +39,13 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command line parser; with ``only`` (a name in :data:`COMMANDS`) that command's
+    alone, so that a run imports the modules of the command it runs and no other."""
     parser = Parser(prog="nrpose", description="Nearly rigid MLS deformation and skeletal posing on OpenCL.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for name in COMMANDS if only is None else (only,):
+        importlib.import_module(f".{name}", __name__).add_parser(sub)
     return parser
 
 
@@ -60,7 +63,8 @@ def flag_text(message: str, flags: dict[str, str]) -> str:
 def main(argv=None) -> int:
     args, status = None, 0
     try:
-        args = build_parser().parse_args(argv)
+        argv = sys.argv[1:] if argv is None else list(argv)
+        args = build_parser(argv[0] if argv and argv[0] in COMMANDS else None).parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
         # so in one line; numpy's floating-point warnings on the way would add lines to stderr
         # (nrpose's own warnings, e.g. a binding cache not written, still show)
