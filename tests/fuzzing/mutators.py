@@ -139,7 +139,9 @@ def replace_word(data: bytes, rng: random.Random) -> tuple[bytes, str]:
     m = rng.choice(words)
     new = rng.choice([b"", b"x", b"ROOT", b"JOINT", b"End", b"{", b"}", b"element", b"vertex", b"face",
                       b"property", b"list", b"binary_big_endian", b"facet", b"v", b"f", b"#", b"nan",
-                      b"a" * 5000, b"Hips", b"Spine", b"CHANNELS", b"MOTION", b"null", b"true"])
+                      b"a" * 5000, b"Hips", b"Spine", b"CHANNELS", b"MOTION", b"null", b"true", b"float",
+                      b"double", b"uchar", b"int", b"uint", b"char", b"ascii", b"binary_little_endian",
+                      b"Xrotation", b"Xposition", b"OFFSET", b"Site", b"solid", b"endloop", b"vertex_indices"])
     return data[:m.start()] + new + data[m.end():], f"word {m.group()[:20]!r}->{new[:20]!r}"
 
 
@@ -161,7 +163,19 @@ def line_edit(data: bytes, rng: random.Random) -> tuple[bytes, str]:
     return b"\n".join(lines), f"line {i + 1} {op}"
 
 
-TEXT_MUTATORS = [replace_number, replace_number, replace_number, replace_word, line_edit]
+def scale_numbers(data: bytes, rng: random.Random) -> tuple[bytes, str]:
+    """Every real number of the file times a factor (coordinates near float32's limit or beyond)."""
+    factor = rng.choice([1e-30, 1e20, 1e38, 1e39, 1e200, -1e38])
+
+    def scaled(m):
+        try:
+            return repr(float(m.group()) * factor).encode() if b"." in m.group() or b"e" in m.group() else m.group()
+        except (ValueError, OverflowError):
+            return m.group()
+    return NUMBER.sub(scaled, data), f"reals x{factor:g}"
+
+
+TEXT_MUTATORS = [replace_number, replace_number, replace_number, replace_word, line_edit, scale_numbers]
 
 
 # --------------------------------------------------------------------------- headers and counts
@@ -243,7 +257,7 @@ def mutate_json_doc(doc, kind: str, rng: random.Random) -> tuple[object, str, in
     paths = list(_paths(doc))
     path, value = rng.choice(paths[1:] or paths)
     op = rng.choice(["wrong", "wrong", "wrong", "delete", "extra", "nest", "empty", "repeat", "root"]
-                    + (["cycle", "index"] if kind.startswith("gltf") or kind == "glb" else []))
+                    + (["cycle", "index", "index", "nobuffer"] if kind.startswith("gltf") or kind == "glb" else []))
     where = "/".join(map(str, path))
     if op == "wrong":
         new = rng.choice(WRONG_VALUES)
@@ -281,12 +295,19 @@ def mutate_json_doc(doc, kind: str, rng: random.Random) -> tuple[object, str, in
         if isinstance(nodes[a], dict):
             nodes[a]["children"] = [b]
         return doc, f"nodes/{a}/children = [{b}]", 0
+    if op == "nobuffer" and isinstance(doc, dict) and isinstance(doc.get("accessors"), list) and doc["accessors"]:
+        a = rng.randrange(len(doc["accessors"]))
+        acc = doc["accessors"][a]
+        if isinstance(acc, dict):
+            acc.pop("bufferView", None)
+            acc["count"] = rng.choice([2 ** 20, 2 ** 28, 2 ** 31, 2 ** 32 - 1])
+        return doc, f"accessors/{a}: no bufferView, count {acc.get('count') if isinstance(acc, dict) else '?'}", 0
     if op == "index":
         ints = [(p, v) for p, v in paths if isinstance(v, int) and not isinstance(v, bool)]
         if ints:
             p, v = rng.choice(ints)
-            new = rng.choice([-1, v + 1, v + 1000, 2 ** 28, 2 ** 31, 2 ** 32, 2 ** 63, 1e30, float("inf"), str(v),
-                              None, [v], True, 5124, 5130, 0])
+            new = rng.choice([-1, v + 1, v + 1000, 2 ** 28, 2 ** 30, 2 ** 31, 2 ** 32, 2 ** 63, 1e30, float("inf"),
+                              str(v), None, [v], True, 5124, 5130, 0])
             return _set(doc, p, new), f"{'/'.join(map(str, p))}: {v} -> {str(new)[:30]}", 0
     new = rng.choice(WRONG_VALUES)
     return _set(doc, path, new), f"{where} = {str(new)[:30]}", 0

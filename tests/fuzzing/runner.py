@@ -304,6 +304,9 @@ def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w
         else:
             os.dup2(w_out, 1)
         os.dup2(w_err, 2)
+        # the parent's sys.stdout/stderr may be a test runner's capture objects
+        sys.stdout = open(1, "w", encoding="utf-8", errors="backslashreplace", closefd=False)
+        sys.stderr = open(2, "w", encoding="utf-8", errors="backslashreplace", buffering=1, closefd=False)
         os.environ.update(env)
         resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
@@ -544,9 +547,10 @@ class Collector:
 def save_repro(repro_dir: Path, case, o: Outcome) -> Path:
     h = hashlib.sha1(o.key.encode()).hexdigest()[:8]
     d = repro_dir / f"{o.outcome}-{case.command}-{h}"
-    if d.exists():
-        shutil.rmtree(d)
-    d.mkdir(parents=True)
+    try:
+        d.mkdir(parents=True)
+    except FileExistsError:   # this defect's reproducer is saved already
+        return d
     for rel, data in case.files.items():
         p = d / rel
         p.parent.mkdir(parents=True, exist_ok=True)

@@ -149,7 +149,8 @@ def gltf_document(buffer_uri: str | None) -> tuple[dict, bytes]:
     translation = POSITIONS - np.where(parents[:, None] < 0, 0.0, POSITIONS[np.maximum(parents, 0)])
     nodes = []
     for j, name in enumerate(JOINTS):
-        node = {"name": name, "translation": translation[j].tolist()}
+        node = {"name": name, "translation": translation[j].tolist(), "rotation": [0.0, 0.0, 0.0, 1.0],
+                "scale": [1.0, 1.0, 1.0]}
         children = [c for c in range(len(JOINTS)) if PARENTS[c] == j]
         if children:
             node["children"] = children
