@@ -15,6 +15,7 @@ import pytest
 
 from fuzzing.campaign import run
 from fuzzing.cases import Case, make_case
+from fuzzing.known import MUST_REJECT, known_cases
 from fuzzing.runner import Runner
 from fuzzing.seeds import make_seeds
 
@@ -86,8 +87,19 @@ def test_cases_are_deterministic(seeds):
     assert {c.command for c in a} == {"deform", "pose", "weights", "retarget", "info"}
 
 
-@pytest.mark.skipif(not FUZZ_ENABLED, reason="enabled after the fuzz fixes land (issue 32); "
-                    "flip FUZZ_ENABLED in tests/test_fuzz.py")
+needs_fixes = pytest.mark.skipif(not FUZZ_ENABLED, reason="enabled after the fuzz fixes land (issue 32); "
+                                "flip FUZZ_ENABLED in tests/test_fuzz.py")
+
+
+@needs_fixes
+@pytest.mark.parametrize("name", sorted(known_cases()))
+def test_issue_32_cases_keep_the_contract(runner, name):
+    outcome, _ = runner.run(known_cases()[name])
+    allowed = ("rejected",) if name in MUST_REJECT else ("accepted", "rejected")
+    assert outcome.outcome in allowed, (outcome.outcome, outcome.stderr[-2000:], outcome.problems)
+
+
+@needs_fixes
 def test_bounded_fuzz_run_breaks_no_contract(tmp_path):
     summary = run(seed=0, count=CASES, workers=min(WORKERS, os.cpu_count() or 1), repro_dir=tmp_path / "repro")
     assert summary["cases"] == CASES

@@ -317,8 +317,13 @@ def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w
             drop_dac_override()
         from nrpose.cli import main
         code = main(list(case.argv))
-        if code == 0:
+        try:
             sys.stdout.flush()
+        except BrokenPipeError:   # what the interpreter does when stdout fails at exit
+            print("Exception ignored while flushing sys.stdout:\nBrokenPipeError: [Errno 32] Broken pipe",
+                  file=sys.stderr)
+            code = 120
+        if code == 0:
             problems = validate(list(case.argv))
             os.write(w_res, json.dumps(problems).encode())
     except SystemExit as exc:
@@ -432,9 +437,12 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
         memory = "bad_alloc" in err or "MemoryError" in err
         classes.append("memory" if memory else "crash")
         o.where = o.where or f"signal {signal.Signals(-code).name} {case.template}"
+    elif "Broken pipe" in err:
+        classes.append("broken-pipe")
+        o.where = o.where or _message_head(err)
     elif code == 1 and "Traceback" in err:
         exc_line = lines[-1] if lines else ""
-        classes.append("memory" if exc_line.startswith("MemoryError") else "traceback")
+        classes.append("memory" if "MemoryError" in exc_line.split(":")[0] else "traceback")
     elif code == 0:
         try:
             o.problems = json.loads(res) if res else ["no validation result"]
@@ -453,8 +461,6 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
             classes.append("leftover")
             o.problems.append(f"temporary files left: {temps[:3]}")
     elif code == 2:
-        if "Broken pipe" in err:
-            classes.append("broken-pipe")
         if "bad_alloc" in err or "MemoryError" in err:
             classes.append("memory")
         if changed:
