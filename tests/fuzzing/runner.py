@@ -471,14 +471,10 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
         o.where = o.where or _message_head(err)
     else:
         classes.append("bad-exit")
-    if code in (0, 2) and not timed_out and len(lines) > (1 if code == 2 else 0) and "Traceback" not in err:
-        if code == 2 or len(lines) > 1:
-            classes.append("multiline-stderr")
-            o.where = o.where if code == 0 else _message_head(err)
-            o.where = o.where or _message_head(err)
-    if code == 2 and len(lines) == 0 and not timed_out:
+    # exit 2: exactly one line; exit 0: at most one (a warning)
+    if code in (0, 2) and "Traceback" not in err and (len(lines) > 1 or (code == 2 and not lines)):
         classes.append("multiline-stderr")
-        o.where = "empty stderr"
+        o.where = (o.where if code == 0 else "") or _message_head(err) or "empty stderr"
     if code not in (0, 2) and changed and "leftover" not in classes:
         o.problems.append(f"left behind / changed: {changed[:5]}")
     classes = sorted(set(classes), key=CLASSES.index)
