@@ -19,7 +19,7 @@ __all__ = ["known_cases", "MUST_REJECT"]
 
 #: cases whose exit 0 is itself the defect (the input is invalid)
 MUST_REJECT = {"pose --alpha nan (authored)", "pose --alpha -1 (authored)", "glTF index as a string",
-               "glTF POSITION index as a string"}
+               "glTF POSITION index as a string", "pose -o '' (empty output name)"}
 
 
 def _gltf(mutate, blob_mutate=None, kind: str = "glb") -> dict:
@@ -161,6 +161,8 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
                                            {"in/c/body.glb": glb}),
         "skin joints in a cycle with the node tree": _case("joint-cycle", pose_glb,
                                                            _gltf(_set(("nodes", 3, "children"), [0]))),
+        "pose -o '' (empty output name)": _case("empty-output", ["pose", "in/c/body.glb", "--rest", "-o", "",
+                                                                 "--backend", "numpy"], {"in/c/body.glb": glb}),
         "--png into a read-only folder": _case("png-readonly", deform + ["--png", "ro/p.png"], dict(mesh_h),
                                                specials={"ro/p.png": "readonly"}),
         "pose frames with a full disk": _case("frames-full-disk", ["pose", "in/c/body.glb", "--clip", "bend", "--fps",

@@ -14,7 +14,7 @@ import json
 import re
 import sys
 
-__all__ = ["root_cause", "markdown", "NEW_HOME"]
+__all__ = ["root_cause", "markdown", "normalise", "NEW_HOME"]
 
 ROOTS = {
     "nesting": "Nesting / recursion (one bounded, iterative reader for nested structures)",
@@ -73,6 +73,22 @@ def root_cause(d: dict) -> str:
     return "other"
 
 
+def normalise(summary: dict) -> dict:
+    """Re-class tracebacks the runner's current rules class otherwise (a MemoryError of any
+    kind is ``memory``, a BrokenPipeError is ``broken-pipe``), counts moved with them."""
+    by = dict(summary.get("by_outcome", {}))
+    for d in summary["defects"]:
+        last = d["stderr_tail"][-1] if d["stderr_tail"] else ""
+        new = ("memory" if "MemoryError" in last.split(":")[0] else
+               "broken-pipe" if "BrokenPipe" in last else d["class"]) if d["class"] == "traceback" else d["class"]
+        if new != d["class"]:
+            by[d["class"]] -= d["count"]
+            by[new] = by.get(new, 0) + d["count"]
+            d["class"] = new
+    summary["by_outcome"] = {k: v for k, v in by.items() if v}
+    return summary
+
+
 def _home(frame: str) -> str:
     path = frame.split(":")[0]
     return NEW_HOME.get(path, path) + (":" + frame.split(":")[-1] if ":" in frame else "")
@@ -112,4 +128,4 @@ def markdown(summary: dict) -> str:
 
 
 if __name__ == "__main__":
-    print(markdown(json.loads(open(sys.argv[1]).read())))
+    print(markdown(normalise(json.loads(open(sys.argv[1]).read()))))
