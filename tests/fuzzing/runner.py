@@ -343,7 +343,7 @@ def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w
         os._exit(code if isinstance(code, int) else 1)
 
 
-def _read_all(fds: dict, deadline: float, pid: int) -> tuple[dict, bool]:
+def _read_all(fds: dict, deadline: float) -> tuple[dict, bool]:
     """Drain the pipes until all close or ``deadline``; True when the deadline passed."""
     bufs = {fd: bytearray() for fd in fds}
     open_fds = set(fds)
@@ -377,13 +377,12 @@ def run_case(case, root: Path, env: dict, drop: bool, time_limit: float = TIME_L
     for _, w in pipes:
         os.close(w)
     fds = {pipes[0][0]: "out", pipes[1][0]: "err", pipes[2][0]: "res"}
-    bufs, timed_out = _read_all(fds, t0 + time_limit, pid)
+    bufs, timed_out = _read_all(fds, t0 + time_limit)
     if timed_out:
-        for sig in (signal.SIGKILL,):
-            try:
-                os.killpg(pid, sig)
-            except ProcessLookupError:
-                pass
+        try:
+            os.killpg(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
     _, status = os.waitpid(pid, 0)
     seconds = time.monotonic() - t0
     for fd in fds:
@@ -521,7 +520,7 @@ class Collector:
         self.count = 0
         self.violations = 0
 
-    def add(self, o: Outcome, case=None, casedir: Path | None = None) -> None:
+    def add(self, o: Outcome, case=None) -> None:
         self.count += 1
         t = self.totals.setdefault(o.command, {}).setdefault(o.input_kind, {})
         t[o.outcome] = t.get(o.outcome, 0) + 1
