@@ -84,10 +84,7 @@ def preload() -> None:
     for mod in pkgutil.walk_packages(nrpose.__path__, "nrpose."):
         if mod.name.endswith("__main__"):
             continue
-        try:
-            importlib.import_module(mod.name)
-        except Exception:   # a module the refactor moved or removed: the child imports what it needs
-            pass
+        importlib.import_module(mod.name)
 
 
 # --------------------------------------------------------------------------- case set-up
@@ -223,10 +220,9 @@ def validate(argv: list) -> list[str]:
         except Exception as exc:  # noqa: BLE001 - any failure to read back is the finding
             problems.append(f"{p}: not readable back ({type(exc).__name__}: {str(exc)[:200]})")
 
-    try:
-        from nrpose.io.meshes import read_geometry
-    except ImportError:
-        from nrpose.meshio import read_geometry
+    from nrpose.io import load_character
+    from nrpose.io.bvh_read import read_bvh
+    from nrpose.io.meshes import read_geometry
 
     def read_mesh(p):
         g = read_geometry(p)
@@ -241,20 +237,12 @@ def validate(argv: list) -> list[str]:
                     raise ValueError(f"array {k} not finite")
 
     def read_bvh_file(p):
-        try:
-            from nrpose.io.bvh_read import read_bvh
-        except ImportError:
-            from nrpose.formats.bvh import read_bvh
         read_bvh(p)
 
     def read_glb(p):
         _check_glb(Path(p), problems)
         if command == "retarget":
-            try:
-                from nrpose.io.gltf_read import load_gltf
-            except ImportError:
-                from nrpose.formats.gltf import load_gltf
-            load_gltf(p)
+            load_character(p)
 
     def read_png(p):
         if Path(p).read_bytes()[:8] != b"\x89PNG\r\n\x1a\n":
