@@ -12,12 +12,15 @@ flags of the command that ran (each command module's ``FLAGS``).
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import sys
+import warnings
 
 import numpy as np
 
 from ..errors import NrposeError
+from ..io.files import output_transaction
 from . import deform, demo, info, pose, retarget, weights
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
@@ -35,6 +38,17 @@ class UsageError(Exception):
 class Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, status 2 (argparse's default prints usage too)
         raise UsageError(f"{self.prog}: {message}")
+
+    def parse_known_args(self, args=None, namespace=None):
+        """argparse's, with empty values refused: an empty name is never a file, clip or choice."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(namespace, action.dest, None)
+            values = value if isinstance(value, list) else [value]
+            if any(isinstance(v, str) and not v.strip() for v in values):
+                name = "/".join(action.option_strings) or action.dest
+                self.error(f"{name}: empty value; give a name")
+        return namespace, extras
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,10 +75,19 @@ def main(argv=None) -> int:
     try:
         args = build_parser().parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
-        # so in one line; numpy's floating-point warnings on the way would add lines to stderr
-        # (nrpose's own warnings, e.g. a binding cache not written, still show)
-        with np.errstate(all="ignore"):
-            args.func(args)
+        # so in one line; numpy's floating-point warnings on the way would add lines to stderr.
+        # nrpose's own warnings (a binding cache not written...) show as one line each.
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.showwarning = show_warning
+            with output_transaction():
+                try:
+                    args.func(args)
+                    sys.stdout.flush()
+                except BrokenPipeError:
+                    # the reader of stdout has gone (`nrpose info X | head`): the outputs are
+                    # complete, so they are kept; the command ends quietly as under SIGPIPE
+                    quiet_stdout()
+                    return EXIT_PIPE
     except UsageError as exc:
         return fail(str(exc))
     except NrposeError as exc:
@@ -72,6 +95,23 @@ def main(argv=None) -> int:
     except OSError as exc:
         return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
     return 0
+
+
+#: the exit status of a command whose stdout reader went away (128 + SIGPIPE, as a shell reports it)
+EXIT_PIPE = 128 + 13
+
+
+def quiet_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush cannot fail again."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
+def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A warning as one line on stderr: ``nrpose: warning: MESSAGE``."""
+    text = str(message).replace("\r", "\\r").replace("\n", "\\n")
+    print(f"nrpose: warning: {text}", file=sys.stderr if file is None else file)
 
 
 def fail(message: str) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NrposeError
-from ..io.files import atomic_path, check_writable
+from ..io.files import atomic_path, check_writable, on_commit
 from ..io.gltf_write import write_animated_glb
 from ..io.meshes import write_geometry
 
@@ -39,6 +39,8 @@ def progress(done: int, total: int) -> None:
 
 def frames_output_kind(out: str) -> str:
     """"npz", "glb" or "dir" for ``nrpose pose -o OUT``; NrposeError for other extensions."""
+    if not out:
+        raise NrposeError("-o '': give an output name (OUT.npz, OUT.glb or a directory)")
     suffix = Path(out).suffix.lower()
     if suffix in (".npz", ".glb"):
         return suffix[1:]
@@ -47,13 +49,14 @@ def frames_output_kind(out: str) -> str:
     raise NrposeError(f"{out}: output must end in .npz or .glb, or be a directory")
 
 
-def check_outputs(out: str | None, suffixes, png: str | None) -> None:
-    """Refuse unusable output names before any work (nothing is written on failure)."""
+def check_outputs(out: str | None, suffixes, png: str | None, out_is_dir: bool = False) -> None:
+    """Refuse unusable output names before any work (nothing is written on failure): each
+    output's directory must exist and take a new file. out_is_dir: OUT is a frame directory."""
     if out is not None:
         if suffixes is not None and Path(out).suffix.lower() not in suffixes:
             raise NrposeError(f"{out}: unknown output extension; use one of {', '.join(suffixes)}")
-        check_writable(out)
-    if png:
+        check_writable(out, directory_ok=out_is_dir)
+    if png is not None:
         if Path(png).suffix.lower() != ".png":
             raise NrposeError(f"--png {png}: the preview must end in .png")
         check_writable(png)
@@ -72,19 +75,26 @@ def write_frames(out: str, frames, times: np.ndarray, fmt: str, character) -> No
     elif kind == "glb":
         write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets)
     else:
-        # all frames go to a temporary sibling directory first; only then are the
-        # previous run's frame files removed and the new ones moved in
-        path.mkdir(parents=True, exist_ok=True)
+        # all frames go to a temporary sibling directory first; only at commit is the
+        # directory made, the previous run's frame files removed and the new ones moved in
         tmp = Path(tempfile.mkdtemp(prefix=".nrpose-", dir=path.parent))
         try:
             for f, pos in enumerate(frames.positions):
                 write_geometry(tmp / f"frame_{f:04d}.{fmt}", pos, frames.faces)
-            for old in path.glob("frame_*"):
-                old.unlink()
-            for new in sorted(tmp.iterdir()):
-                new.replace(path / new.name)
-        finally:
+        except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+        def commit():
+            try:
+                path.mkdir(parents=True, exist_ok=True)
+                for old in path.glob("frame_*"):
+                    old.unlink()
+                for new in sorted(tmp.iterdir()):
+                    new.replace(path / new.name)
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+        on_commit(commit, lambda: shutil.rmtree(tmp, ignore_errors=True))
 
 
 def device_text() -> str:

@@ -64,11 +64,9 @@ def parse_frames(spec: str, fps: float) -> np.ndarray:
 
 def run(args) -> None:
     kind = frames_output_kind(args.output)
-    if kind == "dir":   # created if needed: its parent must exist
-        parent = Path(args.output).resolve().parent
-        if not parent.is_dir() or Path(args.output).is_file():
-            raise NrposeError(f"{args.output}: cannot make a frame directory there (is {parent} a directory?)")
-    check_outputs(args.output if kind != "dir" else None, None, args.png)
+    if kind == "dir" and Path(args.output).is_file():
+        raise NrposeError(f"{args.output}: a file; give a directory (or a name ending in .npz or .glb)")
+    check_outputs(args.output, None, args.png, out_is_dir=kind == "dir")
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise NrposeError(f"--fps {args.fps}: expected a positive number of frames per second")
     if (args.rest or args.pose) and (args.time or args.frames):

@@ -42,6 +42,8 @@ import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from nrpose.cli import EXIT_PIPE
+
 __all__ = ["Outcome", "Runner", "Collector", "run_case", "CLASSES", "TIME_LIMIT", "MEMORY_LIMIT"]
 
 TIME_LIMIT = 20.0
@@ -447,6 +449,8 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
         if temps:
             classes.append("leftover")
             o.problems.append(f"temporary files left: {temps[:3]}")
+    elif code == EXIT_PIPE and case.broken_pipe and not err.strip():
+        pass    # the quiet end of a command whose stdout reader went away
     elif code == 2:
         if "bad_alloc" in err or "MemoryError" in err:
             classes.append("memory")
@@ -466,7 +470,7 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
         o.problems.append(f"left behind / changed: {changed[:5]}")
     classes = sorted(set(classes), key=CLASSES.index)
     o.classes = classes
-    o.outcome = classes[0] if classes else ("accepted" if code == 0 else "rejected")
+    o.outcome = classes[0] if classes else ("accepted" if code in (0, EXIT_PIPE) else "rejected")
     if o.outcome in ("leftover", "invalid-output", "bad-option-accepted", "broken-pipe", "nonfinite"):
         o.where = f"{case.template}: {o.where or _message_head(err)}"
     return o
