@@ -14,7 +14,36 @@ from ..io.files import atomic_path, check_writable, on_commit
 from ..io.gltf_write import write_animated_glb
 from ..io.meshes import write_geometry
 
-__all__ = ["median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
+__all__ = ["add_budget_options", "check_budget", "median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
+
+
+#: defaults of --max-frames and --max-output-values: a long clip of a large character fits
+#: (10,000 frames = 5.5 min at 30 fps; 2e8 numbers = 0.8 GB as float32)
+MAX_FRAMES = 10_000
+MAX_OUTPUT_VALUES = 200_000_000
+
+
+def add_budget_options(p) -> None:
+    """--max-frames and --max-output-values: the work and output a run may ask for."""
+    p.add_argument("--max-frames", type=int, default=MAX_FRAMES,
+                   help=f"refuse runs of more frames (default {MAX_FRAMES:,}; each frame is posed, and is "
+                        "a file for a directory output)")
+    p.add_argument("--max-output-values", type=float, default=MAX_OUTPUT_VALUES,
+                   help=f"refuse runs whose output holds more numbers (default {MAX_OUTPUT_VALUES:.0e}: "
+                        "frames x vertices x 3, plus frames^2 morph weights in a .glb)")
+
+
+def check_budget(args, frames: int, values: float, what: str) -> None:
+    """NrposeError, before any work, when ``frames`` or the estimated output ``values`` exceed
+    the run's --max-frames / --max-output-values (``what`` names the output)."""
+    if args.max_frames < 1 or not args.max_output_values >= 1:
+        raise NrposeError("--max-frames and --max-output-values must be at least 1")
+    if frames > args.max_frames:
+        raise NrposeError(f"{what}: {frames:,} frames, more than --max-frames {args.max_frames:,}; sample "
+                          f"fewer (lower --fps, a shorter --frames range) or raise --max-frames")
+    if values > args.max_output_values:
+        raise NrposeError(f"{what}: the output would hold {values:.3g} numbers, more than --max-output-values "
+                          f"{args.max_output_values:.3g}; sample fewer frames or raise --max-output-values")
 
 
 def median_ms(fn, repeat: int) -> tuple[float, object]:

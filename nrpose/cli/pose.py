@@ -14,7 +14,7 @@ from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
 from ..render.sheet import save_contact_sheet
-from .common import check_outputs, frames_output_kind, progress, write_frames
+from .common import add_budget_options, check_budget, check_outputs, frames_output_kind, progress, write_frames
 
 #: library argument name -> the flag users type
 FLAGS = {"method": "--method", "weights": "--weights", "alpha": "--alpha", "blend": "--blend",
@@ -43,6 +43,7 @@ def add_parser(sub) -> None:
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
     p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")
     p.add_argument("--png", help="write a contact sheet PNG")
+    add_budget_options(p)
     p.set_defaults(func=run, flags=FLAGS)
 
 
@@ -91,6 +92,9 @@ def run(args) -> None:
         if kind == "glb" and (np.diff(times) <= 0).any():
             raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
                               "write .npz or a directory")
+        vertices = sum(len(m.vertices) for m in character.meshes)
+        check_budget(args, len(times), 3.0 * len(times) * vertices + (len(times) ** 2 if kind == "glb" else 0),
+                     args.output)
         local = clip.sample(times)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend)

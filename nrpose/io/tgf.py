@@ -29,7 +29,7 @@ from ..checks import real_rows, triangles
 from ..errors import FileFormatError, InputError
 from ..model.rotation import unit_quaternions
 from ..model.skeleton import LocalPose, Skeleton
-from .files import read_input_text
+from .files import read_input, read_input_text
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
 
@@ -109,15 +109,44 @@ def read_tgf(path: str | Path) -> Skeleton:
                     tips=C[BE[order, 1]] - start)
 
 
-def _read_dmat(path: Path) -> np.ndarray:
-    import igl
+def _dmat_header(path: Path, line: bytes) -> tuple[int, int]:
+    """(columns, rows) of a DMAT header line: two non-negative decimal integers."""
+    fields = line.split()
+    if len(fields) != 2 or not all(f.isdigit() for f in fields):
+        raise FileFormatError(f"{path}: not a DMAT matrix (the header {line[:40]!r} is not "
+                              f"'COLUMNS ROWS')")
+    return int(fields[0]), int(fields[1])
 
-    if not path.is_file():
-        raise FileFormatError(f"{path}: no such DMAT file")
-    try:
-        return np.asarray(igl.readDMAT(str(path)), dtype=np.float64)
-    except RuntimeError as exc:
-        raise FileFormatError(f"{path}: not a DMAT matrix ({exc})") from None
+
+def _read_dmat(path: Path) -> np.ndarray:
+    """A libigl DMAT matrix (rows, cols) float64, ASCII or binary.
+
+    Parsed here rather than by ``igl.readDMAT``, which allocates whatever its header says
+    (``2147483648 4`` aborts the process) and prints its errors on stderr: the header's size
+    is checked against the values the file holds before anything is allocated. ASCII: a line
+    ``COLUMNS ROWS`` then the values column by column; binary: a line ``0 0``, a line
+    ``COLUMNS ROWS``, then the float64 values (little-endian) column by column.
+    """
+    data = read_input(path, "DMAT file")
+    first, _, rest = data.partition(b"\n")
+    cols, rows = _dmat_header(path, first)
+    if cols == rows == 0:
+        second, _, body = rest.partition(b"\n")
+        cols, rows = _dmat_header(path, second)
+        if len(body) != 8 * rows * cols:
+            raise FileFormatError(f"{path}: binary DMAT header says {rows} x {cols} values "
+                                  f"({8 * rows * cols} bytes), the file holds {len(body)} bytes")
+        values = np.frombuffer(body, "<f8").astype(np.float64)
+    else:
+        tokens = rest.split()
+        if len(tokens) != rows * cols:
+            raise FileFormatError(f"{path}: DMAT header says {rows} x {cols} values, the file holds "
+                                  f"{len(tokens)}")
+        try:
+            values = np.array([float(t) for t in tokens], dtype=np.float64)
+        except ValueError:
+            raise FileFormatError(f"{path}: not a DMAT matrix (a value is not a number)") from None
+    return values.reshape(cols, rows).T
 
 
 def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
