@@ -25,10 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import real_rows, triangles
+from ..checks import coordinates, real_rows, triangles
 from ..errors import FileFormatError, InputError
 from ..model.rotation import unit_quaternions
 from ..model.skeleton import LocalPose, Skeleton
+from ..native import quiet_native
 from .files import read_input, read_input_text
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
@@ -194,9 +195,10 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise FileFormatError(f"{path}: no such mesh file")
     try:
         if suffix == ".mesh":
-            V, T, F = igl.readMESH(str(path))
-            if len(T):
-                F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
+            with quiet_native():
+                V, T, F = igl.readMESH(str(path))
+                if len(T):
+                    F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
         else:
             from .meshes import read_geometry
             V, F = read_geometry(path)
@@ -206,7 +208,7 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     F = np.asarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
         raise FileFormatError(f"{path}: no triangles read (vertices {V.shape}, faces {F.shape})")
-    V = real_rows(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
+    V = coordinates(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
     F = triangles(F, len(V), f"{path}: faces", FileFormatError, "the file is inconsistent, re-export it")
     used = np.unique(F)
     if suffix == ".mesh" and len(used) < len(V):

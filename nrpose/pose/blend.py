@@ -72,7 +72,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import real_rows
+from ..checks import coordinates
 from ..errors import InputError
 from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
@@ -158,7 +158,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     is that dict for all points, and the dense (N, H) terms never exist for all
     points at once (the OpenCL deformer's bind, :func:`nrpose.pose.mls.slot_terms`).
     """
-    v = real_rows(points, "points")
+    v = coordinates(points, "points")
     alpha = check_alpha(alpha)
     if lever not in LEVERS:
         raise InputError(f"lever must be one of {LEVERS}, got {lever!r}")
