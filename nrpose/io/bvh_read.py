@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import check_magnitude
 from ..errors import FileFormatError, InputError
 from ..model.character import Clip, Track
 from ..model.rotation import Rotation
@@ -69,6 +70,7 @@ class _Tokens:
             raise FileFormatError(f"{self.path}:{line}: {what}: expected {count} numbers") from None
         if not np.isfinite(values).all():
             raise FileFormatError(f"{self.path}:{line}: {what}: NaN or infinite value")
+        check_magnitude(np.asarray(values), f"{self.path}:{line}: {what}", FileFormatError)
         return values
 
 
@@ -222,6 +224,7 @@ def read_bvh(path: str | Path) -> tuple[Skeleton, Clip]:
                 if translation is None:
                     translation = np.tile(record["offset"], (F, 1))
                 translation[:, axis] = data[:, column]
+                check_magnitude(data[:, column], f"{path}: {channel} of joint {record['name']}", FileFormatError)
             column += 1
         if rot_axes:
             try:

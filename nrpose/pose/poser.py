@@ -36,6 +36,7 @@ from . import skinning
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
 from .blend import BLENDS
 from .mls import Deformer
+from ..checks import check_magnitude
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose
@@ -146,6 +147,9 @@ class CharacterPoser:
         if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
             raise InputError("no frames to pose: give at least one time")
         G = skel.forward_kinematics(local)
+        if not np.isfinite(G).all():
+            raise InputError("the pose moves or scales joints to infinity; check its translations and scales")
+        check_magnitude(G[..., :3, :], "posed joint transforms (translations, scaled rotations)")
         if G.ndim == 3:
             G = G[None]
         F = len(G)
