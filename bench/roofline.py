@@ -211,10 +211,8 @@ class Roofs:
 
     def __init__(self, quick: bool = False):
         import pyopencl as cl
-        ctx, _ = device.context()
         self.queues = device.profiling_queues()
-        src = device.with_headers(ROOF_SOURCE)
-        prg = cl.Program(ctx, src).build(options=[f"-DCOPY_BLOCK={COPY_BLOCK}"])
+        prg = device.build_source(ROOF_SOURCE, (f"-DCOPY_BLOCK={COPY_BLOCK}",))
         self.k_flops = cl.Kernel(prg, "peak_flops")
         self.k_copy = cl.Kernel(prg, "copy8")
         self.k_empty = cl.Kernel(prg, "empty")

@@ -1,5 +1,5 @@
 /* 8-lane helpers shared by the kernels (pasted in place of `#include "lanes.h"`
- * by nrpose/device.py, so that PoCL's kernel cache sees the whole source).
+ * by nrpose/device/programs.py, so that PoCL's kernel cache sees the whole source).
  *
  * PoCL's builtins vload8, vstore3, all, any, select, fabs, sqrt, rsqrt and atan2
  * are out-of-line calls in the binary it builds here, and each call spills
@@ -26,6 +26,27 @@ static inline int or8(const int8 v)
 /* True when some lane of x is not zero. */
 #define ANY_NONZERO8(x) (or8((x) != 0.0f) != 0)
 
+#ifdef PLAIN_OPENCL
+/* Plain OpenCL C (nrpose/device/env.py plain_opencl; kernels/share.h): no clang vector
+ * extensions (__builtin_shufflevector, under-aligned vector types), the 8 rows stored
+ * lane by lane, three floats each. Row l of (x, y, z) at q + 3 o (STORE_ROW_). */
+#define STORE_ROW_(x, y, z, q, o, l) do {                                           \
+    __global float *r_ = (q) + 3 * (size_t)(o);                                     \
+    r_[0] = (x).s##l; r_[1] = (y).s##l; r_[2] = (z).s##l;                           \
+} while (0)
+#define STORE_LANES_(x, y, z, q, o0, o1, o2, o3, o4, o5, o6, o7) do {               \
+    const float8 x_ = (x), y_ = (y), z_ = (z);                                      \
+    STORE_ROW_(x_, y_, z_, q, o0, 0); STORE_ROW_(x_, y_, z_, q, o1, 1);              \
+    STORE_ROW_(x_, y_, z_, q, o2, 2); STORE_ROW_(x_, y_, z_, q, o3, 3);              \
+    STORE_ROW_(x_, y_, z_, q, o4, 4); STORE_ROW_(x_, y_, z_, q, o5, 5);              \
+    STORE_ROW_(x_, y_, z_, q, o6, 6); STORE_ROW_(x_, y_, z_, q, o7, 7);              \
+} while (0)
+#define STORE_ROWS(x, y, z, q, o) do {                                              \
+    const int8 o_ = (o);                                                            \
+    STORE_LANES_(x, y, z, q, o_.s0, o_.s1, o_.s2, o_.s3, o_.s4, o_.s5, o_.s6, o_.s7); \
+} while (0)
+#define STORE_XYZ8(x, y, z, q) STORE_LANES_(x, y, z, q, 0, 1, 2, 3, 4, 5, 6, 7)
+#else
 /* Store lane l of (x, y, z) as the 3 floats at q + 3 * o.sl, for the 8 lanes
  * (o: int8 of row indices, one output row per lane): the (x, y) pairs interleaved by two
  * shuffles and stored 8 bytes at a time (a 2-float vector type of 4-byte alignment: rows
@@ -65,6 +86,8 @@ typedef float float8_a4 __attribute__((ext_vector_type(8), aligned(4)));
     v_[1] = __builtin_shufflevector(xy_, zz_, 18, 3, 11, 19, 4, 12, 20, 5);         \
     v_[2] = __builtin_shufflevector(xy_, zz_, 13, 21, 6, 14, 22, 7, 15, 23);        \
 } while (0)
+
+#endif
 
 /* float8 of p[i.s0], ..., p[i.s7]. */
 #define GATHER8(p, i) ((float8)((p)[(i).s0], (p)[(i).s1], (p)[(i).s2], (p)[(i).s3], \

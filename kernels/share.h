@@ -1,4 +1,5 @@
-/* Work shared by the devices of one launch (nrpose/device.py Jobs, launch_shared):
+/* Work shared by the devices of one launch (nrpose/device/mailbox.py Jobs,
+ * nrpose/device/launch.py launch_shared):
  * the same kernel runs at once on PoCL's worker threads and on the calling
  * thread, and each work-item takes the next block of work until none are left.
  * Blocks are handed out in order, so a work-item that starts late finds fewer
@@ -18,7 +19,7 @@
  *                     is taken: a standing work-item serves jobs of different batch
  *                     sizes) and whether it is taken from both ends, in one of two
  *                     descriptors (JOB_DESC), by the tag's parity
- *   A job taken from both ends (at most 1,000 blocks, nrpose/device.py JOB_ENDS_MAX_BLOCKS,
+ *   A job taken from both ends (at most 1,000 blocks, nrpose/device/mailbox.py JOB_ENDS_MAX_BLOCKS,
  *   so that no count of both ends reads as JOB_PROLOGUE or JOB_IN_PROLOGUE) counts in the block
  *   field the blocks taken from its start (the low JOB_END_BITS bits), which standing
  *   workers take, and from its end (the next JOB_END_BITS), which work-items of role
@@ -26,7 +27,7 @@
  *   with a standing worker the two cores then pose about the same points in every launch, and the bound
  *   data of a job that fits in their two L2 caches, not in one, stays where it is read
  *   (the box's point rig, 588 KB: standing spans 1.02-1.42x; on rigs of 2 MB and more
- *   0.92-0.99x, so owners ask for it by size: nrpose/device.py ENDS_MAX_BOUND_BYTES).
+ *   0.92-0.99x, so owners ask for it by size: nrpose/device/mailbox.py ENDS_MAX_BOUND_BYTES).
  *   jobs[JOB_DONE]    blocks finished: each work-item adds its count once, after its
  *                     blocks' writes (a cache line of its own: the block counter's
  *                     line already moves between the cores at every block taken)
@@ -75,6 +76,33 @@
  * or, to handle a block's items as a whole (kernels/nrmls.cl: its frames' pointers found
  * once per block), FOR_EACH_BLOCK(b, jobs) { ... block b, items b * block .., of the job's
  * JOB_FRAMES_OF(jobs, job_tag_) frames (read after the block is taken) ... } in place of the last.
+ *
+ * What orders a block's reads after the prologue's writes, and the host's after the
+ * blocks': OpenCL 1.2 makes global memory consistent between work-items only at a
+ * barrier of their work-group, and promises nothing between work-groups of a kernel, nor
+ * between devices (its section 3.3.1); its atomic_* functions are atomic, and order
+ * nothing else. Nor does it promise that work-groups run at the same time, which the
+ * calling thread's wait for the others' blocks (and the others' wait for the prologue)
+ * needs. So this protocol is outside the 1.2 model, and the host uses it only where the
+ * implementation gives both: PoCL's CPU devices on x86 (nrpose/device/policy.py
+ * standing_workers_possible), where every work-group runs on a thread of the process,
+ * x86's total store order keeps a core's stores in order and its loads in order (and a
+ * locked compare-and-swap is a full barrier), and JOB_RELEASE / JOB_ACQUIRE keep the
+ * compiler from moving a block's memory accesses across the mailbox's. (In the C11 terms
+ * of OpenCL 2.0, the kernel's side is fence synchronisation, a release fence before the
+ * atomic that opens a job or counts blocks done, an acquire fence after the atomic that
+ * takes a block or the read that sees the count, but for the polls, which are volatile
+ * loads rather than atomic ones: on x86, one aligned load either way. The host's side,
+ * numpy stores to shared memory, has only x86's order.)
+ *
+ * Everywhere else the host builds with -DPLAIN_OPENCL, and a launch is plain OpenCL
+ * 1.2: the kernel only reads the mailbox (the job's descriptor, written before the
+ * launch), work-item i takes blocks i, i + n, ... (n work-items; the ends, JOB_DONE and
+ * roles other than these two unused), and a job's prologue is a launch of its own before
+ * the blocks', in the same in-order queue, with role ROLE_PROLOGUE (its work-item 0 runs
+ * it, FOR_EACH_BLOCK gives it no block), so that the queue orders the prologue's writes
+ * before the blocks' reads, and the host's wait for the queue orders the blocks' writes
+ * before its reads.
  */
 #define JOB_NEXT 0
 #define JOB_QUIT 3
@@ -92,7 +120,23 @@
 #define JOB_PROLOGUE (JOB_BLOCK_MASK - 1)        /* published; its prologue not yet claimed */
 #define JOB_IN_PROLOGUE (JOB_BLOCK_MASK - 2)     /* a work-item runs the prologue */
 #define ROLE_CALLER 0
+#define ROLE_PROLOGUE (-1)    /* PLAIN_OPENCL: the launch of the job's prologue */
 
+#ifdef PLAIN_OPENCL
+/* The job published when the launch was enqueued (its tag: the descriptor's parity),
+ * served once by each work-item. */
+#define FOR_EACH_JOB(jobs, role) \
+    for (int job_tag_ = (jobs)[JOB_NEXT] >> JOB_TAG_SHIFT, job_role_ = (role), job_once_ = 1; job_once_; job_once_ = 0)
+
+/* The prologue's launch runs it (its work-item 0). */
+#define claim_prologue(jobs, tag) (job_role_ == ROLE_PROLOGUE && get_global_id(0) == 0)
+#define open_job(jobs, tag) ((void)0)
+
+/* Blocks i, i + n, ... of the job for work-item i of n; none for the prologue's launch. */
+#define FOR_EACH_BLOCK(b, jobs) \
+    for (int b = job_role_ == ROLE_PROLOGUE ? JOB_BLOCKS_OF(jobs, job_tag_) : (int)get_global_id(0); \
+         b < JOB_BLOCKS_OF(jobs, job_tag_); b += (int)get_global_size(0))
+#else
 /* a spin-wait hint to the core (x86: pause; it spares the sibling hyperthread) */
 #if defined(__x86_64__) || defined(__i386__)
 #define SPIN_PAUSE() __builtin_ia32_pause()
@@ -101,7 +145,7 @@
 #endif
 
 /* Ordering of a block's reads and writes against the mailbox, for the compiler (the
- * hardware's is x86's, where the host enables standing workers: nrpose/device.py
+ * hardware's is x86's, where the host enables standing workers: nrpose/device/policy.py
  * standing_workers_possible): OpenCL 1.x atomics promise none, PoCL's mem_fence
  * compiles to nothing, clang's fences are compiler barriers here (release, acquire). */
 #if defined(__clang__)
@@ -224,6 +268,8 @@ static inline int count_done(volatile __global int *jobs, const int taken)
 #define FOR_EACH_BLOCK(b, jobs) \
     for (int b = take_block((jobs), job_tag_, job_role_), taken_ = 0; b >= 0 || count_done((jobs), taken_); \
          b = (++taken_, take_block((jobs), job_tag_, job_role_)))
+
+#endif
 
 /* Item g of every block of the job being served (inside FOR_EACH_JOB), with F the
  * frames of the block's job (read once per block, after it is taken). */

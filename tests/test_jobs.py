@@ -480,6 +480,38 @@ def test_a_jobs_prologue_runs_once_before_any_of_its_blocks(standby, split):
         assert state.host[2] > 0, state.host[2]      # and runs prologues (143 of 300 in a CI run, over 150 here)
 
 
+def test_plain_launches_run_the_prologue_once_before_the_blocks():
+    """Plain OpenCL launches (Jobs.plain, share.h PLAIN_OPENCL, as on devices other than
+    PoCL on x86): the prologue's own launch runs it once per job before any block, each
+    block is taken once; the prologue's clone follows the kernel's arguments when the
+    owner sets them through set_argument, and is made again after arguments_changed."""
+    import pyopencl as cl
+
+    ctx, _ = device.context()
+    kernel = cl.Kernel(cl.Program(ctx, device.with_headers(PROLOGUE)).build(["-DPLAIN_OPENCL"]), "staged")
+    jobs = device.Jobs()
+    jobs.plain = True
+    who = device.HostArray(64, dtype=np.int32)
+    states = [device.HostArray(3, dtype=np.int32) for _ in range(3)]
+    jobs.keep = (who, *states)
+    kernel.set_args(who.arg, states[0].arg, np.int32(2_000), jobs.box.arg, np.int32(0))
+    for j in range(24):
+        state = states[min(j // 8, 2)]
+        if j == 8:
+            jobs.set_argument(kernel, 1, state.arg)
+        elif j == 16:
+            jobs.arguments_changed()
+            kernel.set_arg(1, state.arg)
+        blocks, frames = 1 + (j * 7) % 40, 1 + j % 5
+        who.host[:] = 0
+        state.host[:] = [-1, 0, 0]          # stale, until the prologue writes the frames
+        device.launch_shared(kernel, jobs, blocks, frames, prologue=True)
+        assert list(state.host[1:]) == [1, 0], j     # one prologue, the prologue launch's
+        got = who.host.copy()
+        assert np.all(got[:blocks] == CALLER + frames), (j, got[:blocks])
+        assert not got[blocks:].any(), j
+
+
 CLAIM_PROLOGUE = """#include "share.h"
 __kernel void claim2(__global int *out, const int tag, volatile __global int *jobs)
 {

@@ -11,17 +11,17 @@ share, the standby of standing workers), :mod:`~nrpose.device.mailbox` (the job 
 from here.
 """
 from .bound import BoundKernel, run_coded_rows
-from .env import (INSTALL_HINT, context, describe, fine_grain_svm, may_pin_workers, pocl_environment,
-                  pocl_settings, pyopencl, usable_cpus, work_items, worker_device, worker_queue)
+from .env import (INSTALL_HINT, context, describe, fine_grain_svm, may_pin_workers, plain_opencl,
+                  pocl_environment, pocl_settings, pyopencl, usable_cpus, work_items, worker_device, worker_queue)
 from .launch import launch_shared
 from .mailbox import (ENDS_MAX_BOUND_BYTES, JOB_CLOSED, JOB_DESC, JOB_DESCS, JOB_DONE, JOB_END_BITS,
                       JOB_ENDS_MAX_BLOCKS, JOB_IN_PROLOGUE, JOB_INTS, JOB_NEXT, JOB_PROLOGUE, JOB_QUIT,
-                      JOB_STANDING, JOB_TAG_SHIFT, ROLE_CALLER, STANDING_MIN_BLOCKS, STANDING_RUN,
+                      JOB_STANDING, JOB_TAG_SHIFT, ROLE_CALLER, ROLE_PROLOGUE, STANDING_MIN_BLOCKS, STANDING_RUN,
                       STANDING_YIELD_S, Jobs, calibrate_standby)
 from .memory import HANDOFF_SLOTS, Handoff, HostArray, check_out_writable, frame_array, frame_count, frames_in
 from .policy import (SHARE_MIN_S, STANDBY_MAX_S, STANDBY_S, set_standby_s, standby_s, standing_mailbox,
                      standing_workers_possible, stop_standing, time_alone, worth_sharing)
-from .programs import build_source, kernel_source, program, with_headers
+from .programs import build_source, kernel_source, program, program_options, with_headers
 from .timing import (EVENT_CLOCK, event_clock_ns, events_span_s, profiling_queues, published_span_s,
                      timing_queue)
 

@@ -11,6 +11,7 @@ import functools
 import os
 
 from ..errors import DeviceError
+from .policy import standing_workers_possible
 
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
                 "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
@@ -104,6 +105,25 @@ def context():
         ctx = _new_context(cl)
     host = [d for d in ctx.devices if _is_basic(d)]
     return ctx, cl.CommandQueue(ctx, (host or ctx.devices)[0])
+
+
+def plain_opencl() -> bool:
+    """True where launches are plain OpenCL 1.2 (kernels/share.h PLAIN_OPENCL: programs
+    built with ``-DPLAIN_OPENCL``, :func:`nrpose.device.launch_shared` launching the job's
+    prologue and blocks in turn on one in-order queue): every context but one whose
+    devices are all PoCL's CPU devices, on an x86 host
+    (:func:`nrpose.device.standing_workers_possible`), the only place where the
+    shared-launch protocol's ordering and concurrent work-groups are known to hold
+    (docs/device.md, "Memory model")."""
+    return _plain_opencl(context()[0])
+
+
+@functools.lru_cache(maxsize=None)
+def _plain_opencl(ctx) -> bool:
+    cl = pyopencl()
+    pocl_cpu = all("Portable Computing Language" in d.platform.name and d.type & cl.device_type.CPU
+                   for d in ctx.devices)
+    return not (pocl_cpu and standing_workers_possible())
 
 
 def worker_queue():

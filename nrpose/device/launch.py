@@ -8,6 +8,11 @@ mailbox (:class:`nrpose.device.Jobs`, kernels/share.h) until none are left, so t
 thread computes instead of sleeping until a worker wakes it, and a worker that wakes late
 finds less to do. Whether the workers are woken, stand or are left alone is decided per
 launch (:meth:`nrpose.device.Jobs.mode`, :mod:`nrpose.device.policy`).
+
+That protocol holds on PoCL's CPU devices on x86 alone (kernels/share.h says why).
+Elsewhere (:func:`nrpose.device.plain_opencl`) a launch is plain OpenCL 1.2
+(:func:`launch_plain`): the job's prologue, then its blocks, as two launches on one
+in-order queue.
 """
 from __future__ import annotations
 
@@ -42,6 +47,7 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
     the calling thread's share runs on a profiling queue
     (:func:`nrpose.device.timing_queue`): its event, the last returned, ends when every
     block is done (:func:`nrpose.device.published_span_s`).
+    Where ``jobs.plain``, the launch is :func:`launch_plain` (``workers`` unused).
     """
     with LAUNCH_LOCK:
         return _launch_shared(kernel, jobs, blocks, frames, prologue, queues, workers, timed)
@@ -50,6 +56,8 @@ def launch_shared(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bo
 def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool, queues, workers,
                    timed: bool = False) -> list:
     """:func:`launch_shared`, its lock held."""
+    if jobs.plain:
+        return launch_plain(kernel, jobs, blocks, frames, prologue, queues, timed)
     jobs.count_launch()
     cl = pyopencl()
     if queues is None and workers is None and jobs.standing(kernel):
@@ -89,5 +97,35 @@ def _launch_shared(kernel, jobs: Jobs, blocks: int, frames: int, prologue: bool,
     host_q.finish()                     # the calling thread's blocks, then (in the kernel) the others'
     for e in events[:-1]:               # woken workers: done by now (the kernel waited for them)
         e.wait()
+    jobs.launched()
+    return events
+
+
+def launch_plain(kernel, jobs: Jobs, blocks: int, frames: int = 1, prologue: bool = False,
+                 queues=None, timed: bool = False) -> list:
+    """:func:`launch_shared` as plain OpenCL 1.2 (kernels/share.h PLAIN_OPENCL; programs
+    built with ``-DPLAIN_OPENCL``), and wait for it: the job published in ``jobs``, then
+    on one in-order queue its prologue (where ``prologue``) as a launch of one work-item of
+    ``kernel``'s clone of role :data:`nrpose.device.ROLE_PROLOGUE`
+    (:meth:`Jobs.prologue_kernel`), then ``blocks`` work-items of ``kernel``, work-item i
+    taking block i. The queue orders the prologue's writes before the blocks' reads, and
+    the wait for it the blocks' writes before the host's reads. The queue: the worker
+    device's where the context has one (its threads share the work-groups), else the
+    calling thread's; with ``queues``, their first; ``timed``,
+    :func:`nrpose.device.timing_queue` (its events end when the job is done:
+    :func:`nrpose.device.published_span_s`). Returns the launches' events."""
+    cl = pyopencl()
+    if timed and queues is None:
+        q = timing_queue()
+    else:
+        q = work_items(queues)[0][0]
+    jobs.publish(blocks, frames, prologue, timed)
+    jobs.box.settle(q)                  # its upload and the owner's, on the context's queue
+    events = []
+    if prologue:
+        events.append(cl.enqueue_nd_range_kernel(q, jobs.prologue_kernel(kernel), (1,), None))
+    if blocks:
+        events.append(cl.enqueue_nd_range_kernel(q, kernel, (blocks,), None))
+    q.finish()
     jobs.launched()
     return events

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..errors import DeviceError
 from . import policy
-from .env import fine_grain_svm, pyopencl, worker_queue
+from .env import fine_grain_svm, plain_opencl, pyopencl, worker_queue
 from .memory import HostArray
 from .timing import event_clock_ns
 
@@ -32,6 +32,7 @@ JOB_CLOSED = (1 << JOB_TAG_SHIFT) - 1      # block index past every job's last: 
 JOB_PROLOGUE = JOB_CLOSED - 1              # of a published job whose prologue comes first
 JOB_IN_PROLOGUE = JOB_CLOSED - 2           # of a job whose prologue a work-item runs
 ROLE_CALLER = 0
+ROLE_PROLOGUE = -1                  # plain launches: the launch of the job's prologue (share.h)
 
 #: a launch of fewer blocks than this never stands a worker (it may still wake one, when
 #: its frames take SHARE_MIN_S alone): too little work to share with a standing worker
@@ -54,9 +55,11 @@ def calibrate_standby(kernel) -> None:
     which built it for PoCL's worker device) standing on a mailbox of its own with no job
     to serve: launched with 1 poll and with enough for 1 ms or more (doubling), each timed
     to its end; the difference cancels the launch. Owners call it at bind, so that no pose
-    pays it (3-5 ms). No-op without a worker device, shared memory or standing workers."""
+    pays it (3-5 ms). No-op without a worker device, shared memory or standing workers, and
+    where launches are plain OpenCL (:func:`nrpose.device.plain_opencl`)."""
     wq = worker_queue()
-    if _POLLS_PER_S[0] is not None or wq is None or not fine_grain_svm() or policy.standby_s() <= 0:
+    if (_POLLS_PER_S[0] is not None or wq is None or not fine_grain_svm() or policy.standby_s() <= 0
+            or plain_opencl()):
         return
     cl = pyopencl()
     policy.stop_standing()
@@ -100,7 +103,10 @@ class Jobs:
     blocks to be taken from both ends, standing workers from the start and the calling
     thread (and woken workers, whose role is the caller's) from the end (share.h): where
     ``bound_bytes``, the size of the data the owner's kernel binds, is given and at most
-    :data:`ENDS_MAX_BOUND_BYTES`.
+    :data:`ENDS_MAX_BOUND_BYTES`. ``plain``: launches are plain OpenCL
+    (:func:`nrpose.device.plain_opencl`; share.h PLAIN_OPENCL): the job's prologue runs as
+    a launch of its own, of the kernel's clone with role :data:`ROLE_PROLOGUE`
+    (:meth:`prologue_kernel`).
     Not thread-safe: launch a deformer's kernels from one thread at a time.
     """
 
@@ -111,10 +117,12 @@ class Jobs:
         self.alone_s = float("inf")
         self.keep: tuple = ()
         self.ends = bound_bytes is not None and bound_bytes <= ENDS_MAX_BOUND_BYTES
+        self.plain = plain_opencl()
         self._tag = 0
         self._last = float("-inf")      # perf_counter() at the end of the last launch
         self._standing = None           # (kernel, event, arrays kept, pid) of a standing worker
         self._clones: dict = {}         # kernel -> its standing clone (role: the poll budget)
+        self._prologues: dict = {}      # kernel -> its clone of role ROLE_PROLOGUE (plain launches)
         self._displaced = float("-inf")  # when another mailbox's launch last ended its worker
         self._run = 0                   # launches in a row with no other mailbox's between
         self.published_ns = 0           # EVENT_CLOCK at the last publish() (published_span_s)
@@ -241,12 +249,32 @@ class Jobs:
         clone = self._clones.get(kernel)
         if clone is not None:
             clone[0].set_arg(index, value)
+        prologue = self._prologues.get(kernel)
+        if prologue is not None:
+            prologue.set_arg(index, value)
 
-    def arguments_changed(self) -> None:
+    def arguments_changed(self, kernel=None) -> None:
         """Before an owner sets an argument of its kernel again (or frees an array it
-        reads): end the standing worker and drop the clones, which hold the old ones."""
+        reads): end the standing worker and drop the clones, which hold the old ones
+        (only ``kernel``'s where given: a variant of the kernel bound again)."""
         self.stop()
-        self._clones.clear()
+        if kernel is None:
+            self._clones.clear()
+            self._prologues.clear()
+        else:
+            self._clones.pop(kernel, None)
+            self._prologues.pop(kernel, None)
+
+    def prologue_kernel(self, kernel):
+        """``kernel``'s clone of role :data:`ROLE_PROLOGUE`, which runs the job's prologue
+        in a plain launch of its own (share.h PLAIN_OPENCL): made at its first use, with
+        ``kernel``'s arguments of then (:meth:`set_argument` sets them in both,
+        :meth:`arguments_changed` drops it)."""
+        clone = self._prologues.get(kernel)
+        if clone is None:
+            clone = self._prologues[kernel] = kernel.clone()
+            clone.set_arg(clone.num_args - 1, np.int32(ROLE_PROLOGUE))
+        return clone
 
     def keep_standing(self, kernel, mode: str) -> None:
         """Before a launch of ``kernel`` that uses PoCL's workers as ``mode`` says

@@ -7,7 +7,7 @@ import re
 from importlib import resources
 
 from ..errors import DeviceError
-from .env import context, pyopencl
+from .env import context, plain_opencl, pyopencl
 
 _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
 
@@ -27,9 +27,17 @@ def with_headers(source: str) -> str:
                    for line in source.splitlines(keepends=True))
 
 
+def program_options(options=()) -> tuple[str, ...]:
+    """The build options of every nrpose program: ``options`` (strings), then
+    ``-DPLAIN_OPENCL`` where the context's launches are plain OpenCL
+    (:func:`nrpose.device.plain_opencl`, kernels/share.h)."""
+    return tuple(options) + (("-DPLAIN_OPENCL",) if plain_opencl() else ())
+
+
 def program(name: str, options: tuple[str, ...] = ()):
-    """Build (once per context) and return the program for kernel file ``name``."""
-    return _program(context()[0], name, tuple(options))
+    """Build (once per context) and return the program for kernel file ``name``, with
+    ``options`` (:func:`program_options`)."""
+    return _program(context()[0], name, program_options(options))
 
 
 @functools.lru_cache(maxsize=None)
@@ -43,7 +51,7 @@ def _program(ctx, name: str, options: tuple[str, ...]):
 
 def build_source(source: str, options: tuple[str, ...] = ()):
     """The program built from OpenCL ``source`` (``#include`` lines pasted,
-    :func:`with_headers`) with ``options``, not cached (kernel variants of diagnostics).
-    pyopencl's errors pass through."""
+    :func:`with_headers`) with ``options`` (:func:`program_options`), not cached (kernel
+    variants of diagnostics, benchmark kernels). pyopencl's errors pass through."""
     cl = pyopencl()
-    return cl.Program(context()[0], with_headers(source)).build(options=list(options))
+    return cl.Program(context()[0], with_headers(source)).build(options=list(program_options(options)))

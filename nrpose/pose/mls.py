@@ -296,6 +296,7 @@ class Deformer(device.BoundKernel):
         """``kernel`` (a variant of ``nrmls_pose``, :func:`nrpose.diagnostics.kernel_variant`)
         with the deformer's current arguments, set again only after they changed."""
         if self._variants.get(kernel) != self._args_version:
+            self._jobs.arguments_changed(kernel)    # its clones hold the old arguments
             kernel.set_args(*self._pose_args())
             self._variants[kernel] = self._args_version
         return kernel
@@ -470,13 +471,16 @@ def device_layout(kept: dict, rest: HandleSet, lever: str, lanes: int, quat: boo
         return out
 
     order = np.lexsort(tuple(slots.T[::-1]) + (refs,)) if K < S else np.argsort(refs, kind="stable")
-    ref = np.full(npad, S, np.int32)
+    # the padding points (coefficients 0) take the last point's reference and slots: they
+    # read only rotation-table entries that the prologue writes (the pairs used, below)
+    ref = np.full(npad, refs[order[-1]] if n else S, np.int32)
     ref[:n] = refs[order]
     row = np.arange(npad, dtype=np.int32)
     row[:n] = order
     slot = np.zeros((K, npad) if K < S else 1, np.int32)     # stored only when sparse
-    if K < S:
+    if K < S and n:
         slot[:, :n] = slots[order].T
+        slot[:, n:] = slot[:, n - 1: n]
     # the (reference, segment) pairs of the rotation table that some point uses
     if not S:
         used = np.zeros(0, np.int64)
