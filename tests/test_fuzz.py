@@ -19,8 +19,11 @@ from fuzzing.known import MUST_REJECT, known_cases
 from fuzzing.runner import Runner
 from fuzzing.seeds import make_seeds
 
-#: the bounded run asserts 0 violations; enabled after the fuzz fixes land (issue 32)
-FUZZ_ENABLED = False
+#: the known cases of issue 32 keep the contract (its fixes have landed)
+FUZZ_ENABLED = True
+#: the glTF reader's known cases, and the bounded run (whose glTF seeds reach the reader), wait for
+#: the type-checked io/gltf_read.py (helper fuzzgltf): set True when it is merged
+GLTF_READER_CHECKED = False
 CASES = 1200
 WORKERS = 2
 
@@ -89,17 +92,28 @@ def test_cases_are_deterministic(seeds):
 
 needs_fixes = pytest.mark.skipif(not FUZZ_ENABLED, reason="enabled after the fuzz fixes land (issue 32); "
                                 "flip FUZZ_ENABLED in tests/test_fuzz.py")
+needs_gltf_reader = pytest.mark.skipif(not GLTF_READER_CHECKED, reason="waits for the type-checked glTF reader "
+                                       "(helper fuzzgltf); flip GLTF_READER_CHECKED in tests/test_fuzz.py")
+
+
+def _reads_gltf_fields(name: str) -> bool:
+    """Known cases whose fix is the glTF reader's (field types, sizes, views within buffers)."""
+    return (name.startswith(("glTF ", "accessor without bufferView", "retarget: bufferView"))
+            and not name.startswith("glTF nested"))
 
 
 @needs_fixes
 @pytest.mark.parametrize("name", sorted(known_cases()))
 def test_issue_32_cases_keep_the_contract(runner, name):
+    if _reads_gltf_fields(name) and not GLTF_READER_CHECKED:
+        pytest.skip("waits for the type-checked glTF reader (helper fuzzgltf); flip GLTF_READER_CHECKED")
     outcome, _ = runner.run(known_cases()[name])
     allowed = ("rejected",) if name in MUST_REJECT else ("accepted", "rejected")
     assert outcome.outcome in allowed, (outcome.outcome, outcome.stderr[-2000:], outcome.problems)
 
 
 @needs_fixes
+@needs_gltf_reader
 def test_bounded_fuzz_run_breaks_no_contract(tmp_path):
     summary = run(seed=0, count=CASES, workers=min(WORKERS, os.cpu_count() or 1), repro_dir=tmp_path / "repro")
     assert summary["cases"] == CASES
