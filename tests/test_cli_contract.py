@@ -139,7 +139,8 @@ def test_closed_stdout_pipe_ends_quietly():
     assert proc.returncode == EXIT_PIPE and proc.stderr == b""
 
 
-def test_warnings_are_one_line(deform_case, tmp_path, capsys):
+def test_warnings_are_one_line(deform_case, tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("NRPOSE_CACHE_DIR", str(tmp_path / "cache"))     # distances computed, not cached
     mesh, handles, V, F = deform_case
     V = V.copy()
     V[5] = [0, 5e7, 0]           # a stray vertex: heat geodesics fall back to graph distances
