@@ -148,6 +148,15 @@ def test_warnings_are_one_line(deform_case, tmp_path, capsys, monkeypatch):
     code, _, err = run(["deform", mesh, "-H", handles, "-o", tmp_path / "o.ply", "--weights", "heat",
                         "--backend", "numpy"], capsys)
     assert code == 0 and err.startswith("nrpose: warning: heat geodesics:") and err.count("\n") == 1
+    # a run that fails after a warning prints its error line only
+
+    def broken_preview(path, *args, **kw):
+        raise OSError(27, "File too large", str(path))
+    monkeypatch.setattr("nrpose.cli.deform.save_preview", broken_preview)
+    monkeypatch.setenv("NRPOSE_CACHE_DIR", str(tmp_path / "cache2"))
+    code, _, err = run(["deform", mesh, "-H", handles, "-o", tmp_path / "o2.ply", "--weights", "heat",
+                        "--backend", "numpy", "--png", tmp_path / "p.png"], capsys)
+    assert code == 2 and err.startswith("nrpose: error:") and "File too large" in err and err.count("\n") == 1
 
 
 def test_values_beyond_the_kernels_range_are_refused(deform_case, tmp_path, capsys):

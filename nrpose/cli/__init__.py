@@ -72,13 +72,15 @@ def flag_text(message: str, flags: dict[str, str]) -> str:
 
 def main(argv=None) -> int:
     args = None
+    notes: list[str] = []
     try:
         args = build_parser().parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
         # so in one line; numpy's floating-point warnings on the way would add lines to stderr.
-        # nrpose's own warnings (a binding cache not written...) show as one line each.
+        # nrpose's own warnings (a binding cache not written...) show as one line each after a
+        # run that succeeds; a failed run prints its error line only.
         with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.showwarning = show_warning
+            warnings.showwarning = lambda message, *rest, **kw: notes.append(warning_line(message))
             with output_transaction():
                 try:
                     args.func(args)
@@ -94,6 +96,8 @@ def main(argv=None) -> int:
         return fail(f"nrpose: error: {flag_text(str(exc), getattr(args, 'flags', {}))}")
     except OSError as exc:
         return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
+    if notes:   # one line, as the contract promises (several warnings joined)
+        print(" | ".join(dict.fromkeys(notes)), file=sys.stderr)
     return 0
 
 
@@ -108,10 +112,10 @@ def quiet_stdout() -> None:
     os.close(devnull)
 
 
-def show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """A warning as one line on stderr: ``nrpose: warning: MESSAGE``."""
+def warning_line(message) -> str:
+    """A warning as one line: ``nrpose: warning: MESSAGE``."""
     text = str(message).replace("\r", "\\r").replace("\n", "\\n")
-    print(f"nrpose: warning: {text}", file=sys.stderr if file is None else file)
+    return f"nrpose: warning: {text}"
 
 
 def fail(message: str) -> int:
