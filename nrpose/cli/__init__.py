@@ -95,7 +95,8 @@ def main(argv=None) -> int:
     except NrposeError as exc:
         return fail(f"nrpose: error: {flag_text(str(exc), getattr(args, 'flags', {}))}")
     except OSError as exc:
-        return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
+        where = f"{exc.filename}: " if exc.filename else ""
+        return fail(f"nrpose: error: {where}{exc.strerror or exc}")
     if notes:   # one line, as the contract promises (several warnings joined)
         print(" | ".join(dict.fromkeys(notes)), file=sys.stderr)
     return 0
