@@ -166,13 +166,13 @@ def test_pose_clip_to_npz_and_directory(tmp_path, capsys):
                       "-o", tmp_path / "frames", "--format", "obj"], capsys)
     assert code == 0 and sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_0000.obj",
                                                                                       "frame_0001.obj"]
-    # --blend reaches the poser: the quaternion blend's frames are those of the API's
-    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "quaternion",
+    # --blend reaches the poser: the relative blend's frames (not the default's) are those of the API's
+    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "relative",
                       "-o", tmp_path / "walk_q.npz"], capsys)
     assert code == 0
     character = load_character(fox)
     clip = next(c for c in character.clips if c.name == "Walk")
-    expect = CharacterPoser(character, blend="quaternion").pose(clip.sample(np.arange(4) * 2 / 24)).positions
+    expect = CharacterPoser(character, blend="relative").pose(clip.sample(np.arange(4) * 2 / 24)).positions
     got = np.load(tmp_path / "walk_q.npz")["positions"]
     assert np.abs(got - expect).max() <= 1e-5 and np.abs(got - z["positions"]).max() > 0
 
@@ -305,3 +305,17 @@ def test_library_argument_names_become_the_commands_flags():
             == 'give a joint map (--map MAP.json, {"T": "S"}); check it (see --show-map)')
     # names a command does not know, and name=value pairs that are not arguments, stay as they are
     assert flag_text("blend= in x=1, f(), alpha=2", {"blend": "--blend"}) == "--blend in x=1, f(), alpha=2"
+
+
+@needs_data
+def test_pose_default_method_follows_the_weights(tmp_path, capsys):
+    """Without --method: cor with authored weights, nrmls with distance weights or with --blend
+    (docs/quality.md); the frames are those of that method's poser."""
+    fox = DATA / "gltf" / "Fox.glb"
+    for extra, method in (([], "cor"), (["--weights", "euclidean"], "nrmls"), (["--blend", "relative"], "nrmls")):
+        out = tmp_path / f"{method}_{len(extra)}.npz"
+        code, stdout, _ = run(["pose", fox, "--clip", "Run", "--time", "0.3", "-o", out, *extra], capsys)
+        assert code == 0 and f", {method} (" in stdout
+    character = load_character(fox)
+    expect = CharacterPoser(character, method="cor").pose(character.clip("Run").sample(np.array([0.3]))).positions
+    assert np.abs(np.load(tmp_path / "cor_0.npz")["positions"] - expect).max() <= 1e-5

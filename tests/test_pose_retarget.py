@@ -200,7 +200,7 @@ def _self_case(character):
     clip = character.clips[0]
     mapping = joint_map(character.skeleton, character.skeleton)
     assert mapping == {n: n for n in character.skeleton.names}
-    times, local, plan = retarget_pose(character, clip, character, mapping, fps=30)
+    times, local, plan = retarget_pose(character, clip, character, mapping, root="keep", fps=30)
     assert plan.scale == pytest.approx(1.0, abs=1e-12)
     want = positions(character.skeleton, clip.sample(times))
     got = positions(character.skeleton, local)
@@ -228,7 +228,7 @@ def test_scaled_renamed_rotated_copy(case, request):
     assert joint_map(skel, copy) == {}                      # nothing in common by name
     user = dict(zip(names, skel.names))
     mapping = joint_map(skel, copy, user)
-    times, local, plan = retarget_pose(source, source.clips[0], target, mapping, fps=30)
+    times, local, plan = retarget_pose(source, source.clips[0], target, mapping, root="keep", fps=30)
     assert plan.scale == pytest.approx(c, rel=1e-9)
     errs = bone_errors(source, source.clips[0], target, mapping, times, local)
     raw = np.concatenate([e[0] for e in errs.values()])
@@ -242,7 +242,7 @@ def test_scaled_renamed_rotated_copy(case, request):
 
 def test_in_place_keeps_the_root_over_its_rest_position(walker):
     mapping = joint_map(walker.skeleton, walker.skeleton)
-    times, local, plan = retarget_pose(walker, walker.clips[0], walker, mapping, in_place=True, fps=30)
+    times, local, plan = retarget_pose(walker, walker.clips[0], walker, mapping, root="in-place", fps=30)
     hips = positions(walker.skeleton, local)[:, plan.root]
     rest = walker.skeleton.rest_globals()[plan.root, :3, 3]
     assert np.abs(hips[:, [0, 2]] - rest[[0, 2]]).max() < 1e-12
@@ -294,7 +294,7 @@ def test_bvh_writer_round_trip(walker, tmp_path):
     clip = walker.clips[0]
     copy = copy_skeleton(walker.skeleton, walker.skeleton.names, 1.0, seed=5)   # non-identity rest frames
     mapping = joint_map(walker.skeleton, copy)
-    _, local, plan = retarget_pose(walker, clip, Character(copy), mapping, fps=30)
+    _, local, plan = retarget_pose(walker, clip, Character(copy), mapping, root="keep", fps=30)
     out = tmp_path / "copy.bvh"
     write_bvh(out, copy, local, 1 / 30, position_joints=[plan.root])
     skel, back = read_bvh(out)
@@ -424,3 +424,194 @@ def test_gltf_source_clip_and_gltf_target_with_external_buffer(tmp_path, capsys)
     code, _, err = run(["retarget", DATA / "gltf" / "Ely.glb", tmp_path / "mq.gltf", "--source-clip", "walk",
                         "-o", tmp_path / "o2.glb"], capsys)
     assert code == 2 and "no clip 'walk'" in err and not (tmp_path / "o2.glb").exists()
+
+
+# --------------------------------------------------------------------------- complete clips for engines
+
+FOX_MAP = {"b_Hip_01": "Hips", "b_Spine01_02": "lowerback", "b_Spine02_03": "Chest", "b_Neck_04": "Neck",
+           "b_Head_05": "Head", "b_RightUpperArm_06": "RightShoulder", "b_RightForeArm_07": "RightElbow",
+           "b_RightHand_08": "RightWrist", "b_LeftUpperArm_09": "LeftShoulder", "b_LeftForeArm_010": "LeftElbow",
+           "b_LeftHand_011": "LeftWrist"}
+
+
+def test_every_target_joint_is_keyed_unmapped_ones_at_rest(walker):
+    skel = walker.skeleton
+    mapping = {n: s for n, s in joint_map(skel, skel).items() if "Left" not in n}    # the left side unmapped
+    clip = retarget(walker, None, walker, mapping, force=True)
+    keyed = {(t.joint, t.path) for t in clip.tracks}
+    assert keyed == {(j, p) for j in range(skel.num_joints) for p in ("translation", "rotation", "scale")}
+    times = np.linspace(0, clip.duration, 7)
+    pose = clip.sample(times)
+    rest = skel.rest_pose
+    for j, name in enumerate(skel.names):
+        assert np.allclose(pose.scale[:, j], rest.scale[j], atol=0)
+        if name not in mapping:
+            assert np.allclose(pose.rotation[:, j], rest.rotation[j], atol=1e-15)
+            assert np.allclose(pose.translation[:, j], rest.translation[j], atol=1e-15)
+            track = next(t for t in clip.tracks if t.joint == j and t.path == "rotation")
+            assert np.array_equal(track.times, [0.0, clip.duration])      # two keys: start and end
+    moving = [t for t in clip.tracks if len(t.times) > 2]
+    assert {t.joint for t in moving if t.path == "rotation"} == {skel.index(n) for n in mapping}
+
+
+def test_root_modes(walker):
+    mapping = joint_map(walker.skeleton, walker.skeleton)
+    clip = walker.clips[0]
+    out = {root: retarget_pose(walker, clip, walker, mapping, root=root) for root in ("origin", "keep", "in-place")}
+    hips = {root: positions(walker.skeleton, local)[:, plan.root] for root, (_, local, plan) in out.items()}
+    assert np.abs(hips["origin"][0, [0, 2]]).max() < 1e-12                 # starts above the origin
+    shift = hips["keep"] - hips["origin"]
+    assert np.abs(shift - shift[0]).max() < 1e-12 and abs(shift[0, 1]) < 1e-12   # a constant horizontal shift
+    assert np.array_equal(out["origin"][1].rotation, out["keep"][1].rotation)    # heading kept
+    assert np.ptp(hips["in-place"][:, [0, 2]], axis=0).max() < 1e-12
+    with pytest.raises(InputError, match="root must be one of"):
+        retarget_pose(walker, clip, walker, mapping, root="centre")
+
+
+@needs_data
+def test_coverage_accepts_humanoids_and_refuses_a_human_on_the_fox(cmu, gltf_targets):
+    from nrpose.pose.retarget import MAX_PART_AT_REST, MIN_COVERAGE, check_coverage, coverage
+    for name, target in gltf_targets.items():
+        cov = check_coverage(target.skeleton, joint_map(cmu.skeleton, target.skeleton))
+        print(f"\n{name}: {len(cov.mapped)} of {target.skeleton.num_joints} joints mapped, "
+              f"{100 * cov.fraction:.1f}% of the bone length; largest part at rest {cov.missing[0]}")
+        assert cov.fraction >= 0.8 and cov.missing[0][2] < 0.02
+        assert all("Hand" in n or "_End" in n or "Eye" in n for n, _, _ in cov.missing)   # fingers, ends, eyes
+    fox = load_character(DATA / "gltf" / "Fox.glb")
+    mapping = joint_map(cmu.skeleton, fox.skeleton, FOX_MAP)
+    cov = coverage(fox.skeleton, mapping)
+    print(f"Fox: {len(cov.mapped)} mapped, {100 * cov.fraction:.1f}%, at rest {cov.missing}")
+    assert len(cov.mapped) == 11 and cov.fraction < MIN_COVERAGE
+    assert {n for n, _, _ in cov.missing} == {"b_LeftLeg01_015", "b_RightLeg01_019", "b_Tail01_012"}
+    assert max(f for _, _, f in cov.missing) > MAX_PART_AT_REST
+    with pytest.raises(InputError, match="covers too little"):
+        retarget(cmu, None, fox, mapping)
+    # with the hind legs mapped onto the human legs (tail still at rest) the fraction passes
+    legs = {"b_LeftLeg01_015": "LeftHip", "b_LeftLeg02_016": "LeftKnee", "b_LeftFoot01_017": "LeftAnkle",
+            "b_RightLeg01_019": "RightHip", "b_RightLeg02_020": "RightKnee", "b_RightFoot01_021": "RightAnkle"}
+    fuller = coverage(fox.skeleton, joint_map(cmu.skeleton, fox.skeleton, {**FOX_MAP, **legs}))
+    assert fuller.fraction > MIN_COVERAGE
+
+
+@needs_data
+def test_cli_refuses_a_poor_fit_unless_forced(tmp_path, capsys):
+    fox_map = tmp_path / "fox.json"
+    fox_map.write_text(json.dumps(FOX_MAP))
+    args = ["retarget", BVH, DATA / "gltf" / "Fox.glb", "--map", fox_map, "-o", tmp_path / "fox.glb"]
+    code, _, err = run(args, capsys)
+    _assert_clean_failure(code, err, tmp_path, "covers too little of the target skeleton")
+    assert "11 of 24 joints mapped (b_Hip_01," in err and "b_LeftLeg01_015 (4 joints" in err
+    assert "b_Tail01_012 (3 joints" in err and "--force" in err and "--map MAP.json" in err
+    code, stdout, err = run(args + ["--force"], capsys)
+    assert code == 0 and "11 of 24 target joints mapped (61% of its bone length)" in stdout, err
+    code, _, err = run(["retarget", BVH, DATA / "gltf" / "Mannequin.glb", "--in-place", "--root", "keep",
+                        "-o", tmp_path / "m.glb"], capsys)
+    assert code == 2 and "--in-place and --root keep contradict" in err
+
+
+@needs_data
+def test_cli_glb_keys_every_joint_node_and_frames_the_motion(tmp_path, capsys):
+    out = tmp_path / "mq.glb"
+    code, stdout, err = run(["retarget", BVH, DATA / "gltf" / "Mannequin.glb", "-o", out], capsys)
+    assert code == 0, err
+    g = pygltflib.GLTF2().load(str(out))
+    anim = g.animations[-1]
+    back = load_character(out)
+    from nrpose.io.gltf_read import joint_nodes, read_document
+    _, nodes = joint_nodes(out, *read_document(out))
+    targets = {(c.target.node, c.target.path) for c in anim.channels}
+    assert targets == {(int(n), p) for n in nodes for p in ("translation", "rotation", "scale")}
+    # the clip ends on the source's last key
+    clip = back.clip("131_03")
+    assert clip.duration == pytest.approx(load_character(BVH).clips[0].duration, abs=1e-6)
+    assert len(clip.tracks[0].times) in (2, 277) and max(len(t.times) for t in clip.tracks) == 277
+    # the skinned mesh node's culling sphere (its POSITION bounds times its world matrix) holds every frame
+    from nrpose.io.gltf_read import node_globals
+    from nrpose.pose.poser import CharacterPoser
+    _, world = node_globals(out, g)
+    node = next(i for i, n in enumerate(g.nodes) if n.skin is not None)
+    acc = g.accessors[g.meshes[g.nodes[node].mesh].primitives[0].attributes.POSITION]
+    lo, hi = np.array(acc.min), np.array(acc.max)
+    centre = world[node] @ np.r_[(lo + hi) / 2, 1.0]
+    radius = np.linalg.norm(hi - lo) / 2 * np.linalg.norm(world[node][:3, 0])
+    T = np.linspace(0, clip.duration, 24)
+    posed = CharacterPoser(back, method="lbs", backend="numpy").pose(clip.sample(T)).positions
+    assert np.linalg.norm(posed - centre[:3], axis=-1).max() <= radius
+    # and that sphere is no more than needed: within 2x the sphere around the motion
+    motion = posed.reshape(-1, 3)
+    assert radius <= np.linalg.norm(np.ptp(motion, axis=0))
+
+
+@needs_data
+def test_retarget_then_pose_every_key(tmp_path, capsys):
+    out = tmp_path / "mq.glb"
+    assert run(["retarget", BVH, DATA / "gltf" / "Mannequin.glb", "-o", out], capsys)[0] == 0
+    clip = load_character(out).clip("131_03")
+    keys = np.unique(np.concatenate([t.times for t in clip.tracks]))
+    frames = tmp_path / "all.npz"
+    code, _, err = run(["pose", out, "--clip", "131_03", "--method", "lbs", "-o", frames], capsys)
+    assert code == 0, err
+    with np.load(frames) as z:
+        # every key (the file's float32 times), the last one included exactly
+        assert np.array_equal(z["times"].astype(np.float32), keys.astype(np.float32)) and z["times"][-1] == keys[-1]
+        assert np.isfinite(z["positions"]).all() and len(z["positions"]) == len(keys) == 277
+        last = z["positions"][-1]
+    n = len(keys) - 2                                             # the last grid frame
+    code, _, err = run(["pose", out, "--clip", "131_03", "--method", "lbs", "--frames", f"{n - 1}:{n}",
+                        "-o", tmp_path / "grid.npz"], capsys)
+    assert code == 0, err
+    code, _, err = run(["pose", out, "--clip", "131_03", "--method", "lbs", "--time", repr(float(keys[-1])),
+                        "-o", tmp_path / "end.npz"], capsys)
+    assert code == 0, err
+    with np.load(tmp_path / "end.npz") as z:
+        assert np.abs(z["positions"][0] - last).max() == 0
+    code, _, err = run(["pose", out, "--clip", "131_03", "--method", "lbs", "--frames", f"0:{n + 1}",
+                        "-o", tmp_path / "past.npz"], capsys)
+    assert code == 2 and "outside" in err
+
+
+@pytest.mark.parametrize("parent_scale, moved", [([0.01, 0.01, 0.01], True), ([1.0, 2.0, 1.0], False)])
+def test_fit_skinned_nodes_maps_the_culling_sphere_onto_the_bounds(parent_scale, moved):
+    from nrpose.io.gltf_read import node_globals
+    from nrpose.io.gltf_write import fit_skinned_nodes
+    g = pygltflib.GLTF2(
+        nodes=[pygltflib.Node(children=[1], rotation=[0.7071068, 0, 0, 0.7071068], scale=parent_scale,
+                              translation=[0.5, 0, 0]),
+               pygltflib.Node(mesh=0, skin=0), pygltflib.Node(mesh=0)],
+        meshes=[pygltflib.Mesh(primitives=[pygltflib.Primitive(attributes=pygltflib.Attributes(POSITION=0))])],
+        accessors=[pygltflib.Accessor(count=3, componentType=pygltflib.FLOAT, type="VEC3",
+                                      min=[-1.0, 0.0, -0.2], max=[1.0, 1.8, 0.2])],
+        skins=[pygltflib.Skin(joints=[0])])
+    lo, hi = np.array([-2.0, -0.1, -3.0]), np.array([1.5, 1.9, 0.5])
+    fit_skinned_nodes("doc.gltf", g, (lo, hi))
+    assert g.nodes[2].translation is None and g.nodes[2].scale is None      # not skinned: untouched
+    _, world = node_globals("doc.gltf", g)
+    if not moved:                                                           # a sheared frame: left alone
+        assert g.nodes[1].translation is None and g.nodes[1].scale is None
+        return
+    box_lo, box_hi = np.array([-1.0, 0.0, -0.2]), np.array([1.0, 1.8, 0.2])
+    centre = world[1] @ np.r_[(box_lo + box_hi) / 2, 1.0]
+    radius = np.linalg.norm(box_hi - box_lo) / 2 * np.linalg.norm(world[1][:3, 0])
+    assert np.allclose(centre[:3], (lo + hi) / 2, atol=1e-9)
+    assert radius == pytest.approx(np.linalg.norm(hi - lo) / 2, rel=1e-9)
+
+
+@needs_data
+def test_matrix_joint_nodes_become_trs_when_animated(tmp_path, capsys):
+    g = pygltflib.GLTF2().load(str(DATA / "gltf" / "Mannequin.glb"))
+    k = g.skins[0].joints[5]
+    node = g.nodes[k]
+    t = np.array(node.translation or [0, 0, 0])
+    q = np.array(node.rotation or [0, 0, 0, 1])
+    M = np.eye(4)
+    M[:3, :3] = Rotation.from_quat(q).as_matrix()
+    M[:3, 3] = t
+    node.matrix, node.translation, node.rotation, node.scale = M.T.reshape(-1).tolist(), None, None, None
+    src = tmp_path / "matrix.glb"
+    g.save_binary(str(src))
+    out = tmp_path / "out.glb"
+    assert run(["retarget", BVH, src, "-o", out], capsys)[0] == 0
+    back = pygltflib.GLTF2().load(str(out))
+    assert back.nodes[k].matrix is None
+    assert np.allclose(back.nodes[k].translation, t, atol=1e-6) and abs(np.dot(back.nodes[k].rotation, q)) > 1 - 1e-9
+    assert any(c.target.node == k for c in back.animations[-1].channels)

@@ -1,19 +1,27 @@
 """``nrpose retarget``: a motion from one rig onto another, written as glTF or BVH.
 
     nrpose retarget SOURCE (.bvh|.glb|.gltf) TARGET (.glb|.gltf) [--source-clip NAME]
-                    [--map MAP.json] [--in-place] [--fps F] [--show-map]
-                    -o OUT (.glb|.bvh) [--png SHEET.png]
+                    [--map MAP.json] [--root origin|keep|in-place] [--in-place] [--force]
+                    [--fps F] [--show-map] -o OUT (.glb|.bvh) [--png SHEET.png]
 
 The retargeting itself is :mod:`nrpose.pose.retarget`. Outputs:
 
 * ``OUT.glb``: the target file with the retargeted clip appended as a new
-  animation (named after the source clip; `` (2)``... if that name is taken):
-  one sampler per mapped joint's node rotation (float32 quaternions) and one
-  for the root-motion node's translation, LINEAR, keyed at ``k / fps``
-  (:func:`nrpose.io.gltf_write.write_glb_with_clip`: the original content is
-  kept). Pose it with ``nrpose pose OUT.glb --clip NAME``.
+  animation (named after the source clip; `` (2)``... if that name is taken)
+  keying every joint node's translation, rotation and scale (float32, LINEAR;
+  moving values at ``k / fps`` and at the clip's end, constant ones at the
+  start and end) (:func:`nrpose.io.gltf_write.write_glb_with_clip`: the
+  original content is kept; skinned mesh nodes are placed so that viewers'
+  culling bounds hold the animated geometry,
+  :func:`nrpose.pose.retarget.skinned_bounds`). Pose it with
+  ``nrpose pose OUT.glb --clip NAME``.
 * ``OUT.bvh``: the target skeleton and the clip as BVH
-  (:mod:`nrpose.io.bvh_write`), frame time ``1 / fps``.
+  (:mod:`nrpose.io.bvh_write`), frame time ``1 / fps`` (grid frames only).
+* ``--root``: horizontal root motion, ``origin`` (default: the clip starts
+  with the hips above the origin), ``keep`` (the capture's positions) or
+  ``in-place``; ``--in-place`` is ``--root in-place``.
+* ``--force``: retarget even when the mapping drives too little of the target
+  (:func:`nrpose.pose.retarget.check_coverage`).
 * ``--png``: a contact sheet of the retargeted character with the source
   skeleton beside it (:func:`nrpose.render.retarget_sheet.save_retarget_sheet`).
 * ``--show-map``: prints the joint mapping and the joints left unmapped
@@ -36,14 +44,15 @@ from ..io.files import check_writable
 from ..model.timing import sample_times
 from ..io.gltf_write import write_glb_with_clip
 from ..io.poses import load_map
-from ..pose.retarget import format_map, joint_map, make_clip, retarget_pose
+from ..pose.retarget import ROOT_MODES, coverage, format_map, joint_map, make_clip, retarget_pose, skinned_bounds
 from ..render.retarget_sheet import save_retarget_sheet
 from .common import add_budget_options, check_budget
 
 __all__ = ["add_parser", "run"]
 
 #: library argument name -> the flag users type
-FLAGS = {"user_map": "--map MAP.json,", "format_map": "--show-map", "in_place": "--in-place", "fps": "--fps"}
+FLAGS = {"user_map": "--map MAP.json,", "format_map": "--show-map", "root": "--root", "fps": "--fps",
+         "force": "--force"}
 
 SOURCE_SUFFIXES = (".bvh", ".glb", ".gltf")
 TARGET_SUFFIXES = (".glb", ".gltf")
@@ -56,7 +65,12 @@ def add_parser(sub) -> None:
     p.add_argument("target", help="character to drive: .glb or .gltf")
     p.add_argument("--source-clip", help="animation of a glTF source, by name (default: its first)")
     p.add_argument("--map", help='joint map JSON {"TargetJoint": "SourceJoint"}, overrides the automatic one')
-    p.add_argument("--in-place", action="store_true", help="no horizontal root motion")
+    p.add_argument("--root", choices=ROOT_MODES, default=None,
+                   help="horizontal root motion: origin (default; starts above the origin, heading kept), "
+                        "keep (the capture's positions) or in-place")
+    p.add_argument("--in-place", action="store_true", help="the same as --root in-place")
+    p.add_argument("--force", action="store_true",
+                   help="retarget even when the mapping drives too little of the target's skeleton")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second of the output (default 30)")
     p.add_argument("--show-map", action="store_true", help="print the joint mapping and the unmapped joints")
     p.add_argument("-o", "--output", help="OUT.glb (target + new animation) or OUT.bvh (target skeleton)")
@@ -85,6 +99,9 @@ def run(args) -> None:
         check_writable(args.png)
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise InputError(f"--fps {args.fps}: expected a positive number")
+    if args.in_place and args.root not in (None, "in-place"):
+        raise InputError(f"--in-place and --root {args.root} contradict each other; give one")
+    root = "in-place" if args.in_place else args.root or "origin"
     for p in (args.source, args.target) + ((args.map,) if args.map else ()):
         if not Path(p).is_file():
             raise InputError(f"{p}: no such file")
@@ -105,12 +122,12 @@ def run(args) -> None:
     clip = source.clip(args.source_clip) if args.source_clip else source.clips[0]
     frames = len(sample_times(clip.duration, args.fps))
     check_budget(args, frames, 7.0 * frames * target.skeleton.num_joints, args.output)
-    times, local, plan = retarget_pose(source, clip, target, mapping, args.in_place, args.fps)
-    result = make_clip(clip.name, times, local, plan, target.skeleton)
-
     out = Path(args.output)
-    if out.suffix.lower() == ".glb":
-        name = write_glb_with_clip(args.target, out, target, result)
+    bvh = out.suffix.lower() == ".bvh"
+    times, local, plan = retarget_pose(source, clip, target, mapping, root, args.fps, args.force, close=not bvh)
+    result = make_clip(clip.name, times, local, plan, target.skeleton)
+    if not bvh:
+        name = write_glb_with_clip(args.target, out, target, result, skinned_bounds(target, local))
     else:
         write_bvh(out, target.skeleton, local, 1.0 / args.fps, position_joints=[plan.root])
         name = result.name
@@ -118,5 +135,6 @@ def run(args) -> None:
         save_retarget_sheet(args.png, source, clip, target, times, local, plan,
                             title=f"{Path(args.target).name} <- {Path(args.source).name} ({clip.name})")
     print(f"{out}: animation {name!r}, {len(times)} frames at {args.fps:g} fps ({times[-1]:.2f} s), "
-          f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped, root motion x{plan.scale:.4g}"
-          f"{' in place' if args.in_place else ''}, lift {plan.lift:+.3g}")
+          f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped "
+          f"({100 * coverage(target.skeleton, mapping).fraction:.0f}% of its bone length), root motion x{plan.scale:.4g}"
+          f", root {root}, lift {plan.lift:+.3g}")

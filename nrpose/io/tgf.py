@@ -18,6 +18,26 @@ one quaternion per bone in file order, ``(x, y, z, w)`` (``igl::column_to_quats`
 Each is the bone's rotation relative to its parent in rest coordinates
 (``vQ[b] = vQ[p] * dQ[b]``), which with identity rest rotations is exactly
 this skeleton's local rotation.
+
+DMAT weights (``arm-weights.dmat``, :func:`read_dmat_weights`): a #V × #B
+matrix, one row per mesh vertex (file order), one column per bone in TGF
+order, as ``igl::lbs_matrix`` takes them. Values must be finite and not
+negative (down to -1e-9 is taken as 0), every row needs a positive entry;
+rows are normalised to sum to 1.
+
+DMAT animation (libigl tutorial 408_DirectDeltaMush, ``elephant-anim.dmat``,
+:func:`read_dmat_animation`): a (#B·4·3) × #frames matrix, one column per
+frame. The tutorial maps column ``f`` onto a column-major (4·#B) × 3 matrix
+``Tf`` (``Map<MatrixXd>(T.data() + f * T.rows(), 4 * B, 3)``) and poses with
+``U = M * Tf``, ``M = igl::lbs_matrix(V, W)``: rows ``4e .. 4e+3`` of ``Tf``
+are bone e's affine transform transposed, ``[R | t]ᵀ`` (4 × 3), taking rest
+positions to posed positions in world space. Because the data are read
+column-major, the same values stored as one column of 12·#B·#frames
+numbers are the same animation; the size must be a multiple of 12·#B.
+nrpose poses rigid bones: each R must be a rotation (orthonormal to 1e-4,
+positive determinant); bone e's joint gets the local transform
+``G_parent⁻¹ · T_e · G_rest`` (translation and rotation), so forward kinematics
+gives back exactly the file's transforms, and frame f is the time ``f / fps``.
 """
 from __future__ import annotations
 
@@ -27,12 +47,15 @@ import numpy as np
 
 from ..checks import coordinates, real_rows, triangles
 from ..errors import FileFormatError, InputError
-from ..model.rotation import unit_quaternions
-from ..model.skeleton import LocalPose, Skeleton
+from ..model.character import Clip, Track
+from ..model.rotation import Rotation, unit_quaternions
+from ..model.skeleton import LocalPose, Skeleton, polar_rotation
+from ..model.timing import check_frame_count
 from ..native import quiet_native
 from .files import read_input, read_input_text
 
-__all__ = ["read_tgf", "read_dmat_pose", "read_mesh", "MESH_SUFFIXES"]
+__all__ = ["read_tgf", "read_dmat_pose", "read_dmat_weights", "read_dmat_animation", "bone_joints", "read_mesh",
+           "MESH_SUFFIXES"]
 
 #: mesh file suffixes read by :func:`read_mesh`
 MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
@@ -165,15 +188,105 @@ def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
     if not np.isfinite(quats).all():
         raise FileFormatError(f"{path}: quaternions must be finite")
     quats = unit_quaternions(quats, [f"{path}: quaternion {k}" for k in range(J)], FileFormatError)
-    try:
-        bone_of_joint = [int(n[4:]) for n in skeleton.names if n.startswith("bone")]
-    except ValueError:
-        bone_of_joint = []
-    if sorted(bone_of_joint) != list(range(J)):
-        raise InputError("a DMAT pose needs a skeleton read from TGF (joints named bone0, bone1, ...)")
     pose = skeleton.rest_pose
-    pose.rotation[:] = quats[bone_of_joint]
+    pose.rotation[bone_joints(skeleton, "a DMAT pose")] = quats
     return pose
+
+
+def bone_joints(skeleton: Skeleton, what: str) -> np.ndarray:
+    """Joint index (B,) int64 of each TGF bone in file order (joint ``bone<e>`` for bone e).
+
+    InputError naming ``what`` when the skeleton was not read from a TGF file.
+    """
+    J = skeleton.num_joints
+    index = {n: j for j, n in enumerate(skeleton.names)}
+    joints = [index.get(f"bone{e}") for e in range(J)]
+    if None in joints:
+        raise InputError(f"{what} needs a skeleton read from TGF (joints named bone0, bone1, ...)")
+    return np.array(joints, dtype=np.int64)
+
+
+def read_dmat_weights(path: str | Path, skeleton: Skeleton, n_vertices: int) -> np.ndarray:
+    """Skin weights (n_vertices, J) float64 on the skeleton's joints from a libigl weight DMAT.
+
+    The file is #V × #B (module docstring); rows are normalised to sum to 1. FileFormatError
+    for a wrong shape, non-finite or negative values, or a row without weight.
+    """
+    path = Path(path)
+    joints = bone_joints(skeleton, "a DMAT weight file")
+    B = len(joints)
+    W = _read_dmat(path)
+    if W.shape != (n_vertices, B):
+        hint = " (transposed? rows are vertices, columns bones)" if W.shape == (B, n_vertices) else ""
+        raise FileFormatError(f"{path}: expected {n_vertices} rows (one per vertex) × {B} columns (one per TGF "
+                              f"bone), got {W.shape[0]} × {W.shape[1] if W.ndim > 1 else 1}{hint}")
+    if not np.isfinite(W).all():
+        row = int(np.flatnonzero(~np.isfinite(W).all(axis=1))[0])
+        raise FileFormatError(f"{path}: weights of vertex {row} contain NaN or infinity")
+    if (W < -1e-9).any():
+        row, col = np.argwhere(W < -1e-9)[0]
+        raise FileFormatError(f"{path}: weight of vertex {row} on bone {col} is negative ({W[row, col]:.3g}); "
+                              "skin weights must be >= 0")
+    W = np.maximum(W, 0.0)
+    sums = W.sum(axis=1)
+    if not (sums > 0).all():
+        row = int(np.flatnonzero(~(sums > 0))[0])
+        raise FileFormatError(f"{path}: vertex {row} has no weight (an all-zero row); every vertex needs "
+                              "a positive weight on some bone")
+    out = np.zeros((n_vertices, skeleton.num_joints))
+    out[:, joints] = W / sums[:, None]
+    return out
+
+
+def read_dmat_animation(path: str | Path, skeleton: Skeleton, fps: float = 30.0, name: str | None = None) -> Clip:
+    """A clip (LINEAR translation and rotation tracks on every joint, frame f at ``f / fps``)
+    from a libigl animation DMAT of per-bone affine transforms (module docstring).
+
+    FileFormatError when the size is not a multiple of 12·#B, for non-finite values, or when
+    a transform is not rigid.
+    """
+    path = Path(path)
+    if not (np.isfinite(fps) and fps > 0):
+        raise InputError(f"fps must be a positive number, got {fps}")
+    joints = bone_joints(skeleton, "a DMAT animation")
+    B = len(joints)
+    T = _read_dmat(path)
+    per_frame = 12 * B
+    if T.size == 0 or T.size % per_frame:
+        raise FileFormatError(f"{path}: {T.size} values do not divide into frames of {B} bones × 12 "
+                              f"(a (12·{B}) × frames matrix, one stacked 4×3 transform per bone per frame)")
+    F = T.size // per_frame
+    check_frame_count(F, str(path))
+    if not np.isfinite(T).all():
+        raise FileFormatError(f"{path}: the transforms contain NaN or infinity")
+    # column-major frames of (4B, 3); bone e's rows 4e..4e+3 are [R | t] transposed
+    Tf = T.ravel(order="F").reshape(F, 3, 4 * B).transpose(0, 2, 1).reshape(F, B, 4, 3)
+    A = np.zeros((F, B, 4, 4))
+    A[..., :3, :] = np.swapaxes(Tf, -1, -2)
+    A[..., 3, 3] = 1.0
+    R = A[..., :3, :3]
+    gram = np.swapaxes(R, -1, -2) @ R - np.eye(3)
+    bad = (np.abs(gram).max(axis=(-1, -2)) > 1e-4) | (np.linalg.det(R) <= 0)
+    if bad.any():
+        f, e = np.argwhere(bad)[0]
+        raise FileFormatError(f"{path}: frame {f}, bone {e}: the 3×3 part is not a rotation (scale, shear or "
+                              "reflection); nrpose poses rigid bones")
+    A[..., :3, :3] = polar_rotation(R)
+    G = np.empty((F, skeleton.num_joints, 4, 4))
+    G[:, joints] = A @ skeleton.rest_globals()[joints]
+    parents = skeleton.parents
+    local = G.copy()
+    child = np.flatnonzero(parents >= 0)
+    local[:, child] = np.linalg.inv(G[:, parents[child]]) @ G[:, child]
+    local = np.linalg.inv(skeleton.pre)[None] @ local
+    times = np.arange(F) / fps
+    rotation = Rotation.from_matrix(polar_rotation(local[..., :3, :3]).reshape(-1, 3, 3)).as_quat()
+    rotation = rotation.reshape(F, -1, 4)
+    tracks = []
+    for j in range(skeleton.num_joints):
+        tracks.append(Track(j, "translation", times, local[:, j, :3, 3]))
+        tracks.append(Track(j, "rotation", times, rotation[:, j]))
+    return Clip(name or path.stem, float(times[-1]), skeleton.rest_pose, tuple(tracks))
 
 
 def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:

@@ -22,6 +22,7 @@ import numpy as np
 from ..errors import InputError
 from .rotation import Rotation
 from .skeleton import LocalPose, Skeleton
+from .timing import clip_times
 
 __all__ = ["Track", "Clip", "Mesh", "Character"]
 
@@ -99,14 +100,14 @@ class Clip:
         """Local pose at time(s) t in [0, duration] seconds.
 
         A scalar t gives arrays (J, ...); an array of F times gives (F, J, ...).
-        Times outside the clip raise InputError.
+        Times outside the clip (to within a float32 step, :func:`nrpose.model.timing.clip_times`)
+        raise InputError.
         """
         times = np.asarray(t, dtype=np.float64)
-        flat = times.reshape(-1)
-        tol = 1e-9 * max(self.duration, 1.0)
-        if not np.isfinite(flat).all() or (flat < -tol).any() or (flat > self.duration + tol).any():
-            bad = flat[~(np.isfinite(flat) & (flat >= -tol) & (flat <= self.duration + tol))][0]
-            raise InputError(f"clip {self.name!r}: time {bad} is outside [0, {self.duration:g}] seconds")
+        try:
+            flat = clip_times(times, self.duration).reshape(-1)
+        except InputError as exc:
+            raise InputError(f"clip {self.name!r}: {exc}") from None
         out = {p: np.repeat(getattr(self.rest, p)[None], len(flat), axis=0) for p in PATH_WIDTH}
         for track in self.tracks:
             out[track.path][:, track.joint] = track.sample(flat)
@@ -127,7 +128,9 @@ class Mesh:
     bind_vertices: (N, 3) float64 the skinned mesh's own POSITION data (glTF
     bind space, transformed by ``G_j @ inverse_bind_j`` in the glTF skinning
     formula), else None; inverse_bind: (J, 4, 4) its skin's inverse bind
-    matrices by skeleton joint (skins may differ), else None.
+    matrices by skeleton joint (skins may differ), else None;
+    source: where a glTF mesh came from, ``(node, mesh, primitive)`` indices of
+    its document, else None (writers copy that primitive's other attributes).
     """
 
     name: str
@@ -138,16 +141,23 @@ class Mesh:
     rigid_joint: int | None = None
     bind_vertices: np.ndarray | None = None
     inverse_bind: np.ndarray | None = None
+    source: tuple[int, int, int] | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class Character:
-    """Meshes, skeleton, inverse bind matrices (J, 4, 4) float64 and clips."""
+    """Meshes, skeleton, inverse bind matrices (J, 4, 4) float64 and clips.
+
+    static_meshes: meshes the skeleton does not move (scenery beside the
+    character), in world space; they are never posed, and glTF outputs keep
+    them as they are.
+    """
 
     skeleton: Skeleton
     meshes: tuple[Mesh, ...] = ()
     clips: tuple[Clip, ...] = ()
     inverse_bind: np.ndarray | None = None
+    static_meshes: tuple[Mesh, ...] = ()
 
     def __post_init__(self):
         if self.inverse_bind is None:

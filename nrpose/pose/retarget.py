@@ -1,14 +1,30 @@
 """Retargeting: a motion recorded on one skeleton played on another.
 
     mapping = joint_map(source.skeleton, target.skeleton, user_map)   # {target joint: source joint}
-    clip = retarget(source, source.clips[0], target, mapping, in_place=False, fps=30)
+    clip = retarget(source, source.clips[0], target, mapping, root="origin", fps=30)
 
 The source and the target may differ in joint names, proportions, bone frames
 (rest local rotations) and rest posture (T- against A-pose, splayed legs).
-The result is a :class:`~nrpose.model.character.Clip` of the target: rotation tracks
-on the mapped joints and a translation track on the root-motion joint (the
-mapped joint nearest the root, normally the hips); every other local value is
-the target's rest value, so target bone lengths never change.
+The result is a :class:`~nrpose.model.character.Clip` of the target that keys
+every joint's translation, rotation and scale (so an engine switching from
+another clip resets them all): rotations of the mapped joints and the
+translation of the root-motion joint (the mapped joint nearest the root,
+normally the hips) follow the source; every other local value is keyed at the
+target's rest value (two keys, at the start and the end), so target bone
+lengths never change.
+
+Coverage (:func:`coverage`, :func:`check_coverage`)
+--------------------------------------------------
+A mapping that leaves large parts of the target at rest (a human motion on a
+quadruped: its hind legs and tail would hang still) is refused unless forced.
+The measure is the share of the target's bone length (:meth:`Skeleton.bones`,
+zero-length bones and bones above the root-motion joint left out) whose
+driving joint is mapped; at least :data:`MIN_COVERAGE` is needed, and no part
+left at rest (a maximal subtree without a mapped joint) may hold more than
+:data:`MAX_PART_AT_REST` of it. A Mixamo character driven by a CMU capture
+without fingers reaches 0.84, its largest part at rest a finger (1.6%); the Fox
+sample driven on hips, spine, neck, head and front legs reaches 0.61, a hind
+leg at rest holding 14%.
 
 Joint mapping (:func:`joint_map`)
 ---------------------------------
@@ -96,11 +112,17 @@ under the root than Mixamo ones, CMU ankles lower above the sole), so the
 root then gets one constant vertical offset, the median over the frames of
 ``k · sole_source(t) − sole_target(t)`` (sole: the lowest joint or bone tip of
 the mapped feet): the target's feet touch down where the source's scaled feet
-do (:attr:`RetargetPlan.lift`). ``in_place`` keeps the horizontal position at
-the target's rest position (vertical motion stays).
+do (:attr:`RetargetPlan.lift`). The horizontal root motion (:data:`ROOT_MODES`):
+``"origin"`` (default) shifts it so the first frame has the root above the
+origin, heading kept (viewers frame and cull the character by its rest bounds,
+so a capture that starts metres away would be culled); ``"keep"`` keeps the
+capture's absolute positions; ``"in-place"`` holds the root over the target's
+rest position (vertical motion stays).
 
-Frames are sampled from the source clip at ``k / fps`` seconds,
-``0 <= k / fps <= duration``; the clip keys the target at those times (LINEAR).
+Frames are sampled from the source clip at ``k / fps`` seconds before its end,
+then at its end (:func:`nrpose.model.timing.sample_times`: the last key is kept,
+loops close); the clip keys the target at those times (LINEAR). ``close=False``
+samples the grid only (BVH output, fixed frame time).
 """
 from __future__ import annotations
 
@@ -116,10 +138,14 @@ from ..model.rotation import Rotation, kabsch, minimal_rotvec
 from ..model.skeleton import LocalPose, Skeleton, match_hint, polar_rotation
 from ..model.timing import sample_times
 
-__all__ = ["joint_map", "format_map", "normalize_name", "joint_slots", "mapped_bones",
-           "leg_length", "sole_heights", "sample_times", "RetargetPlan", "retarget", "retarget_pose", "make_clip"]
+__all__ = ["joint_map", "format_map", "normalize_name", "joint_slots", "mapped_bones", "leg_length",
+           "sole_heights", "sample_times", "ROOT_MODES", "MIN_COVERAGE", "MAX_PART_AT_REST", "Coverage", "coverage",
+           "check_coverage", "skinned_bounds", "RetargetPlan", "retarget", "retarget_pose", "make_clip"]
 
 UP = 1  # +Y is up in both rigs (glTF; BVH as conventionally recorded)
+ROOT_MODES = ("origin", "keep", "in-place")
+MIN_COVERAGE = 0.7        # share of the target's bone length that mapped joints must drive
+MAX_PART_AT_REST = 0.1    # largest share of it one unmapped part (a subtree) may hold
 
 # --------------------------------------------------------------------------- names
 
@@ -594,8 +620,14 @@ class RetargetPlan:
         return (leg_length(self.source, self.mapping[self.root], legs_s),
                 leg_length(self.target, self.root, legs_t), feet)
 
-    def run(self, source_pose: LocalPose, in_place: bool = False) -> LocalPose:
-        """Target local pose (F, J_t, ...) for a source local pose (F, J_s, ...)."""
+    def run(self, source_pose: LocalPose, root: str = "origin") -> LocalPose:
+        """Target local pose (F, J_t, ...) for a source local pose (F, J_s, ...).
+
+        root: horizontal root motion, one of :data:`ROOT_MODES` (module docstring).
+        """
+        if root not in ROOT_MODES:
+            raise InputError(f"root must be one of {', '.join(ROOT_MODES)}, got {root!r}")
+        horizontal = [a for a in range(3) if a != UP]
         Gs = self.source.forward_kinematics(source_pose)
         if Gs.ndim == 3:
             Gs = Gs[None]
@@ -622,10 +654,10 @@ class RetargetPlan:
                 rotation[:, j] = Rotation.from_matrix(np.swapaxes(Rb, -1, -2) @ W).as_quat()
                 if j == self.root:
                     world = self.scale * ps[:, s]
-                    if in_place:
-                        rest = self.target.rest_globals()[j, :3, 3]
-                        world = world.copy()
-                        world[:, [a for a in range(3) if a != UP]] = rest[[a for a in range(3) if a != UP]]
+                    if root == "in-place":
+                        world[:, horizontal] = self.target.rest_globals()[j, horizontal, 3]
+                    elif root == "origin":
+                        world[:, horizontal] -= world[0, horizontal]
                     inv = np.linalg.inv(base)
                     translation[:, j] = np.einsum("fab,fb->fa", inv[:, :3, :3], world) + inv[:, :3, 3]
             rotation[:, j] = _continuous(rotation[:, j])
@@ -668,12 +700,18 @@ def _check_motion(source: Character, clip: Clip, m: dict[int, int]) -> None:
 
 
 def retarget_pose(source: Character, clip: Clip, target: Character, mapping: dict[str, str],
-                  in_place: bool = False, fps: float = 30.0):
-    """(times (F,), target LocalPose (F, J, ...), plan) for the clip sampled at ``fps``."""
+                  root: str = "origin", fps: float = 30.0, force: bool = False, close: bool = True):
+    """(times (F,), target LocalPose (F, J, ...), plan) for the clip sampled at ``fps``.
+
+    root: one of :data:`ROOT_MODES`; force: skip :func:`check_coverage`; close: end on the
+    clip's last key (:func:`nrpose.model.timing.sample_times`).
+    """
     plan = RetargetPlan(source.skeleton, target.skeleton, mapping)
+    if not force:
+        check_coverage(target.skeleton, mapping)
     _check_motion(source, clip, plan.mapping)
-    times = sample_times(clip.duration, fps)
-    local = plan.run(clip.sample(times), in_place)
+    times = sample_times(clip.duration, fps, close)
+    local = plan.run(clip.sample(times), root)
     for what, arr in (("rotations", local.rotation), ("translations", local.translation)):
         if not np.isfinite(arr).all():
             raise InputError(f"retargeting produced non-finite {what}; please report this input")
@@ -681,23 +719,121 @@ def retarget_pose(source: Character, clip: Clip, target: Character, mapping: dic
 
 
 def retarget(source_character: Character, source_clip: Clip | str | None, target_character: Character,
-             mapping: dict[str, str], in_place: bool = False, fps: float = 30.0, name: str | None = None) -> Clip:
+             mapping: dict[str, str], root: str = "origin", fps: float = 30.0, name: str | None = None,
+             force: bool = False) -> Clip:
     """The source clip played on the target: a Clip of the target skeleton (module docstring).
 
-    source_clip: a Clip, a clip name, or None for the source's first clip.
+    source_clip: a Clip, a clip name, or None for the source's first clip; root: one of
+    :data:`ROOT_MODES`; force: skip the coverage check (:func:`check_coverage`).
     """
     if not isinstance(source_clip, Clip):
         if not source_character.clips:
             raise InputError("the source has no animation clip: no motion to retarget")
         source_clip = (source_character.clips[0] if source_clip is None
                        else source_character.clip(source_clip))
-    times, local, plan = retarget_pose(source_character, source_clip, target_character, mapping, in_place, fps)
+    times, local, plan = retarget_pose(source_character, source_clip, target_character, mapping, root, fps, force)
     return make_clip(name or source_clip.name, times, local, plan, target_character.skeleton)
 
 
 def make_clip(name: str, times: np.ndarray, local: LocalPose, plan: RetargetPlan, skeleton: Skeleton) -> Clip:
-    """Clip of the target: LINEAR rotation tracks of the mapped joints, translation of the root-motion joint."""
-    tracks = [Track(j, "rotation", times, local.rotation[:, j]) for j in sorted(plan.mapping)]
-    tracks.append(Track(plan.root, "translation", times, local.translation[:, plan.root]))
-    tracks.sort(key=lambda t: (t.joint, t.path))
+    """Clip of the target keying every joint's translation, rotation and scale (LINEAR).
+
+    Mapped joints' rotations and the root-motion joint's translation at every time; the
+    other values (constant: the target's rest values) at the first and last time only.
+    """
+    ends = times[[0, -1]] if len(times) > 1 else times[:1]
+    tracks = []
+    for j in range(skeleton.num_joints):
+        for path in ("translation", "rotation", "scale"):
+            values = getattr(local, path)[:, j]
+            moving = (path == "rotation" and j in plan.mapping) or (path == "translation" and j == plan.root)
+            tracks.append(Track(j, path, times, values) if moving else Track(j, path, ends, values[[0, -1]][:len(ends)]))
     return Clip(name, float(times[-1]), skeleton.rest_pose, tuple(tracks))
+
+
+def skinned_bounds(character: Character, local: LocalPose) -> tuple[np.ndarray, np.ndarray] | None:
+    """A world-space box (min (3,), max (3,)) holding the character's skinned meshes in every
+    frame of ``local`` (F, J, ...), or None without skinned meshes.
+
+    A skinned vertex is a convex combination of its joints' rigid motions, so it stays within
+    ``reach_j`` (the farthest rest vertex weighted on joint j from j's rest position, times the
+    largest stretch of j's skinning matrix) of some posed joint j: the box of the posed joints
+    grown by their reaches holds it, without posing a vertex.
+    """
+    skinned = [m for m in character.meshes if m.joints is not None and m.weights is not None]
+    if not skinned:
+        return None
+    skel = character.skeleton
+    G0 = skel.rest_globals()
+    reach = np.zeros(skel.num_joints)
+    for m in skinned:
+        for k in range(m.joints.shape[1]):
+            on = m.weights[:, k] > 0
+            d = np.linalg.norm(m.vertices[on] - G0[m.joints[on, k], :3, 3], axis=1)
+            np.maximum.at(reach, m.joints[on, k], d)
+    used = np.flatnonzero(reach > 0)
+    G = skel.forward_kinematics(local)[..., used, :, :]
+    stretch = np.linalg.norm((G @ np.linalg.inv(G0[used]))[..., :3, :3], ord=2, axis=(-2, -1))
+    pos, r = G[..., :3, 3], (stretch * reach[used])[..., None]
+    return (pos - r).reshape(-1, 3).min(axis=0), (pos + r).reshape(-1, 3).max(axis=0)
+
+
+# --------------------------------------------------------------------------- coverage
+
+@dataclass(frozen=True)
+class Coverage:
+    """How much of a target skeleton a mapping drives.
+
+    fraction: share of the counted bone length whose joint is mapped (0..1); mapped: mapped
+    target joint names (skeleton order); missing: (first joint name, joint count, share of
+    the counted bone length) of each maximal unmapped subtree below the root-motion joint
+    (a part left at rest), largest first.
+    """
+
+    fraction: float
+    mapped: tuple[str, ...]
+    missing: tuple[tuple[str, int, float], ...]
+
+
+def coverage(target_skel: Skeleton, mapping: dict[str, str]) -> Coverage:
+    """The share of the target's bone length driven by mapped joints (module docstring)."""
+    mapped = {target_skel.names.index(t) for t in mapping if t in target_skel.names}
+    if not mapped:
+        return Coverage(0.0, (), ((target_skel.names[0], target_skel.num_joints, 1.0),))
+    depth = _depths(target_skel)
+    root = min(mapped, key=lambda j: (depth[j], j))
+    above = set(_ancestors(target_skel, root))
+    bones = target_skel.bones()
+    length = np.linalg.norm(bones.segments[:, 1] - bones.segments[:, 0], axis=1)
+    counted = np.array([int(j) not in above for j in bones.joints]) & (length > 0)
+    driven = np.array([int(j) in mapped for j in bones.joints])
+    total = float(length[counted].sum())
+    fraction = float(length[counted & driven].sum()) / total if total > 0 else 1.0
+    missing = []
+    for j in _subtree(target_skel, root):
+        p = int(target_skel.parents[j])
+        if j not in mapped and (p in mapped or p in above or p < 0):
+            sub = _subtree(target_skel, j)
+            if not mapped & set(sub):
+                size = float(length[counted & np.isin(bones.joints, sub)].sum())
+                missing.append((target_skel.names[j], len(sub), size / total if total > 0 else 0.0))
+    missing.sort(key=lambda m: -m[2])
+    return Coverage(fraction, tuple(n for j, n in enumerate(target_skel.names) if j in mapped),
+                    tuple(m for m in missing if m[2] > 0))
+
+
+def check_coverage(target_skel: Skeleton, mapping: dict[str, str]) -> Coverage:
+    """The :func:`coverage`; InputError (one line: what is mapped, what is missing) when the
+    mapped joints drive less than :data:`MIN_COVERAGE` of the bone length or a part left at
+    rest holds more than :data:`MAX_PART_AT_REST` of it (a limb, a tail)."""
+    cov = coverage(target_skel, mapping)
+    largest = cov.missing[0][2] if cov.missing else 0.0
+    if cov.fraction < MIN_COVERAGE or largest > MAX_PART_AT_REST:
+        listed = ", ".join(cov.mapped[:12]) + (", ..." if len(cov.mapped) > 12 else "")
+        missing = ", ".join(f"{n} ({k} joint{'s' if k > 1 else ''}, {100 * f:.0f}%)" for n, k, f in cov.missing[:6])
+        raise InputError(f"the joint map covers too little of the target skeleton to make sense: "
+                         f"{len(cov.mapped)} of {target_skel.num_joints} joints mapped ({listed}), driving "
+                         f"{100 * cov.fraction:.0f}% of its bone length (at least {100 * MIN_COVERAGE:.0f}% needed, "
+                         f"no part at rest above {100 * MAX_PART_AT_REST:.0f}%); left at rest: {missing or '-'}; "
+                         f"map more joints with user_map= or retarget anyway with force=")
+    return cov
