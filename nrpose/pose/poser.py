@@ -45,7 +45,7 @@ from .mls import Deformer
 from ..checks import check_magnitude
 from ..errors import InputError
 from ..model.character import Character
-from ..model.handles import HandleSet, Pose
+from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.meshset import concatenate_meshes, submesh_faces
 from ..model.skeleton import LocalPose
 
@@ -89,6 +89,7 @@ class CharacterPoser:
             raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
         if blend != DEFAULT_BLEND and method != "nrmls":
             raise InputError(f"blend {blend!r} applies to the nrmls method only; drop blend= or use method='nrmls'")
+        alpha = check_alpha(alpha)      # checked for every method, used or not: a bad value is a mistake
         if not character.meshes:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
                              "give a mesh and pass the skeleton with skeleton=")
