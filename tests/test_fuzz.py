@@ -117,9 +117,19 @@ def _reads_gltf_fields(name: str) -> bool:
             and not name.startswith("glTF nested"))
 
 
+@pytest.fixture()
+def fork_safe():
+    """Cases fork from this process: one holding an OpenCL context already (an earlier test
+    of the session made one) gives children PoCL without its threads, and they hang."""
+    from nrpose.device.env import context
+    if context.cache_info().currsize:
+        pytest.skip("an earlier test made an OpenCL context in this process; run tests/test_fuzz.py "
+                    "in its own pytest process")
+
+
 @needs_fixes
 @pytest.mark.parametrize("name", sorted(known_cases()))
-def test_issue_32_cases_keep_the_contract(runner, name):
+def test_issue_32_cases_keep_the_contract(runner, fork_safe, name):
     if _reads_gltf_fields(name) and not GLTF_READER_CHECKED:
         pytest.skip("waits for the type-checked glTF reader (helper fuzzgltf); flip GLTF_READER_CHECKED")
     outcome, _ = runner.run(known_cases()[name])

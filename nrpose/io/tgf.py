@@ -151,6 +151,8 @@ def _read_dmat(path: Path) -> np.ndarray:
     ``COLUMNS ROWS`` then the values column by column; binary: a line ``0 0``, a line
     ``COLUMNS ROWS``, then the float64 values (little-endian) column by column.
     """
+    if not path.exists():
+        raise FileFormatError(f"{path}: no such DMAT file")
     data = read_input(path, "DMAT file")
     first, _, rest = data.partition(b"\n")
     cols, rows = _dmat_header(path, first)
