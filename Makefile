@@ -6,7 +6,7 @@ PY := $(VENV)/bin/python
 
 BLENDER_VENV := .venv-blender
 
-.PHONY: venv demo test bench blender
+.PHONY: venv demo test bench blender fuzz
 venv:
 	@test -x $(PY) || { $(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip; }
 	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench,ray]'
@@ -19,6 +19,11 @@ test: venv
 
 bench: venv
 	$(PY) -m bench --suite all
+
+# The long fuzz run of the command line (tests/test_fuzz.py is the bounded CI run): reproducers in fuzz-repro/
+FUZZ_MINUTES ?= 30
+fuzz: venv
+	$(PY) bench/fuzz.py --workers 2 --minutes $(FUZZ_MINUTES) --shared --out bench/results/fuzz.json --repro fuzz-repro
 
 # Blender 5 (bpy) in its own environment: a test client for glTF outputs and the e2e benchmark's anchor
 blender:

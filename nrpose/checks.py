@@ -41,6 +41,30 @@ def real_rows(value, what: str, tail: tuple[int, ...] = (3,), error: type[InputE
     return arr
 
 
+#: the largest coordinate magnitude accepted anywhere coordinates enter (vertices, handles,
+#: joint offsets, pose translations): squared distances, covariances and their sums then stay
+#: far inside float32 (±3.4e38), which the OpenCL kernels compute in, and libigl's geometry
+#: (winding numbers, geodesics) stays in the range it handles (a 10,000 km model in millimetres fits)
+MAX_COORDINATE = 1e10
+
+
+def coordinates(value, what: str, tail: tuple[int, ...] = (3,), error: type[InputError] = InputError,
+                allow_empty: bool = False, fix: str = "give finite values") -> np.ndarray:
+    """:func:`real_rows` whose every entry lies within ±:data:`MAX_COORDINATE`."""
+    arr = real_rows(value, what, tail, error, allow_empty, fix)
+    check_magnitude(arr, what, error)
+    return arr
+
+
+def check_magnitude(values: np.ndarray, what: str, error: type[InputError] = InputError,
+                    limit: float = MAX_COORDINATE) -> None:
+    """``error`` when a value of ``values`` (finite floats) exceeds ``limit`` in magnitude."""
+    big = float(np.abs(values).max(initial=0.0))
+    if big > limit:
+        raise error(f"{what}: a value of magnitude {big:.3g} exceeds the largest nrpose accepts ({limit:.0e}; "
+                    f"its kernels compute in float32); scale the data down")
+
+
 def triangles(faces, n_vertices: int, what: str = "faces", error: type[InputError] = InputError,
               fix: str = "drop those faces or give the vertices they index") -> np.ndarray:
     """``faces`` as an (F, 3) int64 array of vertex indices in 0 .. n_vertices - 1.

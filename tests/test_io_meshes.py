@@ -28,7 +28,7 @@ def mesh():
     rng = np.random.default_rng(0)
     V = rng.normal(size=(10, 3))
     V[7] = V[2]
-    V[4] = [0.1, 1 / 3, -7.123456789012345e10]
+    V[4] = [0.1, 1 / 3, -7.123456789012345e9]    # within checks.MAX_COORDINATE
     V[5] = [1e-300, 2.0000000000000004, -0.0]
     F = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 6], [6, 7, 8], [1, 3, 5], [8, 8, 0]])
     return V, F

@@ -111,8 +111,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..checks import real_rows, triangles
+from ..checks import coordinates, real_rows, triangles
 from ..errors import HandleError, InputError
+from ..native import quiet_native
 from .cache import binding_key_parts, cached
 
 if TYPE_CHECKING:     # scipy is imported where a graph is built (not on the posing path)
@@ -131,6 +132,8 @@ __all__ = [
 
 METHODS = ("heat", "exact", "graph", "knn", "euclidean")
 _BRIDGE_K = 8
+#: the largest longest-edge / median-edge ratio given to libigl's geodesics
+MAX_EDGE_SPREAD = 1e6
 _VIS_SAMPLES = np.linspace(0.125, 0.875, 7)  # along bone point -> vertex
 
 
@@ -138,15 +141,15 @@ _VIS_SAMPLES = np.linspace(0.125, 0.875, 7)  # along bone point -> vertex
 # validation
 # ----------------------------------------------------------------------------
 def _validate(vertices, faces, point_handles, segment_handles):
-    V = real_rows(vertices, "vertices")
+    V = coordinates(vertices, "vertices")
     F = None
     if faces is not None:
         if np.size(faces) == 0:
             raise InputError("faces: empty; pass faces=None for a point cloud")
         F = triangles(faces, len(V))
-    P = real_rows(() if point_handles is None else point_handles, "point_handles", error=HandleError,
+    P = coordinates(() if point_handles is None else point_handles, "point_handles", error=HandleError,
                   allow_empty=True)
-    S = real_rows(() if segment_handles is None else segment_handles, "segment_handles", (2, 3),
+    S = coordinates(() if segment_handles is None else segment_handles, "segment_handles", (2, 3),
                   error=HandleError, allow_empty=True)
     if len(P) + len(S) == 0:
         raise HandleError("no handles: give at least one point or segment handle")
@@ -285,7 +288,8 @@ def _visible(V, F, vidx, C) -> np.ndarray:
         return np.zeros(0, bool)
     X = V[vidx]
     Q = C[None, :, :] + _VIS_SAMPLES[:, None, None] * (X - C)[None]  # (m, n, 3)
-    W = igl.fast_winding_number(V, F, np.ascontiguousarray(Q.reshape(-1, 3)))
+    with quiet_native():
+        W = igl.fast_winding_number(V, F, np.ascontiguousarray(Q.reshape(-1, 3)))
     W = np.abs(np.asarray(W).reshape(len(_VIS_SAMPLES), len(vidx)))
     return np.all(W > 0.5, axis=0)
 
@@ -412,8 +416,9 @@ def _heat_component(t_factor: float):
                 data = igl.HeatGeodesicsData()
                 data.use_intrinsic_delaunay = True
                 h = igl.avg_edge_length(Vc, Fc)
-                ok = bool(h > 0) and igl.heat_geodesics_precompute(
-                    Vc, Fc, float(t_factor * h * h), data) is not False
+                with quiet_native():
+                    ok = bool(h > 0) and igl.heat_geodesics_precompute(
+                        Vc, Fc, float(t_factor * h * h), data) is not False
             except Exception:  # libigl rejects the mesh: use the graph fallback
                 ok = False
         if ok:
@@ -427,7 +432,8 @@ def _heat_component(t_factor: float):
                 if len(front) == 0:  # the whole component is a source
                     res[:, col] = off.min()
                     continue
-                d = np.asarray(igl.heat_geodesics_solve(data, front), dtype=np.float64)
+                with quiet_native():
+                    d = np.asarray(igl.heat_geodesics_solve(data, front), dtype=np.float64)
                 if not np.isfinite(d).all():
                     ok = False
                     break
@@ -452,9 +458,25 @@ def exact_component(Vc, Fc, jobs):
     empty = np.zeros(0, np.int64)
     targets = np.arange(len(Vc), dtype=np.int64)
     for col, (_, idx, off) in enumerate(jobs):
-        d = igl.exact_geodesic(Vc, Fc, np.ascontiguousarray(idx), empty, targets, empty)
+        with quiet_native():
+            d = igl.exact_geodesic(Vc, Fc, np.ascontiguousarray(idx), empty, targets, empty)
         res[:, col] = np.asarray(d, np.float64) + off.min()
     return res
+
+
+def clean_faces(F: np.ndarray) -> np.ndarray:
+    """Faces (M, 3) without those that repeat a vertex or repeat another face's vertices
+    (libigl's exact geodesics crash on both); the first of a repeated face is kept."""
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    _, first = np.unique(np.sort(F, axis=1), axis=0, return_index=True)
+    return F[np.sort(first)]
+
+
+def edge_spread(V: np.ndarray, F: np.ndarray) -> float:
+    """Longest over median edge length of the mesh (inf when the median is 0)."""
+    E = np.linalg.norm(V[F] - V[np.roll(F, 1, axis=1)], axis=2).ravel()
+    median = float(np.median(E))
+    return float(E.max()) / median if median > 0 else np.inf
 
 
 def _graph_component(Vc, Fc, jobs):
@@ -525,6 +547,10 @@ def distance_matrix(
         raise InputError(f"k_neighbours must be a positive integer, got {k_neighbours!r}")
     if not (np.isfinite(heat_t_factor) and heat_t_factor > 0):
         raise InputError(f"heat_t_factor must be > 0, got {heat_t_factor!r}")
+    if F is not None:
+        F = clean_faces(F)
+        if len(F) == 0:
+            raise InputError("faces: every face repeats a vertex (the mesh has no area); use a point-cloud method")
 
     if weld and method != "euclidean":
         Vw, inv = weld_vertices(V)
@@ -550,6 +576,15 @@ def distance_matrix(
     else:
         sources = handle_sources(V, F, P, S, visibility=visibility, E=E)
         comp = mesh_components(len(V), F)
+        # libigl's geodesics run for hours (or exhaust memory) on a mesh with a stray far vertex
+        spread = edge_spread(V, F) if method in ("heat", "exact") else 0.0
+        if spread > MAX_EDGE_SPREAD and method == "exact":
+            raise InputError(f"method 'exact': the longest edge is {spread:.3g} times the median edge (at most "
+                             f"{MAX_EDGE_SPREAD:.0e}; a stray vertex?); fix the mesh or use method 'graph'")
+        if spread > MAX_EDGE_SPREAD:
+            warnings.warn(f"heat geodesics: the longest edge is {spread:.3g} times the median edge; using "
+                          "graph distances", RuntimeWarning, stacklevel=2)
+            method = "graph"
         solver = {"heat": _heat_component(heat_t_factor), "exact": exact_component,
                   "graph": _graph_component}[method]
         D = _per_component(V, F, comp, sources, solver)

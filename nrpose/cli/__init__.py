@@ -14,12 +14,15 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
+import warnings
 
 import numpy as np
 
 from ..errors import NrposeError
+from ..io.files import output_transaction
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
@@ -37,6 +40,17 @@ class UsageError(Exception):
 class Parser(argparse.ArgumentParser):
     def error(self, message):  # one line, status 2 (argparse's default prints usage too)
         raise UsageError(f"{self.prog}: {message}")
+
+    def parse_known_args(self, args=None, namespace=None):
+        """argparse's, with empty values refused: an empty name is never a file, clip or choice."""
+        namespace, extras = super().parse_known_args(args, namespace)
+        for action in self._actions:
+            value = getattr(namespace, action.dest, None)
+            values = value if isinstance(value, list) else [value]
+            if any(isinstance(v, str) and not v.strip() for v in values):
+                name = "/".join(action.option_strings) or action.dest
+                self.error(f"{name}: empty value; give a name")
+        return namespace, extras
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
@@ -62,28 +76,57 @@ def flag_text(message: str, flags: dict[str, str]) -> str:
 
 def main(argv=None) -> int:
     args, status = None, 0
+    notes: list[str] = []
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
         args = build_parser(argv[0] if argv and argv[0] in COMMANDS else None).parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
-        # so in one line; numpy's floating-point warnings on the way would add lines to stderr
-        # (nrpose's own warnings, e.g. a binding cache not written, still show)
-        with np.errstate(all="ignore"):
-            status = args.func(args) or 0
+        # so in one line; numpy's floating-point warnings on the way would add lines to stderr.
+        # nrpose's own warnings (a binding cache not written...) show as one line each after a
+        # run that succeeds; a failed run prints its error line only.
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.showwarning = lambda message, *rest, **kw: notes.append(warning_line(message))
+            with output_transaction():
+                try:
+                    status = args.func(args) or 0
+                    sys.stdout.flush()
+                except BrokenPipeError:
+                    # the reader of stdout has gone (`nrpose info X | head`): the outputs are
+                    # complete, so they are kept; the command ends quietly as under SIGPIPE
+                    quiet_stdout()
+                    return EXIT_PIPE
     except UsageError as exc:
         return fail(str(exc))
     except NrposeError as exc:
         return fail(f"nrpose: error: {flag_text(str(exc), getattr(args, 'flags', {}))}")
     except OSError as exc:
-        return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
+        where = f"{exc.filename}: " if exc.filename else ""
+        return fail(f"nrpose: error: {where}{exc.strerror or exc}")
     except KeyboardInterrupt:
         print("nrpose: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if notes:   # one line, as the contract promises (several warnings joined)
+        print(" | ".join(dict.fromkeys(notes)), file=sys.stderr)
     return status
 
 
+#: the exit status of a command whose stdout reader went away (128 + SIGPIPE, as a shell reports it)
+EXIT_PIPE = 128 + 13
 #: the exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)
 EXIT_INTERRUPTED = 128 + 2
+
+
+def quiet_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush cannot fail again."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
+
+
+def warning_line(message) -> str:
+    """A warning as one line: ``nrpose: warning: MESSAGE``."""
+    text = str(message).replace("\r", "\\r").replace("\n", "\\n")
+    return f"nrpose: warning: {text}"
 
 
 def fail(message: str) -> int:

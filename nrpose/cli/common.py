@@ -10,12 +10,41 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NrposeError
-from ..io.files import atomic_path, check_writable
+from ..io.files import atomic_path, check_writable, on_commit
 from ..io.gltf_write import write_animated_glb
 from ..io.meshes import write_geometry
 from ..io.npz import write_npz
 
-__all__ = ["median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
+__all__ = ["add_budget_options", "check_budget", "median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
+
+
+#: defaults of --max-frames and --max-output-values: a long clip of a large character fits
+#: (10,000 frames = 5.5 min at 30 fps; 2e8 numbers = 0.8 GB as float32)
+MAX_FRAMES = 10_000
+MAX_OUTPUT_VALUES = 200_000_000
+
+
+def add_budget_options(p) -> None:
+    """--max-frames and --max-output-values: the work and output a run may ask for."""
+    p.add_argument("--max-frames", type=int, default=MAX_FRAMES,
+                   help=f"refuse runs of more frames (default {MAX_FRAMES:,}; each frame is posed, and is "
+                        "a file for a directory output)")
+    p.add_argument("--max-output-values", type=float, default=MAX_OUTPUT_VALUES,
+                   help=f"refuse runs whose output holds more numbers (default {MAX_OUTPUT_VALUES:.0e}: "
+                        "frames x vertices x 3, plus frames^2 morph weights in a .glb)")
+
+
+def check_budget(args, frames: int, values: float, what: str) -> None:
+    """NrposeError, before any work, when ``frames`` or the estimated output ``values`` exceed
+    the run's --max-frames / --max-output-values (``what`` names the output)."""
+    if args.max_frames < 1 or not args.max_output_values >= 1:
+        raise NrposeError("--max-frames and --max-output-values must be at least 1")
+    if frames > args.max_frames:
+        raise NrposeError(f"{what}: {frames:,} frames, more than --max-frames {args.max_frames:,}; sample "
+                          f"fewer (lower --fps, a shorter --frames range) or raise --max-frames")
+    if values > args.max_output_values:
+        raise NrposeError(f"{what}: the output would hold {values:.3g} numbers, more than --max-output-values "
+                          f"{args.max_output_values:.3g}; sample fewer frames or raise --max-output-values")
 
 
 def median_ms(fn, repeat: int) -> tuple[float, object]:
@@ -40,6 +69,8 @@ def progress(done: int, total: int) -> None:
 
 def frames_output_kind(out: str) -> str:
     """"npz", "glb" or "dir" for ``nrpose pose -o OUT``; NrposeError for other extensions."""
+    if not out:
+        raise NrposeError("-o '': give an output name (OUT.npz, OUT.glb or a directory)")
     suffix = Path(out).suffix.lower()
     if suffix in (".npz", ".glb"):
         return suffix[1:]
@@ -48,13 +79,14 @@ def frames_output_kind(out: str) -> str:
     raise NrposeError(f"{out}: output must end in .npz or .glb, or be a directory")
 
 
-def check_outputs(out: str | None, suffixes, png: str | None) -> None:
-    """Refuse unusable output names before any work (nothing is written on failure)."""
+def check_outputs(out: str | None, suffixes, png: str | None, out_is_dir: bool = False) -> None:
+    """Refuse unusable output names before any work (nothing is written on failure): each
+    output's directory must exist and take a new file. out_is_dir: OUT is a frame directory."""
     if out is not None:
         if suffixes is not None and Path(out).suffix.lower() not in suffixes:
             raise NrposeError(f"{out}: unknown output extension; use one of {', '.join(suffixes)}")
-        check_writable(out)
-    if png:
+        check_writable(out, directory_ok=out_is_dir)
+    if png is not None:
         if Path(png).suffix.lower() != ".png":
             raise NrposeError(f"--png {png}: the preview must end in .png")
         check_writable(png)
@@ -76,19 +108,26 @@ def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, sourc
         return write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets,
                                   source=source, quantize=quantize, animation_name=name)
     else:
-        # all frames go to a temporary sibling directory first; only then are the
-        # previous run's frame files removed and the new ones moved in
-        path.mkdir(parents=True, exist_ok=True)
+        # all frames go to a temporary sibling directory first; only at commit is the
+        # directory made, the previous run's frame files removed and the new ones moved in
         tmp = Path(tempfile.mkdtemp(prefix=".nrpose-", dir=path.parent))
         try:
             for f, pos in enumerate(frames.positions):
                 write_geometry(tmp / f"frame_{f:04d}.{fmt}", pos, frames.faces)
-            for old in path.glob("frame_*"):
-                old.unlink()
-            for new in sorted(tmp.iterdir()):
-                new.replace(path / new.name)
-        finally:
+        except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+        def commit():
+            try:
+                path.mkdir(parents=True, exist_ok=True)
+                for old in path.glob("frame_*"):
+                    old.unlink()
+                for new in sorted(tmp.iterdir()):
+                    new.replace(path / new.name)
+            finally:
+                shutil.rmtree(tmp, ignore_errors=True)
+        on_commit(commit, lambda: shutil.rmtree(tmp, ignore_errors=True))
 
 
 def device_text() -> str:

@@ -17,7 +17,7 @@ from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
 from ..render.sheet import save_contact_sheet
-from .common import check_outputs, frames_output_kind, progress, write_frames
+from .common import add_budget_options, check_budget, check_outputs, frames_output_kind, progress, write_frames
 
 #: library argument name -> the flag users type
 FLAGS = {"method": "--method", "weights": "--weights", "alpha": "--alpha", "blend": "--blend",
@@ -59,6 +59,7 @@ def add_parser(sub) -> None:
                    help="morph bakes: compact targets (KHR_mesh_quantization; position error at most 1e-4 of "
                         "the bounding-box diagonal, float where that does not hold)")
     p.add_argument("--png", help="write a contact sheet PNG")
+    add_budget_options(p)
     p.set_defaults(func=run, flags=FLAGS)
 
 
@@ -110,11 +111,9 @@ def parse_frames(spec: str, fps: float) -> np.ndarray:
 
 def run(args) -> None:
     kind = frames_output_kind(args.output)
-    if kind == "dir":   # created if needed: its parent must exist
-        parent = Path(args.output).resolve().parent
-        if not parent.is_dir() or Path(args.output).is_file():
-            raise NrposeError(f"{args.output}: cannot make a frame directory there (is {parent} a directory?)")
-    check_outputs(args.output if kind != "dir" else None, None, args.png)
+    if kind == "dir" and Path(args.output).is_file():
+        raise NrposeError(f"{args.output}: a file; give a directory (or a name ending in .npz or .glb)")
+    check_outputs(args.output, None, args.png, out_is_dir=kind == "dir")
     check_bake(args, kind)
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise NrposeError(f"--fps {args.fps}: expected a positive number of frames per second")
@@ -132,6 +131,9 @@ def run(args) -> None:
         character = with_skin_weights(character, W)
     local, times, name = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
                                     time=args.time, frames=args.frames, fps=args.fps, kind=kind)
+    vertices = sum(len(m.vertices) for m in character.meshes)
+    check_budget(args, len(times), 3.0 * len(times) * vertices + (len(times) ** 2 if kind == "glb" else 0),
+                 args.output)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
     frames = posed_frames(poser, local, progress)

@@ -41,10 +41,12 @@ from ..errors import InputError
 from ..io import load_character
 from ..io.bvh_write import write_bvh
 from ..io.files import check_writable
+from ..model.timing import sample_times
 from ..io.gltf_write import write_glb_with_clip
 from ..io.poses import load_map
 from ..pose.retarget import ROOT_MODES, coverage, format_map, joint_map, make_clip, retarget_pose, skinned_bounds
 from ..render.retarget_sheet import save_retarget_sheet
+from .common import add_budget_options, check_budget
 
 __all__ = ["add_parser", "run", "retarget_clip", "SOURCE_SUFFIXES", "TARGET_SUFFIXES"]
 
@@ -73,6 +75,7 @@ def add_parser(sub) -> None:
     p.add_argument("--show-map", action="store_true", help="print the joint mapping and the unmapped joints")
     p.add_argument("-o", "--output", help="OUT.glb (target + new animation) or OUT.bvh (target skeleton)")
     p.add_argument("--png", help="write a contact sheet PNG (retargeted character beside the source skeleton)")
+    add_budget_options(p)
     p.set_defaults(func=run, flags=FLAGS)
 
 
@@ -111,6 +114,14 @@ def run(args) -> None:
         print(format_map(mapping, source.skeleton, target.skeleton))
     if args.output is None:
         return
+    if not mapping:
+        raise InputError(f"no joint of {args.target} maps to a joint of {args.source}: the rigs share no known "
+                         "joint names; give a joint map (--map MAP.json, {\"TargetJoint\": \"SourceJoint\"})")
+    if not source.clips:
+        raise InputError(f"{args.source}: has no animation: no motion to retarget")
+    clip = source.clip(args.source_clip) if args.source_clip else source.clips[0]
+    frames = len(sample_times(clip.duration, args.fps))
+    check_budget(args, frames, 7.0 * frames * target.skeleton.num_joints, args.output)
     out = Path(args.output)
     bvh = out.suffix.lower() == ".bvh"
     clip, times, local, plan, result = retarget_clip(source, target, mapping, args.source, args.target,

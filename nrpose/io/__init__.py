@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ..checks import check_magnitude
 from ..errors import FileFormatError, InputError
 from ..model.character import Character, Mesh
 from .bvh_read import read_bvh
@@ -60,4 +61,21 @@ def load_character(path: str | Path, skeleton: str | Path | None = None) -> Char
     if skeleton is not None:
         raise InputError(f"{path}: a glTF file carries its own skeleton; do not pass one" if kind == "character"
                          else f"{path}: is already a skeleton; pass a mesh with it instead")
-    return reader(path)
+    return _check_ranges(reader(path), path)
+
+
+def _check_ranges(character: Character, path: Path) -> Character:
+    """The character, after FileFormatError if a coordinate it carries (vertices, joint
+    offsets, clip translations) exceeds :data:`nrpose.checks.MAX_COORDINATE`."""
+    skel = character.skeleton
+    check_magnitude(skel.translation, f"{path}: joint translations", FileFormatError)
+    for mesh in character.meshes:
+        for values in (mesh.vertices, mesh.bind_vertices):
+            if values is not None:
+                check_magnitude(values, f"{path}: vertices of mesh {mesh.name!r}", FileFormatError)
+    for clip in character.clips:
+        for track in clip.tracks:
+            if track.path == "translation":
+                check_magnitude(track.values, f"{path}: clip {clip.name!r}: translations of joint "
+                                              f"{skel.names[track.joint]!r}", FileFormatError)
+    return character

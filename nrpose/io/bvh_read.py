@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import check_magnitude
 from ..errors import FileFormatError, InputError
 from ..model.character import Clip, Track
 from ..model.rotation import Rotation
@@ -26,6 +27,10 @@ from ..model.skeleton import Skeleton
 from .files import read_input_text
 
 __all__ = ["read_bvh"]
+
+#: bounds on a hierarchy: deeper or larger files are refused (real rigs have a few hundred joints)
+MAX_DEPTH = 256
+MAX_JOINTS = 10_000
 
 AXES = {"Xposition": ("P", 0), "Yposition": ("P", 1), "Zposition": ("P", 2),
         "Xrotation": ("R", "X"), "Yrotation": ("R", "Y"), "Zrotation": ("R", "Z")}
@@ -65,17 +70,26 @@ class _Tokens:
             raise FileFormatError(f"{self.path}:{line}: {what}: expected {count} numbers") from None
         if not np.isfinite(values).all():
             raise FileFormatError(f"{self.path}:{line}: {what}: NaN or infinite value")
+        check_magnitude(np.asarray(values), f"{self.path}:{line}: {what}", FileFormatError)
         return values
 
 
 def _parse_hierarchy(tokens: _Tokens):
-    """Joint records (name, parent, offset, channels, tip) in file (topological) order."""
+    """Joint records (name, parent, offset, channels, tip) in file (topological) order.
+
+    Iterative (a stack of open joints), so nesting depth costs no Python recursion; at most
+    MAX_DEPTH nested and MAX_JOINTS joints in all.
+    """
     joints: list[dict] = []
+    open_joints: list[int] = []     # joints whose closing '}' is still to come, innermost last
     tokens.take("HIERARCHY")
 
-    def joint(parent: int) -> None:
+    def start(parent: int) -> None:
+        if len(open_joints) >= MAX_DEPTH:
+            raise tokens.error(f"joints nested more than {MAX_DEPTH} deep; is it the right file?")
+        if len(joints) >= MAX_JOINTS:
+            raise tokens.error(f"more than {MAX_JOINTS} joints; is it the right file?")
         name = tokens.take()
-        index = len(joints)
         record = {"name": name, "parent": parent, "tip": None, "channels": [], "line": tokens.line()}
         joints.append(record)
         tokens.take("{")
@@ -88,31 +102,37 @@ def _parse_hierarchy(tokens: _Tokens):
                 count = int(tokens.take())
             except ValueError:
                 raise tokens.error(f"CHANNELS of {name}: expected a channel count") from None
+            if not 0 <= count <= len(AXES):
+                raise tokens.error(f"CHANNELS of {name}: {count} channels (0 to {len(AXES)} expected)")
             record["channels"] = [tokens.take() for _ in range(count)]
             unknown = [c for c in record["channels"] if c not in AXES]
             if unknown:
                 raise FileFormatError(f"{tokens.path}:{line}: CHANNELS of {name}: unknown channel "
                                       f"{unknown[0]!r} (known: {', '.join(AXES)})")
-        while tokens.peek() != "}":
-            keyword = tokens.take()
-            if keyword == "JOINT":
-                joint(index)
-            elif keyword == "End":
-                tokens.take("Site")
-                tokens.take("{")
-                tokens.take("OFFSET")
-                tip = tokens.numbers(3, f"End Site OFFSET of {name}")
-                if record["tip"] is not None:
-                    raise tokens.error(f"joint {name} has several End Sites")
-                record["tip"] = tip
-                tokens.take("}")
-            else:
-                raise tokens.error(f"expected JOINT, End Site or '}}' in joint {name}, got {keyword!r}")
-        tokens.take("}")
+        open_joints.append(len(joints) - 1)
 
-    while tokens.peek() == "ROOT":
-        tokens.take()
-        joint(-1)
+    while open_joints or tokens.peek() == "ROOT":
+        if not open_joints:
+            tokens.take()
+            start(-1)
+            continue
+        record = joints[open_joints[-1]]
+        keyword = tokens.take("}") if tokens.peek() is None else tokens.take()
+        if keyword == "}":
+            open_joints.pop()
+        elif keyword == "JOINT":
+            start(open_joints[-1])
+        elif keyword == "End":
+            tokens.take("Site")
+            tokens.take("{")
+            tokens.take("OFFSET")
+            tip = tokens.numbers(3, f"End Site OFFSET of {record['name']}")
+            if record["tip"] is not None:
+                raise tokens.error(f"joint {record['name']} has several End Sites")
+            record["tip"] = tip
+            tokens.take("}")
+        else:
+            raise tokens.error(f"expected JOINT, End Site or '}}' in joint {record['name']}, got {keyword!r}")
     if not joints:
         raise tokens.error("no ROOT joint in HIERARCHY")
     if tokens.peek() is not None:
@@ -204,6 +224,7 @@ def read_bvh(path: str | Path) -> tuple[Skeleton, Clip]:
                 if translation is None:
                     translation = np.tile(record["offset"], (F, 1))
                 translation[:, axis] = data[:, column]
+                check_magnitude(data[:, column], f"{path}: {channel} of joint {record['name']}", FileFormatError)
             column += 1
         if rot_axes:
             try:

@@ -10,7 +10,7 @@ from typing import Iterator
 
 from ..errors import FileFormatError, InputError, NrposeError
 
-__all__ = ["read_input", "read_input_text", "check_writable", "atomic_path"]
+__all__ = ["read_input", "read_input_text", "check_writable", "atomic_path", "output_transaction", "on_commit"]
 
 
 def _umask() -> int:
@@ -51,17 +51,62 @@ def read_input_text(path, what: str, error: type[NrposeError] = FileFormatError)
                     f"re-save it as UTF-8") from None
 
 
-def check_writable(path) -> Path:
-    """The directory of output ``path``; InputError if path is a directory or its directory is missing.
+def check_writable(path, directory_ok: bool = False) -> Path:
+    """The directory of output ``path``; InputError if the name is empty, path is a directory
+    (unless ``directory_ok``: an output directory whose parent receives the temporary files),
+    its directory is missing, or a file cannot be created there (a probe file is made and removed).
 
     Lets a command refuse a bad output name before doing any work."""
+    if not str(path):
+        raise InputError("an output name is empty; give a file name to write")
     path = Path(path)
     directory = path.parent if str(path.parent) else Path(".")
-    if path.is_dir():
+    if path.is_dir() and not directory_ok:
         raise InputError(f"{path}: is a directory; give a file name to write")
     if not directory.is_dir():
         raise InputError(f"{path}: directory {directory} does not exist; create it first")
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".nrpose-", dir=directory)
+    except OSError as exc:
+        raise InputError(f"{path}: cannot write in {directory} ({exc.strerror}); "
+                         f"choose a writable directory") from None
+    os.close(fd)
+    os.unlink(probe)
     return directory
+
+
+#: the open output transaction's (commit, abort) actions, or None outside one
+_pending: list[tuple] | None = None
+
+
+@contextlib.contextmanager
+def output_transaction() -> Iterator[None]:
+    """Outputs written inside the block (through :func:`atomic_path` or :func:`on_commit`) are
+    put in place together when it ends normally, and all removed when it raises: a command
+    that fails leaves none of its outputs behind."""
+    global _pending
+    outer, _pending = _pending, []
+    actions = _pending
+    try:
+        yield
+    except BaseException:
+        _pending = outer
+        for _, abort in reversed(actions):
+            with contextlib.suppress(OSError):
+                abort()
+        raise
+    _pending = outer
+    for commit, _ in actions:
+        commit()
+
+
+def on_commit(commit, abort) -> None:
+    """Run ``commit()`` when the open :func:`output_transaction` ends normally (``abort()``
+    when it raises); outside a transaction, ``commit()`` now."""
+    if _pending is None:
+        commit()
+    else:
+        _pending.append((commit, abort))
 
 
 @contextlib.contextmanager
@@ -70,7 +115,8 @@ def atomic_path(path) -> Iterator[Path]:
 
     Write the file there; when the ``with`` block ends normally the temporary
     file is flushed to disk and renamed over ``path`` (``os.replace``, atomic
-    on one filesystem) with the permissions a new file would get (umask). If
+    on one filesystem; inside an :func:`output_transaction`, when it ends) with
+    the permissions a new file would get (umask). If
     the block raises, the temporary file is removed, ``path`` is left as it
     was, and the exception propagates. Usable by any writer that takes a file
     name (numpy ``.npz``, glTF, JSON, matplotlib PNG...)::
@@ -99,7 +145,7 @@ def atomic_path(path) -> Iterator[Path]:
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_UMASK)
-        os.replace(tmp, path)
+        on_commit(lambda: os.replace(tmp, path), tmp.unlink)
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink()

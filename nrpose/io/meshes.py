@@ -66,7 +66,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import real_rows, triangles, within_float32
+from ..checks import coordinates, real_rows, triangles, within_float32
 from ..errors import FileFormatError, InputError
 from .files import atomic_path, read_input
 
@@ -153,7 +153,7 @@ def _check_read(path: Path, V: np.ndarray, F: np.ndarray) -> Geometry:
     F = np.array(F, dtype=np.int64).reshape(-1, 3)
     if len(V) == 0:
         raise FileFormatError(f"{path}: no vertices found; give a file with geometry")
-    V = real_rows(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
+    V = coordinates(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
     if len(F):
         F = triangles(F, len(V), f"{path}: faces", FileFormatError, "the file is inconsistent, re-export it")
     return Geometry(V, F)

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..checks import check_magnitude
 from ..errors import FileFormatError, HandleError, InputError
 from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.rotation import unit_quaternions
@@ -61,6 +62,8 @@ def parse_pose(doc, skeleton: Skeleton, where: str = "pose") -> LocalPose:
             if name not in skeleton.names:
                 raise InputError(f"{where}: {key}: unknown joint {name!r}; {match_hint(name, skeleton.names)}")
             field[skeleton.index(name)] = _vector(value, width, f"{where}: {key}[{name!r}]")
+            if key == "translations":
+                check_magnitude(field[skeleton.index(name)], f"{where}: {key}[{name!r}]")
     pose.rotation[:] = unit_quaternions(pose.rotation, [f"{where}: rotation of {n!r}" for n in skeleton.names])
     return pose
 

@@ -45,13 +45,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import real_rows, triangles
+from ..checks import coordinates, real_rows, triangles
 from ..errors import FileFormatError, InputError
 from ..model.character import Clip, Track
 from ..model.rotation import Rotation, unit_quaternions
 from ..model.skeleton import LocalPose, Skeleton, polar_rotation
 from ..model.timing import check_frame_count
-from .files import read_input_text
+from ..native import quiet_native
+from .files import read_input, read_input_text
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_dmat_weights", "read_dmat_animation", "bone_joints", "read_mesh",
            "MESH_SUFFIXES"]
@@ -132,15 +133,46 @@ def read_tgf(path: str | Path) -> Skeleton:
                     tips=C[BE[order, 1]] - start)
 
 
-def _read_dmat(path: Path) -> np.ndarray:
-    import igl
+def _dmat_header(path: Path, line: bytes) -> tuple[int, int]:
+    """(columns, rows) of a DMAT header line: two non-negative decimal integers."""
+    fields = line.split()
+    if len(fields) != 2 or not all(f.isdigit() for f in fields):
+        raise FileFormatError(f"{path}: not a DMAT matrix (the header {line[:40]!r} is not "
+                              f"'COLUMNS ROWS')")
+    return int(fields[0]), int(fields[1])
 
-    if not path.is_file():
+
+def _read_dmat(path: Path) -> np.ndarray:
+    """A libigl DMAT matrix (rows, cols) float64, ASCII or binary.
+
+    Parsed here rather than by ``igl.readDMAT``, which allocates whatever its header says
+    (``2147483648 4`` aborts the process) and prints its errors on stderr: the header's size
+    is checked against the values the file holds before anything is allocated. ASCII: a line
+    ``COLUMNS ROWS`` then the values column by column; binary: a line ``0 0``, a line
+    ``COLUMNS ROWS``, then the float64 values (little-endian) column by column.
+    """
+    if not path.exists():
         raise FileFormatError(f"{path}: no such DMAT file")
-    try:
-        return np.asarray(igl.readDMAT(str(path)), dtype=np.float64)
-    except RuntimeError as exc:
-        raise FileFormatError(f"{path}: not a DMAT matrix ({exc})") from None
+    data = read_input(path, "DMAT file")
+    first, _, rest = data.partition(b"\n")
+    cols, rows = _dmat_header(path, first)
+    if cols == rows == 0:
+        second, _, body = rest.partition(b"\n")
+        cols, rows = _dmat_header(path, second)
+        if len(body) != 8 * rows * cols:
+            raise FileFormatError(f"{path}: binary DMAT header says {rows} x {cols} values "
+                                  f"({8 * rows * cols} bytes), the file holds {len(body)} bytes")
+        values = np.frombuffer(body, "<f8").astype(np.float64)
+    else:
+        tokens = rest.split()
+        if len(tokens) != rows * cols:
+            raise FileFormatError(f"{path}: DMAT header says {rows} x {cols} values, the file holds "
+                                  f"{len(tokens)}")
+        try:
+            values = np.array([float(t) for t in tokens], dtype=np.float64)
+        except ValueError:
+            raise FileFormatError(f"{path}: not a DMAT matrix (a value is not a number)") from None
+    return values.reshape(cols, rows).T
 
 
 def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
@@ -278,9 +310,10 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         raise FileFormatError(f"{path}: no such mesh file")
     try:
         if suffix == ".mesh":
-            V, T, F = igl.readMESH(str(path))
-            if len(T):
-                F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
+            with quiet_native():
+                V, T, F = igl.readMESH(str(path))
+                if len(T):
+                    F = igl.boundary_facets(np.ascontiguousarray(T, dtype=np.int64))[0]
         else:
             from .meshes import read_geometry
             V, F = read_geometry(path)
@@ -290,7 +323,7 @@ def read_mesh(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     F = np.asarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or F.ndim != 2 or F.shape[1] != 3 or len(F) == 0:
         raise FileFormatError(f"{path}: no triangles read (vertices {V.shape}, faces {F.shape})")
-    V = real_rows(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
+    V = coordinates(V, f"{path}: vertices", error=FileFormatError, fix="fix or remove them")
     F = triangles(F, len(V), f"{path}: faces", FileFormatError, "the file is inconsistent, re-export it")
     used = np.unique(F)
     if suffix == ".mesh" and len(used) < len(V):

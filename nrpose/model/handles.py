@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import real_rows
+from ..checks import coordinates, real_rows
 from ..errors import HandleError
 from .rotation import Rotation, minimal_rotvec
 
@@ -36,8 +36,8 @@ class HandleSet:
 
     @classmethod
     def make(cls, points=(), segments=(), what: str = "handles") -> "HandleSet":
-        pts = real_rows(points, f"{what} points", (3,), HandleError, allow_empty=True)
-        segs = real_rows(segments, f"{what} segments", (2, 3), HandleError, allow_empty=True)
+        pts = coordinates(points, f"{what} points", (3,), HandleError, allow_empty=True)
+        segs = coordinates(segments, f"{what} segments", (2, 3), HandleError, allow_empty=True)
         if len(pts) + len(segs) == 0:
             raise HandleError(f"{what}: no handles; give at least one point or segment")
         lengths = np.linalg.norm(segs[:, 1] - segs[:, 0], axis=1)

@@ -90,7 +90,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..checks import real_rows
+from ..checks import coordinates
 from ..errors import InputError
 from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
@@ -180,7 +180,7 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     t: optional (N, S) segment parameters in [0, 1] replacing the closest-point ones
     (rest-only; the module docstring).
     """
-    v = real_rows(points, "points")
+    v = coordinates(points, "points")
     alpha = check_alpha(alpha)
     if lever not in LEVERS:
         raise InputError(f"lever must be one of {LEVERS}, got {lever!r}")

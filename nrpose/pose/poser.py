@@ -44,9 +44,10 @@ from ..bind.cache import cache_dir, cached_status, code_version
 from .blend import BLENDS, DEFAULT_BLEND
 from .mls import Deformer, bind_layout, kept_terms, prefetch_program
 from .. import device
+from ..checks import check_magnitude
 from ..errors import InputError
 from ..model.character import Character
-from ..model.handles import HandleSet, Pose
+from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.meshset import concatenate_meshes, submesh_faces
 from ..model.skeleton import LocalPose
 
@@ -95,6 +96,7 @@ class CharacterPoser:
             raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
         if blend != DEFAULT_BLEND and method != "nrmls":
             raise InputError(f"blend {blend!r} applies to the nrmls method only; drop blend= or use method='nrmls'")
+        alpha = check_alpha(alpha)      # checked for every method, used or not: a bad value is a mistake
         if not character.meshes:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
                              "give a mesh and pass the skeleton with skeleton=")
@@ -233,6 +235,9 @@ class CharacterPoser:
         if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
             raise InputError("no frames to pose: give at least one time")
         G = skel.forward_kinematics(local)
+        if not np.isfinite(G).all():
+            raise InputError("the pose moves or scales joints to infinity; check its translations and scales")
+        check_magnitude(G[..., :3, :], "posed joint transforms (translations, scaled rotations)")
         if G.ndim == 3:
             G = G[None]
         F = len(G)

@@ -56,7 +56,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import device
-from ..checks import real_rows
+from ..checks import coordinates, real_rows
 from ..errors import InputError
 from ..model.rotation import matrix_quats
 from ..model.skeleton import det_components, polar_components
@@ -83,7 +83,7 @@ def prepare_influences(rest, joints, weights):
     Weights rows are normalised to sum 1; padding entries (weight 0) get joint 0.
     Also returns the largest joint index that carries weight, as a 4th item.
     """
-    rest = real_rows(rest, "rest vertices")
+    rest = coordinates(rest, "rest vertices")
     n = rest.shape[0]
 
     joints = np.asarray(joints)

@@ -1,0 +1,147 @@
+"""The CLI keeps its contract under a bounded mutation fuzz (tests/fuzzing).
+
+1,200 deterministic cases (seed 0) over every command and input kind, 2 worker processes,
+each case in a forked child with a 20 s time and 3 GiB memory limit: every case must end
+in exit 0 with a valid output or exit 2 with one stderr line and nothing left behind. The
+long run is ``python bench/fuzz.py``. The harness's own parts (seeds valid, mutations
+deterministic, the contract checks able to fail) are tested here too and always run.
+"""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from fuzzing.campaign import run
+from fuzzing.cases import Case, make_case
+from fuzzing.known import MUST_REJECT, known_cases
+from fuzzing.runner import Runner
+from fuzzing.seeds import make_seeds
+
+#: the known cases of issue 32 keep the contract (its fixes have landed)
+FUZZ_ENABLED = True
+#: the glTF reader's known cases, and the bounded run (whose glTF seeds reach the reader), wait for
+#: the type-checked io/gltf_read.py (helper fuzzgltf): set True when it is merged
+GLTF_READER_CHECKED = False
+CASES = 1200
+WORKERS = 2
+
+
+def _warm_kernel_cache(seeds, folder) -> None:
+    """Build the OpenCL kernels the seeds use once, without the per-case time limit (a cold
+    PoCL cache takes longer than a case may), so that cases time their own work only."""
+    for name, data in ((s.name, s.data) for s in seeds.values() if s.kind in ("obj", "handles", "glb")):
+        (folder / name).write_bytes(data)
+    for argv in (["deform", "body.obj", "-H", "handles.json", "-o", "o.ply"],
+                 ["pose", "body.glb", "--clip", "bend", "--fps", "5", "-o", "o.npz", "--method", "nrmls"],
+                 ["pose", "body.glb", "--clip", "bend", "--fps", "5", "-o", "o.npz", "--method", "lbs"],
+                 ["pose", "body.glb", "--clip", "bend", "--fps", "5", "-o", "o.npz"]):
+        subprocess.run([sys.executable, "-m", "nrpose", *argv], cwd=folder, capture_output=True, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def runner(seeds, tmp_path_factory):
+    _warm_kernel_cache(seeds, tmp_path_factory.mktemp("warm"))
+    r = Runner()
+    yield r
+    r.close()
+
+
+@pytest.fixture(scope="module")
+def seeds():
+    return make_seeds()
+
+
+def _case(argv, files, **kw) -> Case:
+    return Case(index=0, command=argv[0], template="unit", argv=argv, files=files, **kw)
+
+
+SEED_RUNS = {
+    "deform": ["deform", "in/m/body.obj", "-H", "in/h/handles.json", "-o", "out/o.ply", "--backend", "numpy"],
+    "pose-glb": ["pose", "in/c/body.glb", "--clip", "bend", "--fps", "5", "-o", "out/o.npz", "--backend", "numpy"],
+    "pose-tgf": ["pose", "in/m/body.obj", "--skeleton", "in/s/rig.tgf", "--pose", "in/p/pose.dmat",
+                 "--weights", "euclidean", "-o", "out/frames", "--backend", "numpy"],
+    "weights": ["weights", "in/c/body.gltf", "--method", "euclidean", "-o", "out/w.npz"],
+    "retarget": ["retarget", "in/s/rig.bvh", "in/c/body.glb", "--fps", "5", "-o", "out/r.glb"],
+    "info": ["info", "in/c/body.glb"],
+}
+
+
+@pytest.mark.parametrize("name", sorted(SEED_RUNS))
+def test_seeds_are_accepted_with_valid_outputs(runner, seeds, name):
+    argv = SEED_RUNS[name]
+    by_name = {s.name: s for s in seeds.values() if s.kind not in ("ply_ascii", "stl_ascii", "dmat_ascii",
+                                                                   "gltf_external")}
+    files = {}
+    for a in argv:
+        if a.startswith("in/"):
+            files[a] = by_name[a.rsplit("/", 1)[1]].data
+    outcome, _ = runner.run(_case(argv, files))
+    assert outcome.outcome == "accepted", outcome
+
+
+def test_contract_checks_can_fail(runner, seeds):
+    """A run that leaves a file, one that prints two error lines and one that crashes are caught."""
+    ok = seeds["obj"].data
+    # an output into a missing folder: rejected cleanly
+    o, _ = runner.run(_case(["deform", "in/m/body.obj", "-H", "in/h/handles.json", "-o", "nodir/o.ply"],
+                            {"in/m/body.obj": ok, "in/h/handles.json": seeds["handles"].data}))
+    assert o.outcome == "rejected" and o.exit == 2
+    # bad JSON nested 5,000 deep: a traceback today, a clean rejection after the fix
+    deep = "[" * 5000 + "]" * 5000
+    o, _ = runner.run(_case(["deform", "in/m/body.obj", "-H", "in/h/handles.json", "-o", "out/o.ply"],
+                            {"in/m/body.obj": ok, "in/h/handles.json": deep.encode()}))
+    assert o.outcome in ("traceback", "rejected")
+    assert (o.outcome == "traceback") == ("RecursionError" in o.stderr)
+
+
+def test_cases_are_deterministic(seeds):
+    a = [make_case(7, i, seeds) for i in range(50)]
+    b = [make_case(7, i, seeds) for i in range(50)]
+    assert [(c.argv, c.files, c.mutation) for c in a] == [(c.argv, c.files, c.mutation) for c in b]
+    assert {c.command for c in a} == {"deform", "pose", "weights", "retarget", "info"}
+
+
+needs_fixes = pytest.mark.skipif(not FUZZ_ENABLED, reason="enabled after the fuzz fixes land (issue 32); "
+                                "flip FUZZ_ENABLED in tests/test_fuzz.py")
+needs_gltf_reader = pytest.mark.skipif(not GLTF_READER_CHECKED, reason="waits for the type-checked glTF reader "
+                                       "(helper fuzzgltf); flip GLTF_READER_CHECKED in tests/test_fuzz.py")
+
+
+def _reads_gltf_fields(name: str) -> bool:
+    """Known cases whose fix is the glTF reader's (field types, sizes, views within buffers)."""
+    return (name.startswith(("glTF ", "accessor without bufferView", "retarget: bufferView"))
+            and not name.startswith("glTF nested"))
+
+
+@pytest.fixture()
+def fork_safe():
+    """Cases fork from this process: one holding an OpenCL context already (an earlier test
+    of the session made one) gives children PoCL without its threads, and they hang."""
+    from nrpose.device.env import context
+    if context.cache_info().currsize:
+        pytest.skip("an earlier test made an OpenCL context in this process; run tests/test_fuzz.py "
+                    "in its own pytest process")
+
+
+@needs_fixes
+@pytest.mark.parametrize("name", sorted(known_cases()))
+def test_issue_32_cases_keep_the_contract(runner, fork_safe, name):
+    if _reads_gltf_fields(name) and not GLTF_READER_CHECKED:
+        pytest.skip("waits for the type-checked glTF reader (helper fuzzgltf); flip GLTF_READER_CHECKED")
+    outcome, _ = runner.run(known_cases()[name])
+    allowed = ("rejected",) if name in MUST_REJECT else ("accepted", "rejected")
+    assert outcome.outcome in allowed, (outcome.outcome, outcome.stderr[-2000:], outcome.problems)
+
+
+@needs_fixes
+@needs_gltf_reader
+def test_bounded_fuzz_run_breaks_no_contract(tmp_path):
+    summary = run(seed=0, count=CASES, workers=min(WORKERS, os.cpu_count() or 1), repro_dir=tmp_path / "repro")
+    assert summary["cases"] == CASES
+    defects = [{k: d[k] for k in ("class", "count", "where", "argv", "stderr_tail", "repro")}
+               for d in summary["defects"]]
+    assert summary["violations"] == 0, json.dumps(defects[:20], indent=1)
