@@ -16,6 +16,8 @@ demo: venv
 
 test: venv
 	$(PY) -m pytest -q
+	# the fuzz cases fork from a process that has no OpenCL context yet: a pytest of their own
+	$(PY) -m pytest -q tests/test_fuzz.py
 
 bench: venv
 	$(PY) -m bench --suite all

@@ -25,7 +25,7 @@ from fuzzing.seeds import make_seeds
 FUZZ_ENABLED = True
 #: the glTF reader's known cases, and the bounded run (whose glTF seeds reach the reader), wait for
 #: the type-checked io/gltf_read.py (helper fuzzgltf): set True when it is merged
-GLTF_READER_CHECKED = False
+GLTF_READER_CHECKED = True
 CASES = 1200
 WORKERS = 2
 

@@ -31,7 +31,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("jobs", help="JOBS.json (schema: docs/bake.md)")
     p.add_argument("-o", "--output", required=True, help="OUTDIR: outputs, manifest.json")
     p.add_argument("--workers", type=int, help="local worker processes (default: the CPUs)")
-    p.add_argument("--ray", nargs="?", const="", metavar="ADDRESS",
+    p.add_argument("--ray", nargs="?", const="local", metavar="ADDRESS",
                    help="run on Ray: the cluster at ADDRESS, or a local Ray instance without one")
     p.add_argument("--resume", action="store_true",
                    help="skip jobs whose output is in the manifest and unchanged; redo the rest")
@@ -100,7 +100,7 @@ def _bake(args, jobs, outdir: Path) -> int:
     try:
         if todo and args.ray is not None:
             from .ray_runner import run_ray
-            run_ray(todo, outdir, args.ray or None, on_result)
+            run_ray(todo, outdir, None if args.ray == "local" else args.ray, on_result)
         elif todo:
             from .local import run_local
             run_local(todo, outdir, workers, on_result)
