@@ -4,28 +4,19 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from nrpose import Deformer, DeviceError
 from nrpose.io import load_character
-from nrpose.cli import main
+from cli_run import DATA, needs_data, run
 from nrpose.model.handles import handles_document
 from nrpose.io.meshes import read_geometry, write_geometry
 from nrpose.pose.blend import DEFAULT_BLEND
 from nrpose.pose.poser import CharacterPoser
 from nrpose.rigs import box, cylinder
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
-
-
-def run(args, capsys):
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture()

@@ -8,13 +8,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 import gltf_asset
-from nrpose.cli import main
-
-
-def run(args, capsys):
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
+from cli_run import run
 
 
 @pytest.fixture()

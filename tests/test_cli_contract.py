@@ -11,21 +11,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nrpose.cli import EXIT_PIPE, main
+from cli_run import DATA, needs_data, run
+from nrpose.cli import EXIT_PIPE
 from nrpose.io.files import atomic_path, output_transaction
 from nrpose.io.meshes import write_geometry
 from nrpose.model.handles import handles_document
 from nrpose.rigs import cylinder
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
 FOX = DATA / "gltf" / "Fox.glb"
-
-
-def run(args, capsys):
-    code = main([str(a) for a in args])
-    out = capsys.readouterr()
-    return code, out.out, out.err
 
 
 @pytest.fixture()
