@@ -18,11 +18,11 @@ import sys
 import numpy as np
 
 from ..errors import NrposeError
-from . import deform, demo, info, pose, retarget, weights
+from . import deform, demo, fit_skin, info, pose, retarget, weights
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
-COMMANDS = (deform, pose, weights, retarget, info, demo)
+COMMANDS = (deform, pose, weights, retarget, info, demo, fit_skin)
 
 # name='value' | name= (before a space, punctuation or the end) | name()
 _ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
