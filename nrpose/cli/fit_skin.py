@@ -14,6 +14,7 @@ from ..fit.skin_file import skinned_primitives, write_fitted_glb
 from ..io import load_character
 from ..io.files import atomic_path
 from ..io.poses import load_pose
+from ..model.character import Character
 from ..model.skeleton import LocalPose
 from ..model.timing import sample_times
 from ..pose.poser import WEIGHTS, CharacterPoser
@@ -33,12 +34,13 @@ def add_parser(sub) -> None:
     p.add_argument("--method", choices=("nrmls",), default="nrmls", help="deformer fitted (nrmls)")
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="NR-MLS weights (default: authored)")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
-    p.add_argument("--train", nargs="+", default=[], metavar="CLIP|BVH|POSE",
-                   help="training motion: a clip of the character, a BVH on its skeleton, or a pose JSON")
-    p.add_argument("--holdout", nargs="+", default=[], metavar="CLIP|BVH",
+    p.add_argument("--train", nargs="+", default=[], metavar="CLIP|BVH|GLB|POSE",
+                   help="training motion: a clip of the character, a BVH or glTF (its last clip) on its "
+                        "skeleton, or a pose JSON")
+    p.add_argument("--holdout", nargs="+", default=[], metavar="CLIP|BVH|GLB",
                    help="motions evaluated in the report but not trained on")
-    p.add_argument("--export", nargs="+", default=[], metavar="BVH",
-                   help="BVH motions added to the output as animations (the source's clips are kept)")
+    p.add_argument("--export", nargs="+", default=[], metavar="BVH|GLB",
+                   help="BVH/glTF motions added to the output as animations (the source's clips are kept)")
     p.add_argument("--rom-degrees", type=float, default=ROM_DEGREES,
                    help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}; 0: none)")
     p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation")
@@ -54,14 +56,18 @@ def motion(character, spec: str, fps: float, pose_ok: bool = True):
     names = [c.name for c in character.clips]
     if spec in names:
         clip = character.clip(spec)
-    elif Path(spec).suffix.lower() == ".bvh":
-        clip = motion_clip(load_character(spec), character.skeleton, spec)
+    elif Path(spec).suffix.lower() in (".bvh", ".glb", ".gltf"):
+        # a glTF motion: its last clip (where `nrpose retarget` puts the retargeted one)
+        loaded = load_character(spec)
+        if not loaded.clips:
+            raise NrposeError(f"{spec}: no animation in the file")
+        clip = motion_clip(Character(loaded.skeleton, (), loaded.clips[-1:]), character.skeleton, spec)
     elif pose_ok and Path(spec).suffix.lower() == ".json":
         pose = load_pose(spec, character.skeleton)
         return spec, LocalPose(*(a[None] for a in (pose.translation, pose.rotation, pose.scale))), None
     else:
         raise NrposeError(f"{spec!r}: not a clip of the character ({', '.join(map(repr, names)) or 'none'}), "
-                          f"a .bvh{' or a pose .json' if pose_ok else ''}")
+                          f"a .bvh, a .glb on its skeleton{' or a pose .json' if pose_ok else ''}")
     return spec, clip.sample(sample_times(clip.duration, fps)), clip
 
 

@@ -8,9 +8,9 @@ frames the weights minimise
     sum_f || sum_c w_c M_f[c] b_n - y_fn ||^2   subject to  w >= 0,  sum_c w_c = 1.
 
 With ``sum w = 1`` the residual is ``D w`` with ``D[f, :, c] = M_f[c] b_n - y_fn``, so
-the objective is ``w^T K w``, ``K = D^T D`` (C x C per vertex, accumulated over frames
-in vertex chunks). Each vertex is solved as a small NNLS (:func:`scipy.optimize.nnls`)
-on ``[R; s 1^T] w ≈ [0; s]`` with ``R^T R = K + eps I`` (Cholesky) and a sum row of
+the objective is ``w^T K w``, ``K = D^T D`` (C x C per vertex, over all frames, in
+vertex chunks). Each vertex is solved as a small NNLS (:func:`scipy.optimize.nnls`)
+on ``[R; s 1^T] w ≈ [0; s]`` with ``R^T R = K`` (negative rounding of eigenvalues set to 0) and a sum row of
 weight ``s = SUM_WEIGHT * sqrt(trace K)``; the result is then divided by its sum. The
 ``influences`` largest weights are kept and the NNLS is solved again on them alone.
 """
@@ -25,8 +25,7 @@ __all__ = ["candidate_joints", "fit_weights", "skin_positions", "MAX_CANDIDATES"
 
 MAX_CANDIDATES = 16   # authored joints first, then their parents, then their children
 SUM_WEIGHT = 1e3      # sum-to-one row weight relative to sqrt(trace K)
-RIDGE = 1e-13         # eps = RIDGE * trace K / C: keeps the Cholesky defined for repeated columns
-CHUNK_BYTES = 1 << 27  # memory of the per-chunk candidate positions (F, n, C, 3) float64
+CHUNK_BYTES = 1 << 27  # memory of a vertex chunk's joint positions (3F, J, n) and D (n, C, 3F) float64
 
 
 def candidate_joints(parents: np.ndarray, joints: np.ndarray, weights: np.ndarray,
@@ -57,20 +56,26 @@ def candidate_joints(parents: np.ndarray, joints: np.ndarray, weights: np.ndarra
 
 
 def _gram(source: np.ndarray, mats: np.ndarray, targets: np.ndarray, candidates: np.ndarray) -> np.ndarray:
-    """K (N, C, C) float64 of the module docstring (zero rows/columns for -1 candidates)."""
-    F = len(mats)
+    """K (N, C, C) float64 of the module docstring (zero rows/columns for -1 candidates).
+
+    Per vertex chunk, every joint's position of every vertex in every frame is one matrix
+    product ``(3F*J, 4) @ (4, n)``; the candidates' columns of ``D`` are gathered from it and
+    ``K = D D^T`` is a batched product (no expanded sums: no digits cancel).
+    """
+    F, J = mats.shape[:2]
     N, C = candidates.shape
+    A = mats[:, :, :3, :].transpose(0, 2, 1, 3).reshape(3 * F * J, 4)   # rows (f, i, j)
     K = np.empty((N, C, C))
-    chunk = max(1, CHUNK_BYTES // (F * C * 3 * 8))
-    affine = mats[:, :, :3, :]                                     # (F, J, 3, 4)
+    chunk = max(1, CHUNK_BYTES // (3 * F * (J + C) * 8))
     for a in range(0, N, chunk):
         b = min(a + chunk, N)
         cand = candidates[a:b]
         valid = cand >= 0
-        M = affine[:, np.where(valid, cand, 0)]                    # (F, n, C, 3, 4)
-        P = np.einsum("fncij,nj->fnci", M[..., :3], source[a:b]) + M[..., 3]
-        D = (P - targets[:, a:b, None, :]) * valid[None, :, :, None]
-        K[a:b] = np.einsum("fnci,fndi->ncd", D, D)
+        P = (A @ np.c_[source[a:b], np.ones(b - a)].T).reshape(3 * F, J, b - a)
+        rows = np.arange(b - a)[:, None]
+        D = P[:, np.where(valid, cand, 0), rows].transpose(1, 2, 0)        # (n, C, 3F)
+        D = (D - targets[:, a:b].transpose(1, 0, 2).reshape(b - a, 1, 3 * F)) * valid[:, :, None]
+        K[a:b] = D @ D.transpose(0, 2, 1)
     return K
 
 
@@ -78,7 +83,8 @@ def _solve(K: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Weights (C,) >= 0 summing to 1 minimising w^T K w over the valid columns."""
     C = len(K)
     scale = max(float(np.trace(K)), 1e-300)
-    R = np.linalg.cholesky(K + (RIDGE * scale / C + 1e-300) * np.eye(C)).T
+    lam, vec = np.linalg.eigh(K)           # K is PSD up to rounding
+    R = np.sqrt(np.maximum(lam, 0.0))[:, None] * vec.T
     s = SUM_WEIGHT * np.sqrt(scale)
     A = np.vstack([R, s * valid.astype(np.float64)])
     rhs = np.zeros(C + 1)
