@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NrposeError
-from ..fit.character_skin import character_height, error_table, fit_character, fitted_positions, nrmls_targets
+from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
+                                  nrmls_targets)
 from ..fit.rom import ROM_DEGREES, range_of_motion
 from ..fit.skin_file import skinned_primitives, write_fitted_glb
 from ..io import load_character
@@ -116,10 +117,15 @@ def run(args) -> None:
     print(f"{args.output}: {V} vertices, {args.influences} influences fitted to {len(G)} poses "
           f"({rom_frames} range of motion) in {fitted.seconds:.1f} s (NR-MLS targets {target_s:.1f} s)")
     if args.report:
-        errors = {"training": error_table(character, fitted_positions(character, fitted, G), targets)}
-        for name, pose, _ in holdout:
-            Gh, Th = nrmls_targets(poser, pose)
+        # the file's own weights, as a baseline: how far plain LBS of the source is from NR-MLS
+        authored = FittedSkin(tuple(None if m.rigid_joint is not None else m.joints for m in character.meshes),
+                              tuple(None if m.rigid_joint is not None else m.weights for m in character.meshes), 0.0)
+        errors, baseline = {}, {}
+        for name, pose in [("training", None)] + [(h[0], h[1]) for h in holdout]:
+            Gh, Th = (G, targets) if pose is None else nrmls_targets(poser, pose)
             errors[name] = error_table(character, fitted_positions(character, fitted, Gh), Th)
+            baseline[name] = {k: v for k, v in error_table(character, fitted_positions(character, authored, Gh),
+                                                           Th).items() if k != "regions"}
         size = Path(args.output).stat().st_size
         frames = sum(len(m[1].rotation) for m in train + holdout)
         report = {
@@ -128,6 +134,7 @@ def run(args) -> None:
             "training": {"motions": list(args.train), "poses": int(len(G)), "range_of_motion_poses": rom_frames,
                          "range_of_motion_degrees": args.rom_degrees},
             "fit_seconds": fitted.seconds, "targets_seconds": target_s, "errors": errors,
+            "authored_lbs_errors": baseline,
             "size": {"file_bytes": size, "source_bytes": Path(args.character).stat().st_size,
                      "morph_bake_bytes_of_clips": BAKE_BYTES * frames * V, "clip_frames": frames,
                      "morph_bake_bytes_10s": int(BAKE_BYTES * BAKE_SECONDS * BAKE_FPS * V)},
@@ -135,5 +142,7 @@ def run(args) -> None:
         with atomic_path(args.report) as tmp:
             Path(tmp).write_text(json.dumps(report, indent=1))
         for name, e in errors.items():
+            b = baseline[name]
             print(f"  {name}: RMS {100 * e['rms_fraction']:.3f} % of height, max {100 * e['max_fraction']:.3f} %"
-                  f" ({e['frames']} frames)")
+                  f" ({e['frames']} frames; authored weights: RMS {100 * b['rms_fraction']:.3f} %, "
+                  f"max {100 * b['max_fraction']:.3f} %)")
