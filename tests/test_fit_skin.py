@@ -213,3 +213,52 @@ def test_cli_writes_the_file_and_report(tmp_path, capsys):
     assert r["size"]["file_bytes"] == out.stat().st_size
     assert r["size"]["morph_bake_bytes_10s"] == 12 * 300 * 1728
     assert len(load_character(out).clips) == 3
+
+
+@pytest.fixture(scope="module", params=[4, 8])
+def fitted_fox(tmp_path_factory, request):
+    """Fox fitted with 4 or 8 influences (JOINTS_0/1, WEIGHTS_0/1) from a few Walk poses."""
+    if not FOX.is_file():
+        pytest.skip(f"shared assets not found at {DATA}")
+    fox = load_character(FOX)
+    local = fox.clip("Walk").sample(np.linspace(0, 0.6, 6))
+    G, targets = nrmls_targets(CharacterPoser(fox, method="nrmls"), local)
+    out = tmp_path_factory.mktemp("fit") / f"fox{request.param}.glb"
+    write_fitted_glb(FOX, out, fox, fit_character(fox, G, targets, request.param))
+    back = load_character(out)
+    return out, back, back.clip("Survey")
+
+
+def client_errors(positions, character, clip, times):
+    want = CharacterPoser(character, method="lbs", backend="numpy").pose(clip.sample(times)).positions
+    size = np.ptp(want.reshape(-1, 3), axis=0).max()
+    return [np.abs(np.asarray(p, float) - w).max() / size for p, w in zip(positions, want)]
+
+
+def test_three_js_plays_the_fitted_file_as_nrpose_skins_it(fitted_fox):
+    from clients import browser
+    reason = browser.available()
+    if reason:
+        pytest.skip(reason)
+    out, back, clip = fitted_fox
+    if back.meshes[0].joints.shape[1] > 4:
+        pytest.skip("three.js r111 skins with JOINTS_0/WEIGHTS_0 only (4 influences)")
+    times = np.array([0.0, 0.49 * clip.duration, clip.duration - 1e-3])   # three.js loops at the end
+    report = browser.probe(out, times, clip=clip.name)
+    assert not report.get("errors") and report.get("warnings", []) == [], report
+    errors = client_errors([s["meshes"][0]["positions"] for s in report["samples"]], back, clip, times)
+    assert max(errors) <= 1e-5, errors
+
+
+def test_blender_plays_the_fitted_file_as_nrpose_skins_it(fitted_fox):
+    from clients import blender
+    reason = blender.available()
+    if reason:
+        pytest.skip(reason)
+    out, back, clip = fitted_fox
+    keys = max(clip.tracks, key=lambda t: len(t.times)).times
+    times = keys[[0, len(keys) // 2, -1]]              # at keys: Blender interpolates components
+    report = blender.probe(out, times, clip.name)
+    assert "ERROR" not in report["log"], report["log"]
+    errors = client_errors([report["positions"][i][0] for i in range(len(times))], back, clip, times)
+    assert max(errors) <= 1e-5, errors
