@@ -4,7 +4,9 @@ Cases (issue 35's targets): Fox trained on Walk + Survey, Run held out; Mannequi
 trained on their own clip + the range of motion, CMU 131_03 retargeted onto them
 (``nrpose retarget``, in a temporary folder) held out. Each case is fitted with 4 and 8
 influences, no helper joints. Output: the reports of ``nrpose fit-skin --report`` in one
-JSON (``results/fit_skin.json``) and a table on stdout (RMS / max as % of the height).
+JSON (``results/fit_skin.json``), a table on stdout (RMS / max as % of the height), and per
+character a map of the held-out error of the 4-influence fit (``results/fit_skin_<name>.png``:
+per-vertex RMS over the held-out frames, colour scale 0 to 1 % of the height).
 """
 from __future__ import annotations
 
@@ -14,9 +16,18 @@ import pathlib
 import sys
 import tempfile
 
+import numpy as np
+
 import common
 import table1
 from nrpose.cli import main as nrpose
+from nrpose.cli.fit_skin import motion
+from nrpose.fit.character_skin import FittedSkin, character_height, fitted_positions, nrmls_targets
+from nrpose.io import load_character
+from nrpose.pose.poser import CharacterPoser
+from nrpose.render.weightmap import save_weight_maps
+
+MAP_SCALE = 0.01     # error map colour scale: 0 .. 1 % of the height
 
 CASES = (("Fox", ["Walk", "Survey"], "Run"),
          ("Mannequin", ["Armature|mixamo.com|Layer0"], "131_03"),
@@ -31,11 +42,29 @@ def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: s
                                            "-o", str(motion)]):
             raise SystemExit(2)
         holdout = str(motion)
-    report = tmp / f"{name}_{k}.json"
+    report, out = tmp / f"{name}_{k}.json", tmp / f"{name}_{k}.glb"
     if nrpose(["fit-skin", str(src), "--train", *train, "--holdout", holdout, "--influences", str(k),
-               "-o", str(tmp / f"{name}_{k}.glb"), "--report", str(report)]):
+               "-o", str(out), "--report", str(report)]):
         raise SystemExit(2)
+    if k == 4:
+        error_map(src, out, holdout, pathlib.Path(__file__).with_name("results") / f"fit_skin_{name}.png")
     return json.loads(report.read_text())
+
+
+def error_map(src: pathlib.Path, fitted_file: pathlib.Path, holdout: str, png: pathlib.Path) -> None:
+    """Per-vertex RMS over the held-out frames of the fitted file's LBS vs NR-MLS, drawn at rest."""
+    character, back = load_character(src), load_character(fitted_file)
+    _, local, _ = motion(character, holdout, 30.0, pose_ok=False)
+    G, targets = nrmls_targets(CharacterPoser(character, method="nrmls"), local)
+    skin = FittedSkin(tuple(None if m.rigid_joint is not None else m.joints for m in back.meshes),
+                      tuple(None if m.rigid_joint is not None else m.weights for m in back.meshes), 0.0)
+    rms = np.sqrt(((fitted_positions(character, skin, G) - targets) ** 2).sum(axis=2).mean(axis=0))
+    V = np.concatenate([m.vertices for m in character.meshes])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in character.meshes])
+    F = np.concatenate([m.faces + o for m, o in zip(character.meshes, offsets)])
+    scaled = np.clip(rms / (MAP_SCALE * character_height(character)), 0, 1)
+    save_weight_maps(V, F, {"held-out RMS / 1 % of height": scaled}, png,
+                     title=f"{src.stem}: fitted LBS vs NR-MLS on {pathlib.Path(holdout).name} (yellow >= 1 %)")
 
 
 def main(argv=None) -> int:
