@@ -1,4 +1,4 @@
-"""Command line: ``nrpose deform | pose | info | weights | retarget | demo``.
+"""Command line: ``nrpose deform | pose | info | weights | retarget | demo | fit-skin``.
 
 One module per command, each with ``add_parser(subparsers)`` and ``run(args)``.
 Every user mistake (bad file, bad option, no OpenCL platform) ends with one
