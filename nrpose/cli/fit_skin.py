@@ -26,6 +26,7 @@ FLAGS = {"weights": "--weights", "alpha": "--alpha", "influences": "--influences
 INFLUENCES = (4, 8)
 BAKE_BYTES = 12      # morph-target bake: one float32 xyz per vertex per frame
 BAKE_SECONDS, BAKE_FPS = 10.0, 30.0
+MAX_VERTEX_FRAMES = 40_000_000   # poses x vertices held at once (targets and fitted, ~1.5 GB)
 
 
 def add_parser(sub) -> None:
@@ -92,9 +93,9 @@ def run(args) -> None:
     check_outputs(args.output, (".glb",), None)
     if args.report:
         check_outputs(args.report, (".json",), None)
-    character = load_character(args.character)
     if Path(args.character).suffix.lower() not in (".glb", ".gltf"):
         raise NrposeError(f"{args.character}: fit-skin writes a copy of a glTF character; give a .glb/.gltf")
+    character = load_character(args.character)
     places = skinned_primitives(args.character, character)
     train = [motion(character, s, args.fps) for s in args.train]
     holdout = [motion(character, s, args.fps, pose_ok=False) for s in args.holdout]
@@ -105,6 +106,11 @@ def run(args) -> None:
         rom = range_of_motion(character.skeleton, args.rom_degrees)
         rom_frames = len(rom.rotation)
         local = concat([local, rom])
+    V = sum(len(m.vertices) for m in character.meshes)
+    for name, pose in [("the training set", local)] + [(h[0], h[1]) for h in holdout]:
+        if len(pose.rotation) * V > MAX_VERTEX_FRAMES:
+            raise NrposeError(f"{name}: {len(pose.rotation)} poses x {V} vertices is more than "
+                              f"{MAX_VERTEX_FRAMES:,} at once; lower --fps or --rom-degrees, or train on less")
     poser = CharacterPoser(character, method="nrmls", weights=args.weights, alpha=args.alpha)
     t0 = time.perf_counter()
     G, targets = nrmls_targets(poser, local)
@@ -113,7 +119,6 @@ def run(args) -> None:
     fitted = fit_character(character, G, targets, args.influences, allowed)
     new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
     write_fitted_glb(args.character, args.output, character, fitted, new_clips)
-    V = targets.shape[1]
     print(f"{args.output}: {V} vertices, {args.influences} influences fitted to {len(G)} poses "
           f"({rom_frames} range of motion) in {fitted.seconds:.1f} s (NR-MLS targets {target_s:.1f} s)")
     if args.report:
