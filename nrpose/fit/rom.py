@@ -44,7 +44,7 @@ def range_of_motion(skeleton: Skeleton, degrees: float = ROM_DEGREES, pairs: int
     F1, F2 = len(single), len(child)
     delta = np.zeros((F1 + F2, J, 3))
     delta[np.arange(F1), single_joint] = single
-    for k, joints in enumerate((child, skeleton.parents[child])):
+    for joints in (child, skeleton.parents[child]):
         axis = rng.normal(size=(F2, 3))
         axis /= np.linalg.norm(axis, axis=1, keepdims=True)
         delta[F1 + np.arange(F2), joints] = axis * rng.uniform(-limit, limit, size=(F2, 1))
