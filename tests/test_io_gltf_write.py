@@ -119,3 +119,180 @@ def test_bad_meshes_and_offsets(tmp_path):
         write_animated_glb(tmp_path / "x.glb", [([[0, 0, 0], [1, 0, 0], [0, np.nan, 0]], [[0, 1, 2]])], P[:, :3], T)
     with pytest.raises(InputError, match="directory"):
         write_animated_glb(tmp_path / "missing" / "x.glb", meshes, P, T)
+
+
+# --- posed copies of a glTF asset ----------------------------------------------------------
+
+import gltf_asset  # noqa: E402  (tests/ is on sys.path under pytest's rootdir conftest-less mode)
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+from nrpose.errors import FileFormatError  # noqa: E402
+from nrpose.io import load_character  # noqa: E402
+from nrpose.io.gltf_write import DIRECTION_BOUND, QUANTIZATION_BOUND  # noqa: E402
+
+
+def decoded(gltf, blob, index):
+    """Any VEC2/3/4 or SCALAR accessor as float64 (count, width): strides, normalised ints."""
+    acc = gltf.accessors[index]
+    view = gltf.bufferViews[acc.bufferView]
+    dtype = np.dtype({5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}[acc.componentType])
+    width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}[acc.type]
+    stride = view.byteStride or dtype.itemsize * width
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    rows = np.array([np.frombuffer(blob, dtype, width, start + i * stride) for i in range(acc.count)], np.float64)
+    if acc.normalized:
+        rows = np.maximum(rows / np.iinfo(dtype).max, -1.0)
+    return rows
+
+
+def knee_matrix(t):
+    """The asset's knee rotation at time t (LINEAR slerp of 0 -> 90 degrees about z over 1 s)."""
+    return Rotation.from_rotvec([0, 0, np.pi / 2 * t]).as_matrix()
+
+
+def lbs_frames(character, times):
+    """Posed vertices (F, V, 3) of the character's meshes by linear blend skinning (numpy)."""
+    clip = character.clip("bend")
+    K = character.skin_matrices(character.skeleton.forward_kinematics(clip.sample(times)))
+    out = []
+    for m in character.meshes:
+        M = np.einsum("nk,fnkab->fnab", m.weights, K[:, m.joints])
+        out.append(np.einsum("fnab,nb->fna", M, np.c_[m.vertices, np.ones(len(m.vertices))])[..., :3])
+    return np.concatenate(out, axis=1)
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+@pytest.mark.parametrize("quantize", [False, True])
+def test_posed_copy_keeps_the_asset(tmp_path, suffix, quantize):
+    source = gltf_asset.build(tmp_path / f"asset{suffix}")
+    character = load_character(source)
+    assert [m.name for m in character.static_meshes] == ["pedestal"]
+    T = np.linspace(0.0, 1.0, 5)
+    P = lbs_frames(character, T)
+    out = tmp_path / "posed.glb"
+    report = write_animated_glb(out, character, P, T, source=source, quantize=quantize, animation_name="bend")
+    src = pygltflib.GLTF2().load(str(source))
+    gltf = pygltflib.GLTF2().load_binary(str(out))
+    blob = gltf.binary_blob()
+    # materials, textures, samplers, extras and unknown extensions as in the source; the image embedded
+    for field in ("materials", "textures", "samplers", "skins"):
+        assert [x.to_dict() for x in getattr(gltf, field)] == [x.to_dict() for x in getattr(src, field)]
+    image = gltf.images[0]
+    assert image.uri is None and image.mimeType == "image/png"
+    view = gltf.bufferViews[image.bufferView]
+    assert blob[view.byteOffset:view.byteOffset + view.byteLength] == gltf_asset.png_bytes()
+    assert gltf.extras == {"scene_note": "kept"} and gltf.asset.copyright == "CC0"
+    assert set(gltf.extensionsUsed) >= {"KHR_materials_emissive_strength", "EXT_tests_unknown"}
+    assert (("KHR_mesh_quantization" in (gltf.extensionsRequired or [])) == quantize
+            == (report.quantized_frames == len(T)))
+    # the static pedestal: same node, same mesh, same data
+    pedestal = gltf.nodes[4]
+    assert pedestal.name == "pedestal" and pedestal.mesh == 1 and pedestal.translation == [2, 0, 0]
+    assert pedestal.extensions == {"EXT_tests_unknown": {"note": "kept"}}
+    src_blob = (tmp_path / "asset.bin").read_bytes() if suffix == ".gltf" else src.binary_blob()
+    pid = src.meshes[1].primitives[0].attributes.POSITION
+    assert np.array_equal(decoded(gltf, blob, pid), decoded(src, src_blob, pid))
+    # the posed node: at the root, unskinned, named as before; the source node stays, emptied
+    posed = [i for i, n in enumerate(gltf.nodes) if n.mesh is not None and i != 4]
+    assert len(posed) == 1 and posed[0] in gltf.scenes[0].nodes
+    node = gltf.nodes[posed[0]]
+    assert node.name == "leg" and node.skin is None and gltf.nodes[3].mesh is None and gltf.nodes[3].skin is None
+    assert gltf.nodes[3].name == "leg.bind" and gltf.nodes[3].extras == {"kind": "character"}
+    scale = (node.scale or [1.0])[0]
+    mesh = gltf.meshes[node.mesh]
+    assert mesh.name == "leg" and mesh.extras["author"] == "tests" and len(mesh.extras["targetNames"]) == len(T)
+    diagonal = np.linalg.norm(np.ptp(P[0], axis=0))
+    bound = (QUANTIZATION_BOUND if quantize else 1e-6) * diagonal
+    start = 0
+    for k, (prim, sprim) in enumerate(zip(mesh.primitives, src.meshes[0].primitives)):
+        assert prim.material == sprim.material == k and prim.indices == sprim.indices
+        assert prim.extras == sprim.extras
+        kept = {"TEXCOORD_0", "TEXCOORD_1", "COLOR_0", "_ID"}
+        attrs = {a: v for a, v in vars(prim.attributes).items() if v is not None}
+        assert set(attrs) == kept | {"POSITION", "NORMAL", "TANGENT"}
+        assert all(attrs[a] == getattr(sprim.attributes, a) for a in kept)
+        n = gltf.accessors[attrs["POSITION"]].count
+        base = decoded(gltf, blob, attrs["POSITION"])
+        src_normals = decoded(src, src_blob, sprim.attributes.NORMAL)
+        src_tangents = decoded(src, src_blob, sprim.attributes.TANGENT)
+        y = decoded(src, src_blob, sprim.attributes.POSITION)[:, 1]
+        assert np.allclose(decoded(gltf, blob, attrs["NORMAL"]), src_normals, atol=1e-6)   # rest = source
+        assert np.allclose(decoded(gltf, blob, attrs["TANGENT"]), src_tangents, atol=1e-6)
+        assert len(prim.targets) == len(T)
+        for f, target in enumerate(prim.targets):
+            got = scale * (base + decoded(gltf, blob, target["POSITION"]))
+            assert np.abs(got - P[f, start:start + n]).max() <= bound
+            acc = gltf.accessors[target["POSITION"]]
+            assert acc.min is not None and acc.max is not None
+            # where every face around a vertex is rigid (the end rings), the authored (split)
+            # normals and tangents turn with their bone
+            R = np.where((y >= 1.5)[:, None, None], knee_matrix(T[f]), np.eye(3))
+            for attr, vectors in (("NORMAL", src_normals), ("TANGENT", src_tangents[:, :3])):
+                base_v = decoded(gltf, blob, attrs[attr])[:, :3]
+                v = base_v + decoded(gltf, blob, target[attr])
+                v /= np.linalg.norm(v, axis=1, keepdims=True)
+                want = np.einsum("nab,nb->na", R, vectors)
+                rigid = (y == 2.0) | (y == 0.0)
+                angle = np.degrees(np.arccos(np.clip(np.einsum("na,na->n", v, want)[rigid], -1, 1)))
+                assert angle.max() <= (DIRECTION_BOUND if quantize else 1e-3), (attr, f)
+        start += n
+    assert report.max_error <= bound / diagonal
+    # float: 12 bytes each for POSITION, NORMAL, TANGENT; quantized: int16 positions (8 with
+    # glTF's 4-byte alignment), int8 (4) or, for the 90-degree frame, int16 (8) directions
+    assert report.bytes_per_frame_vertex == 36 if not quantize else 16 <= report.bytes_per_frame_vertex <= 24
+    animation, = gltf.animations
+    assert animation.name == "bend" and [c.target.node for c in animation.channels] == posed
+    weights = decoded(gltf, blob, animation.samplers[0].output).reshape(len(T), len(T))
+    assert np.array_equal(weights, np.eye(len(T)))
+
+
+def test_split_normals_stay_split_and_smooth_normals_without_source(tmp_path):
+    # a bent box from (vertices, faces) only: normals are the posed surface's smooth ones,
+    # welded across the duplicated corners
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], np.float64)
+    quads = [[0, 1, 3, 2], [4, 6, 7, 5], [0, 4, 5, 1], [2, 3, 7, 6], [0, 2, 6, 4], [1, 5, 7, 3]]
+    V = np.concatenate([corners[q] for q in quads])            # 24 vertices: every side its own
+    F = np.concatenate([[[4 * s, 4 * s + 1, 4 * s + 2], [4 * s, 4 * s + 2, 4 * s + 3]] for s in range(6)])
+    R = Rotation.from_rotvec([0.3, -0.8, 0.5]).as_matrix()
+    P = np.stack([V, V @ R.T + [0.2, 0, 0]])
+    out = tmp_path / "box.glb"
+    write_animated_glb(out, [("box", V, F)], P, [0.0, 1.0])
+    gltf = pygltflib.GLTF2().load_binary(str(out))
+    blob = gltf.binary_blob()
+    prim = gltf.meshes[0].primitives[0]
+    base = decoded(gltf, blob, prim.attributes.NORMAL)
+    outward = np.zeros_like(V)   # area-weighted face normals summed over each corner's 3 copies
+    for face in F:
+        n = np.cross(V[face[1]] - V[face[0]], V[face[2]] - V[face[0]])
+        for i in face:
+            outward[(V == V[i]).all(axis=1)] += n
+    outward /= np.linalg.norm(outward, axis=1, keepdims=True)
+    assert np.allclose(base, outward, atol=1e-6)
+    assert (np.einsum("na,na->n", base, V - V.mean(axis=0)) > 0).all()    # and point outwards
+    posed = base + decoded(gltf, blob, prim.targets[1]["NORMAL"])
+    assert np.allclose(posed, outward @ R.T, atol=1e-6)
+
+
+def test_required_extension_is_refused_and_nothing_written(tmp_path):
+    source = gltf_asset.build(tmp_path / "asset.glb", required=["EXT_tests_required"])
+    character = load_character(source)
+    T = np.array([0.0, 1.0])
+    P = lbs_frames(character, T)
+    with pytest.raises(FileFormatError, match="EXT_tests_required"):
+        write_animated_glb(tmp_path / "out.glb", character, P, T, source=source)
+    assert not (tmp_path / "out.glb").exists()
+    carried = gltf_asset.build(tmp_path / "carried.glb", required=["KHR_texture_transform"])
+    write_animated_glb(tmp_path / "ok.glb", load_character(carried), P, T, source=carried)
+    assert "KHR_texture_transform" in pygltflib.GLTF2().load_binary(str(tmp_path / "ok.glb")).extensionsRequired
+
+
+def test_quantized_clip_travelling_far_stays_float(tmp_path):
+    # a clip moving 10 bounding-box diagonals: int16 steps would exceed the bound
+    meshes = two_meshes()
+    rest = np.concatenate([m.vertices for m in meshes])
+    diagonal = np.linalg.norm(np.ptp(rest, axis=0))
+    P = np.stack([rest, rest + [10 * diagonal, 0, 0]])
+    report = write_animated_glb(tmp_path / "far.glb", meshes, P, [0.0, 1.0], quantize=True)
+    assert report.quantized_frames == 0 and report.max_error < 1e-6
+    near = write_animated_glb(tmp_path / "near.glb", meshes, P * [0.01, 1, 1], [0.0, 1.0], quantize=True)
+    assert near.quantized_frames == 2 and near.max_error <= QUANTIZATION_BOUND

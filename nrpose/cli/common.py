@@ -59,9 +59,11 @@ def check_outputs(out: str | None, suffixes, png: str | None) -> None:
         check_writable(png)
 
 
-def write_frames(out: str, frames, times: np.ndarray, fmt: str, character) -> None:
+def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, source=None, quantize: bool = False,
+                 name: str = "baked"):
     """Posed frames (:class:`nrpose.pose.poser.Frames`) to OUT.npz, OUT.glb or a directory of
-    ``frame_NNNN.<fmt>`` files."""
+    ``frame_NNNN.<fmt>`` files. source, quantize, name (the animation's): for OUT.glb, see
+    :func:`nrpose.io.gltf_write.write_animated_glb`, whose report is returned (else None)."""
     path = Path(out)
     kind = frames_output_kind(out)
     if kind == "npz":
@@ -70,7 +72,8 @@ def write_frames(out: str, frames, times: np.ndarray, fmt: str, character) -> No
                 np.savez(fh, positions=frames.positions, faces=frames.faces, times=times,
                          mesh_names=np.array(frames.mesh_names), mesh_offsets=frames.mesh_offsets)
     elif kind == "glb":
-        write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets)
+        return write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets,
+                                  source=source, quantize=quantize, animation_name=name)
     else:
         # all frames go to a temporary sibling directory first; only then are the
         # previous run's frame files removed and the new ones moved in

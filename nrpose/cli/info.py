@@ -1,4 +1,4 @@
-"""``nrpose info``: meshes, joints and clips of a character."""
+"""``nrpose info``: meshes (posable and static), joints and clips of a character."""
 from __future__ import annotations
 
 import numpy as np
@@ -25,6 +25,11 @@ def run(args) -> None:
         kind = (f"rigid on {skel.names[m.rigid_joint]!r}" if m.rigid_joint is not None
                 else f"skinned, {m.joints.shape[1]} influences" if m.joints is not None else "no skin weights")
         print(f"  {m.name}: {len(m.vertices)} vertices, {len(m.faces)} faces, {kind}")
+    if ch.static_meshes:
+        print(f"static meshes (the skeleton does not move them; kept as they are, never posed): "
+              f"{len(ch.static_meshes)}")
+        for m in ch.static_meshes:
+            print(f"  {m.name}: {len(m.vertices)} vertices, {len(m.faces)} faces")
     print(f"joints: {skel.num_joints} ({len(skel.bones())} bones)")
     depth = np.zeros(skel.num_joints, int)
     for j, p in enumerate(skel.parents):

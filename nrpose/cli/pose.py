@@ -9,6 +9,7 @@ from ..pose.blend import BLENDS
 from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
+from ..io.gltf_write import check_copyable, write_glb_with_clip
 from ..io.poses import load_pose
 from ..io.tgf import read_dmat_animation, read_dmat_weights
 from ..bind.bone_weights import with_skin_weights
@@ -47,8 +48,47 @@ def add_parser(sub) -> None:
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
     p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")
+    p.add_argument("--bake", choices=BAKES, default="morph",
+                   help="form of an OUT.glb: morph (default) stores every posed frame as a morph target "
+                        "(positions and normals; any method); skin keeps the source glTF's own skin and "
+                        "writes the clip as an ordinary animation of its joints, sampled at the frame times: "
+                        "only for --method lbs --weights authored, where the file's skinning is the result, "
+                        "so no bake is needed")
+    p.add_argument("--quantize", action="store_true",
+                   help="morph bakes: compact targets (KHR_mesh_quantization; position error at most 1e-4 of "
+                        "the bounding-box diagonal, float where that does not hold)")
     p.add_argument("--png", help="write a contact sheet PNG")
     p.set_defaults(func=run, flags=FLAGS)
+
+
+#: forms of a baked .glb (--bake)
+BAKES = ("morph", "skin")
+
+
+def check_bake(args, kind: str) -> None:
+    """Refuse --bake/--quantize combinations that cannot be honoured, before any work."""
+    gltf_source = Path(args.character).suffix.lower() in (".glb", ".gltf")
+    if kind != "glb" and (args.bake != "morph" or args.quantize):
+        raise NrposeError("--bake and --quantize choose the form of a .glb output; the output is not .glb")
+    if args.bake == "skin":
+        if not gltf_source:
+            raise NrposeError("--bake skin keeps the source glTF's skin; the character is not a glTF file")
+        if args.method != "lbs" or args.weights != "authored":
+            raise NrposeError(f"--bake skin is the file's own skinning, which equals --method lbs --weights "
+                              f"authored only (got --method {args.method} --weights {args.weights}); "
+                              "use --bake morph for other methods")
+        if args.quantize:
+            raise NrposeError("--quantize compacts morph targets; --bake skin writes none")
+    elif kind == "glb" and gltf_source:
+        check_copyable(args.character)
+
+
+def sampled_clip(name: str, times: np.ndarray, local, rest) -> Clip:
+    """A clip keying every joint's translation, rotation and scale at ``times`` (F,) from
+    ``local`` (a LocalPose of shape (F, J, ...)), LINEAR."""
+    tracks = tuple(Track(j, path, times, getattr(local, path)[:, j], "LINEAR")
+                   for j in range(local.rotation.shape[1]) for path in ("translation", "rotation", "scale"))
+    return Clip(name, float(times[-1]), rest, tracks)
 
 
 def parse_frames(spec: str, fps: float) -> np.ndarray:
@@ -74,6 +114,7 @@ def run(args) -> None:
         if not parent.is_dir() or Path(args.output).is_file():
             raise NrposeError(f"{args.output}: cannot make a frame directory there (is {parent} a directory?)")
     check_outputs(args.output if kind != "dir" else None, None, args.png)
+    check_bake(args, kind)
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise NrposeError(f"--fps {args.fps}: expected a positive number of frames per second")
     if (args.rest or args.pose) and (args.time or args.frames):
@@ -89,9 +130,9 @@ def run(args) -> None:
         W = read_dmat_weights(args.weights_file, skel, sum(len(m.vertices) for m in character.meshes))
         character = with_skin_weights(character, W)
     if args.rest:
-        local, times = skel.rest_pose, np.zeros(1)
+        local, times, name = skel.rest_pose, np.zeros(1), "rest"
     elif args.pose:
-        local, times = load_pose(args.pose, skel), np.zeros(1)
+        local, times, name = load_pose(args.pose, skel), np.zeros(1), Path(args.pose).stem
     else:
         if args.clip:
             clip = character.clip(args.clip)
@@ -100,6 +141,7 @@ def run(args) -> None:
         else:
             motion = load_character(args.motion)
             clip = motion_clip(motion, skel, args.motion)
+        name = clip.name
         if args.time and args.frames:
             raise NrposeError("give either --time or --frames, not both")
         times = (np.asarray(args.time, dtype=np.float64) if args.time
@@ -114,7 +156,20 @@ def run(args) -> None:
     frames = poser.pose(local, progress=progress)
     if not np.isfinite(frames.positions).all():
         raise NrposeError("posing produced non-finite coordinates; please report this input")
-    write_frames(args.output, frames, times, args.format, character)
+    if args.bake == "skin":
+        single = local.rotation.ndim == 2
+        keys = type(local)(*(getattr(local, p)[None] if single else getattr(local, p)
+                             for p in ("translation", "rotation", "scale")))
+        bounds = (frames.positions.min(axis=(0, 1)), frames.positions.max(axis=(0, 1)))   # viewers' culling
+        write_glb_with_clip(args.character, args.output, character, sampled_clip(name, times, keys, skel.rest_pose),
+                            bounds, keep_animations=False)
+    else:
+        source = args.character if Path(args.character).suffix.lower() in (".glb", ".gltf") else None
+        report = write_frames(args.output, frames, times, args.format, character, source, args.quantize, name)
+        if report is not None:
+            print(f"{args.output}: morph targets {report.bytes_per_frame_vertex:.2f} bytes per frame per vertex "
+                  f"({report.quantized_frames} of {report.frames} frames quantized, {report.unique_frames} "
+                  f"written; largest position error {report.max_error:.1e} of the bounding-box diagonal)")
     if args.png:
         save_contact_sheet(args.png, frames.positions, frames.faces, times,
                            title=f"{Path(args.character).name}: {args.method}, {args.weights} weights")

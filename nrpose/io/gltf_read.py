@@ -1,4 +1,9 @@
-"""glTF 2.0 characters (``.glb`` and ``.gltf``) through pygltflib.
+"""glTF 2.0 characters (``.glb`` and ``.gltf``): JSON and binary chunk read directly.
+
+The JSON is parsed with :mod:`json` and checked field by field (:mod:`.gltf_schema`: types,
+indices, enums, shapes); accessors are numpy views on the buffers' bytes, their sizes checked
+against the bytes that exist before any array is made. pygltflib is used only by
+:func:`read_document`, for the writers that edit a document.
 
 What is read:
 
@@ -19,8 +24,10 @@ What is read:
   nodes' default transforms (the skinned mesh node's own transform is ignored,
   per the spec). A non-skinned mesh whose node is a joint or lies below one is
   rigid: world vertices ``G[node] @ v``, one influence of weight 1 on that
-  joint. Meshes attached to no joint are scenery and skipped; morph targets,
-  normals and texture coordinates are not read.
+  joint. Meshes attached to no joint are scenery: kept as
+  ``Character.static_meshes`` (world vertices ``G[node] @ v``, no weights),
+  never posed. Each mesh records its ``source`` (node, mesh, primitive)
+  indices. Morph targets, normals and texture coordinates are not read.
 * Clips: every animation, channels on joints only (channels on other nodes
   and morph ``weights`` are ignored), samplers LINEAR / STEP / CUBICSPLINE.
 
@@ -30,26 +37,28 @@ Every inconsistency raises FileFormatError naming the object at fault.
 from __future__ import annotations
 
 import base64
+import binascii
 import json
 import struct
 import urllib.parse
-from pathlib import Path
+from pathlib import Path, PurePosixPath
+from types import SimpleNamespace
 
 import numpy as np
-import pygltflib
 
 from ..errors import FileFormatError, InputError
 from ..model.character import Character, Clip, Mesh, Track
 from ..model.rotation import Rotation
 from ..model.skeleton import Skeleton, local_matrices, polar_rotation
 from .files import read_input
+from .gltf_schema import COMPONENTS, UNIT_TOLERANCE, WIDTHS, decode
 from .jsonfile import check_depth
 
-__all__ = ["load_gltf", "node_globals"]
+__all__ = ["load_gltf", "read_document", "read_accessor", "joint_nodes", "node_globals", "document_character"]
 
-COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
-WIDTHS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
 GLB_JSON, GLB_BIN = 0x4E4F534A, 0x004E4942
+#: bytes an accessor without a bufferView (all zeros) may span beyond those of the buffers
+ZERO_ACCESSOR_SLACK = 1 << 16
 
 
 def _read_glb(path: Path, data: bytes) -> tuple[str, bytes | None]:
@@ -81,8 +90,46 @@ def _read_glb(path: Path, data: bytes) -> tuple[str, bytes | None]:
         raise FileFormatError(f"{path}: corrupt GLB: JSON chunk is not UTF-8") from None
 
 
-def read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
-    """The parsed glTF and the bytes of each of its buffers."""
+def _buffer_file(path: Path, i: int, uri: str) -> Path:
+    """The file a buffer's relative URI names, inside the glTF's folder."""
+    name = urllib.parse.unquote(uri)
+    parts = urllib.parse.urlsplit(uri)
+    pure = PurePosixPath(name)
+    if parts.scheme or parts.netloc or not name or any(ord(ch) < 32 for ch in name) or "\\" in name \
+            or pure.is_absolute() or ".." in pure.parts:
+        raise FileFormatError(f"{path}: buffers[{i}].uri = {uri[:60]!r}: expected a data: URI or a file name "
+                              "relative to the glTF's folder (no scheme, no '..', no control characters)")
+    return path.parent.joinpath(*pure.parts)
+
+
+def _buffer_bytes(path: Path, doc, blob: bytes | None) -> list[bytes]:
+    """The bytes of each buffer of a decoded document, at least byteLength of them."""
+    buffers = []
+    for i, buf in enumerate(doc.buffers):
+        if buf.uri is None:
+            if blob is None:
+                raise FileFormatError(f"{path}: buffer {i} has no uri and there is no GLB BIN chunk")
+            content = blob
+        elif buf.uri.startswith("data:"):
+            header, comma, payload = buf.uri.partition(",")
+            try:
+                if not comma or not header.endswith(";base64"):
+                    raise ValueError(header)
+                content = base64.b64decode(payload, validate=True)
+            except (ValueError, binascii.Error):
+                raise FileFormatError(f"{path}: buffer {i} has a malformed data: URI (buffers[{i}].uri must be "
+                                      "'data:<type>;base64,<base64 bytes>')") from None
+        else:
+            content = read_input(_buffer_file(path, i, buf.uri), f"buffer {i} of {path}")
+        if len(content) < buf.byteLength:
+            raise FileFormatError(f"{path}: buffer {i} holds {len(content)} bytes, "
+                                  f"byteLength says {buf.byteLength}")
+        buffers.append(content)
+    return buffers
+
+
+def _load(path: Path) -> tuple[str, SimpleNamespace, list[bytes]]:
+    """JSON text, typed records (:func:`.gltf_schema.decode`) and buffer bytes of a glTF file."""
     data = read_input(path, f"{path.suffix} file")
     if path.suffix.lower() == ".glb":
         text, blob = _read_glb(path, data)
@@ -93,74 +140,83 @@ def read_document(path: Path) -> tuple[pygltflib.GLTF2, list[bytes]]:
             raise FileFormatError(f"{path}: a .gltf file must be UTF-8 JSON") from None
     check_depth(text, str(path), "glTF JSON")
     try:
-        json.loads(text)
+        root = json.loads(text)
+    except ValueError as exc:  # JSONDecodeError, and integers past Python's digit limit
+        raise FileFormatError(f"{path}: invalid glTF JSON ({exc})") from None
+    doc = decode(str(path), root)
+    return text, doc, _buffer_bytes(path, doc, blob)
+
+
+def read_document(path: Path):
+    """The parsed glTF as a ``pygltflib.GLTF2`` (for writers that edit it) and the bytes of each
+    of its buffers; the document passes every check of :func:`load_gltf`'s reading first."""
+    import pygltflib  # writers only: the load path does not need it
+
+    text, _, buffers = _load(path)
+    try:
         gltf = pygltflib.GLTF2.gltf_from_json(text)
     except (ValueError, KeyError, TypeError, AttributeError) as exc:
         raise FileFormatError(f"{path}: invalid glTF JSON ({exc})") from None
-    buffers = []
-    for i, buf in enumerate(gltf.buffers):
-        if buf.uri is None:
-            if blob is None:
-                raise FileFormatError(f"{path}: buffer {i} has no uri and there is no GLB BIN chunk")
-            content = blob
-        elif buf.uri.startswith("data:"):
-            try:
-                content = base64.b64decode(buf.uri.split(",", 1)[1], validate=True)
-            except (IndexError, ValueError):
-                raise FileFormatError(f"{path}: buffer {i} has a malformed data: URI") from None
-        else:
-            content = read_input(path.parent / urllib.parse.unquote(buf.uri), f"buffer {i} of {path}")
-        if buf.byteLength is None or len(content) < buf.byteLength:
-            raise FileFormatError(f"{path}: buffer {i} holds {len(content)} bytes, "
-                                  f"byteLength says {buf.byteLength}")
-        buffers.append(content)
     return gltf, buffers
 
 
 class _Accessors:
-    """Reads accessors as (count, width) arrays: float64 if float or normalised, else int64."""
+    """Reads accessors as (count, width) arrays: float64 if float or normalised, else int64.
 
-    def __init__(self, path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes]):
+    gltf: records from :func:`.gltf_schema.decode` (or a pygltflib document with the same
+    names). Every size is checked against the bytes of the buffers before an array is made;
+    each accessor is read once (results are shared, read-only).
+    """
+
+    def __init__(self, path: Path, gltf, buffers: list[bytes]):
         self.path, self.gltf, self.buffers = path, gltf, buffers
+        self.read_so_far: dict[int, np.ndarray] = {}
 
     def _error(self, message: str) -> FileFormatError:
         return FileFormatError(f"{self.path}: {message}")
 
     def _view(self, index, offset, count, dtype, width, what):
-        """Raw (count, width) array of ``dtype`` from buffer view ``index``."""
+        """Raw (count, width) array of ``dtype`` viewing buffer view ``index`` (no copy)."""
         views = self.gltf.bufferViews
-        if index is None or not 0 <= index < len(views):
+        if type(index) is not int or not 0 <= index < len(views):
             raise self._error(f"{what}: bufferView {index} does not exist")
         view = views[index]
-        if not 0 <= view.buffer < len(self.buffers):
+        if type(view.buffer) is not int or not 0 <= view.buffer < len(self.buffers):
             raise self._error(f"bufferView {index}: buffer {view.buffer} does not exist")
-        start, length = view.byteOffset or 0, view.byteLength
+        start, length, offset = view.byteOffset or 0, view.byteLength, offset or 0
         if length is None:
             raise self._error(f"bufferView {index} has no byteLength (it is required)")
-        if start < 0 or length < 0 or (offset or 0) < 0 or count < 0 \
-                or (view.byteStride or 0) < 0:
+        if start < 0 or length < 0 or offset < 0 or count < 0 or (view.byteStride or 0) < 0:
             raise self._error(f"{what}: negative count, offset, length or stride in bufferView {index}")
         if start + length > len(self.buffers[view.buffer]):
             raise self._error(f"bufferView {index}: bytes {start}..{start + length} are beyond "
                               f"buffer {view.buffer} ({len(self.buffers[view.buffer])} bytes)")
         item = np.dtype(dtype).itemsize
         stride = view.byteStride or item * width
-        end = (offset or 0) + stride * (count - 1) + item * width if count else 0
+        if stride < item * width:
+            raise self._error(f"{what}: bufferViews[{index}].byteStride = {stride} is shorter than one "
+                              f"element ({item * width} bytes); the stride must hold a whole element")
+        end = offset + stride * (count - 1) + item * width if count else 0
         if end > length:
             raise self._error(f"{what} is out of range: it reads up to byte {end} of bufferView "
                               f"{index}, which has {length} bytes")
-        raw = np.ndarray((count, width), dtype=np.dtype(dtype).newbyteorder("<"),
-                         buffer=self.buffers[view.buffer], offset=start + (offset or 0),
-                         strides=(stride, item))
-        return raw.copy()
+        return np.ndarray((count, width), dtype=np.dtype(dtype).newbyteorder("<"),
+                          buffer=self.buffers[view.buffer], offset=start + offset, strides=(stride, item))
 
     def read(self, index: int) -> np.ndarray:
+        if index not in self.read_so_far:
+            out = self._read(index)
+            out.flags.writeable = False
+            self.read_so_far[index] = out
+        return self.read_so_far[index]
+
+    def _read(self, index: int) -> np.ndarray:
         accessors = self.gltf.accessors
-        if index is None or not 0 <= index < len(accessors):
+        if type(index) is not int or not 0 <= index < len(accessors):
             raise self._error(f"accessor {index} does not exist")
         acc = accessors[index]
         what = f"accessor {index}"
-        if acc.count is None or acc.count < 0:
+        if type(acc.count) is not int or acc.count < 0:
             raise self._error(f"{what}: count {acc.count} is not a non-negative integer")
         if acc.componentType not in COMPONENTS or acc.type not in WIDTHS:
             raise self._error(f"{what}: unsupported componentType {acc.componentType} / type {acc.type}")
@@ -168,6 +224,11 @@ class _Accessors:
         if acc.type in ("MAT2", "MAT3") and np.dtype(dtype).itemsize < 4:
             raise self._error(f"{what}: padded {acc.type} of 8/16-bit components is not supported")
         if acc.bufferView is None:
+            size, held = acc.count * width * np.dtype(dtype).itemsize, sum(len(b) for b in self.buffers)
+            if size > held + ZERO_ACCESSOR_SLACK:
+                raise self._error(f"accessors[{index}].count = {acc.count}: {size} bytes of zeros without a "
+                                  f"bufferView, more than the file's buffers hold ({held} bytes); "
+                                  "give the accessor a bufferView or a true count")
             out = np.zeros((acc.count, width), dtype=dtype)
         else:
             out = self._view(acc.bufferView, acc.byteOffset, acc.count, dtype, width, what)
@@ -179,6 +240,10 @@ class _Accessors:
                              COMPONENTS[sp.indices.componentType], 1, f"{what} sparse indices")[:, 0]
             if idx.size and idx.max() >= acc.count:
                 raise self._error(f"{what}: sparse index {idx.max()} is out of range (count {acc.count})")
+            if (np.diff(idx.astype(np.int64)) <= 0).any():
+                raise self._error(f"accessors[{index}].sparse.indices: must increase strictly (each "
+                                  "element is overridden once, in order)")
+            out = out if out.flags.writeable else out.copy()
             out[idx.astype(np.int64)] = self._view(sp.values.bufferView, sp.values.byteOffset, sp.count,
                                                    dtype, width, f"{what} sparse values")
         if dtype == np.float32:
@@ -219,7 +284,7 @@ def _trs(path: Path, index: int, node) -> tuple[np.ndarray, np.ndarray, np.ndarr
 class _Nodes:
     """Node forest: parents (N,), depth-first order, local TRS and rest globals (N, 4, 4)."""
 
-    def __init__(self, path: Path, gltf: pygltflib.GLTF2):
+    def __init__(self, path: Path, gltf):
         n = len(gltf.nodes)
         self.parents = np.full(n, -1, np.int64)
         for i, node in enumerate(gltf.nodes):
@@ -347,26 +412,29 @@ def _influences(path, what, attrs, acc: _Accessors, n: int):
 
 
 def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.ndarray],
-            node_to_joint: np.ndarray) -> list[Mesh]:
-    """Character meshes of the default scene (see the module docstring)."""
+            node_to_joint: np.ndarray) -> tuple[list[Mesh], list[Mesh]]:
+    """Posable and static meshes of the default scene (see the module docstring)."""
     if gltf.scenes:
         if not 0 <= (gltf.scene or 0) < len(gltf.scenes):
             raise FileFormatError(f"{path}: default scene {gltf.scene} does not exist")
-        scene = gltf.scenes[gltf.scene or 0]
-        roots = set(scene.nodes or [])
-        in_scene = [i for i in nodes.order if i in roots or any(a in roots for a in nodes.ancestors(i))]
+        roots = set(gltf.scenes[gltf.scene or 0].nodes or [])
     else:
-        in_scene = nodes.order
-    meshes = []
-    for i in in_scene:
+        roots = set(nodes.order)
+    # per node, in depth-first order (parents first): in the scene, and the nearest joint at or above it
+    parents, joint_of = nodes.parents.tolist(), node_to_joint.tolist()
+    inside, nearest = [False] * len(parents), [-1] * len(parents)
+    for i in nodes.order:
+        p = parents[i]
+        inside[i] = i in roots or (p >= 0 and inside[p])
+        nearest[i] = joint_of[i] if joint_of[i] >= 0 else nearest[p] if p >= 0 else -1
+    meshes, static = [], []
+    for i in (i for i in nodes.order if inside[i]):
         node = gltf.nodes[i]
         if node.mesh is None:
             continue
         if not 0 <= node.mesh < len(gltf.meshes):
             raise FileFormatError(f"{path}: node {i} refers to mesh {node.mesh}, which does not exist")
-        attach = next((int(node_to_joint[a]) for a in [i, *nodes.ancestors(i)] if node_to_joint[a] >= 0), -1)
-        if node.skin is None and attach < 0:
-            continue
+        attach = nearest[i]
         gmesh = gltf.meshes[node.mesh]
         base = gmesh.name or node.name or f"mesh{node.mesh}"
         for p, prim in enumerate(gmesh.primitives):
@@ -384,9 +452,14 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
                 raise FileFormatError(f"{path}: {what}: index {idx.max()} is out of range ({len(V)} vertices)")
             F = _triangles(path, what, 4 if prim.mode is None else prim.mode, idx.astype(np.int64))
             Vh = np.c_[V, np.ones(len(V))]
+            source = (i, node.mesh, p)
             if node.skin is None:
                 W = (Vh @ nodes.globals[i].T)[:, :3]
-                meshes.append(Mesh(name, W, F, np.full((len(V), 1), attach), np.ones((len(V), 1)), attach))
+                if attach < 0:
+                    static.append(Mesh(name, W, F, source=source))
+                else:
+                    meshes.append(Mesh(name, W, F, np.full((len(V), 1), attach), np.ones((len(V), 1)), attach,
+                                       source=source))
                 continue
             if not 0 <= node.skin < len(gltf.skins):
                 raise FileFormatError(f"{path}: node {i} refers to skin {node.skin}, which does not exist")
@@ -406,8 +479,8 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
             # this skin's inverse bind matrices, by skeleton joint (identity for joints it lacks)
             ibm = np.tile(np.eye(4), (int(node_to_joint.max()) + 1, 1, 1))
             ibm[node_to_joint[np.asarray(skin.joints)]] = binds[node.skin]
-            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64), ibm))
-    return meshes
+            meshes.append(Mesh(name, W, F, joints, weights, None, V.astype(np.float64), ibm, source))
+    return meshes, static
 
 
 def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleton: Skeleton) -> list[Clip]:
@@ -427,10 +500,22 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
                 raise FileFormatError(f"{path}: animation {a} channel {c}: sampler {channel.sampler} does not exist")
             sampler = anim.samplers[channel.sampler]
             mode = sampler.interpolation or "LINEAR"
-            times = acc.read(sampler.input)[:, 0].astype(np.float64)
+            field = f"animations[{a}].samplers[{channel.sampler}]"
+            times = acc.read(sampler.input)
+            if times.shape[1] != 1 or times.dtype.kind != "f":
+                raise FileFormatError(f"{path}: {field}.input: key times must be a float SCALAR accessor, "
+                                      f"accessor {sampler.input} is not")
+            times = times[:, 0].astype(np.float64)
             values = acc.read(sampler.output).astype(np.float64)
             if mode == "CUBICSPLINE" and len(values) == 3 * len(times):
                 values = values.reshape(len(times), 3, -1)
+            if target == "rotation" and values.shape[-1] == 4:
+                keys = values[:, 1] if values.ndim == 3 else values
+                length = np.linalg.norm(keys / 2.0, axis=-1) * 2.0
+                bad = np.flatnonzero(~(np.abs(length - 1.0) <= UNIT_TOLERANCE))
+                if bad.size:
+                    raise FileFormatError(f"{path}: {field}.output: rotation key {bad[0]} has length "
+                                          f"{length[bad[0]]:.3g}; rotation keys must be unit quaternions")
             try:
                 tracks.append(Track(int(node_to_joint[node]), target, times, values, mode))
             except InputError as exc:
@@ -442,7 +527,13 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
     return clips
 
 
-def joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes]) -> tuple[Skeleton, np.ndarray]:
+def read_accessor(path: Path, gltf, buffers: list[bytes], index: int) -> np.ndarray:
+    """Accessor ``index`` of a document from :func:`read_document` as (count, width): float64
+    if float or normalised, else int64 (FileFormatError naming ``path`` when malformed)."""
+    return _Accessors(path, gltf, buffers).read(index)
+
+
+def joint_nodes(path: Path, gltf, buffers: list[bytes]) -> tuple[Skeleton, np.ndarray]:
     """The skeleton of a document from :func:`read_document` and the node index (J,) int64 of
     each of its joints, in :func:`load_gltf`'s joint order."""
     acc = _Accessors(path, gltf, buffers)
@@ -452,8 +543,9 @@ def joint_nodes(path: Path, gltf: pygltflib.GLTF2, buffers: list[bytes]) -> tupl
     return skeleton, nodes
 
 
-def node_globals(path: Path, gltf: pygltflib.GLTF2) -> tuple[np.ndarray, np.ndarray]:
-    """Parent (N,) int64 (-1 for roots) and rest world matrix (N, 4, 4) float64 of every node."""
+def node_globals(path: Path, gltf) -> tuple[np.ndarray, np.ndarray]:
+    """Parent (N,) int64 (-1 for roots) and rest world matrix (N, 4, 4) float64 of every node of a
+    document from :func:`read_document`."""
     nodes = _Nodes(Path(path), gltf)
     return nodes.parents, nodes.globals
 
@@ -461,11 +553,18 @@ def node_globals(path: Path, gltf: pygltflib.GLTF2) -> tuple[np.ndarray, np.ndar
 def load_gltf(path: str | Path) -> Character:
     """Character from a ``.glb`` or ``.gltf`` file (see the module docstring)."""
     path = Path(path)
-    gltf, buffers = read_document(path)
+    _, gltf, buffers = _load(path)
+    return document_character(path, gltf, buffers)
+
+
+def document_character(path: Path, gltf, buffers: list[bytes]) -> Character:
+    """Character of a document: typed records of :func:`.gltf_schema.decode` (what
+    :func:`load_gltf` reads) or a pygltflib document from :func:`read_document`; ``path``
+    names the file in errors."""
     acc = _Accessors(path, gltf, buffers)
     binds = _skin_binds(path, gltf, acc)
     nodes = _Nodes(path, gltf)
     skeleton, node_to_joint, inverse_bind = _skeleton(gltf, nodes, binds)
-    meshes = _meshes(path, gltf, nodes, acc, binds, node_to_joint)
+    meshes, static = _meshes(path, gltf, nodes, acc, binds, node_to_joint)
     clips = _clips(path, gltf, acc, node_to_joint, skeleton)
-    return Character(skeleton, tuple(meshes), tuple(clips), inverse_bind)
+    return Character(skeleton, tuple(meshes), tuple(clips), inverse_bind, tuple(static))

@@ -1,20 +1,55 @@
 """glTF 2.0 binaries (``.glb``): baked animations, and a character file with a clip added.
 
-:func:`write_animated_glb` writes the rest geometry of each mesh with every
-posed frame stored as a **morph target** (target f = posed frame f − rest,
-float32 displacements) and one animation whose ``weights`` channel(s) switch
-between the targets: at key time ``t_f`` the weight vector is one-hot at f,
-with LINEAR interpolation in between (so playback blends consecutive frames
-linearly, exactly reproducing every frame at its time). No skin is written:
-the file shows the deformation that was computed (any deformer), not a
-re-skinning of it.
+:func:`write_animated_glb` bakes posed frames as **morph targets** (target f =
+posed frame f − base, for ``POSITION``, ``NORMAL`` and, where the source has
+it, ``TANGENT``) and one animation whose ``weights`` channel(s) switch between
+the targets: at key time ``t_f`` the weight vector is zero except at f, with
+LINEAR interpolation in between (so playback blends consecutive frames
+linearly, exactly reproducing every frame at its time). No skin is written: the
+file shows the deformation that was computed (any deformer).
 
-Layout: one node per mesh (a single triangle primitive, ``POSITION`` with the
-min/max the spec requires, uint32 indices, a grey PBR material); the mesh's
-default ``weights`` select frame 0, so static viewers show the first frame;
-``mesh.extras.targetNames`` are ``frame0 ...``. Coordinates are written as
-given (no axis conversion; glTF is Y-up, metres). Size is about
-``12 * F * V`` bytes; the caller limits the number of frames.
+With ``source`` (the glTF the character was loaded from) the output is a
+**copy of that document**: materials, textures, images (external and
+``data:`` images are embedded in the binary chunk), samplers, every attribute
+of the posed primitives but their geometry (all ``TEXCOORD_n``, ``COLOR_n``,
+custom ``_X``), other nodes and meshes (static meshes stay as they are), the
+scene tree, skins, ``extras`` and extensions nrpose does not know. Each posed
+node (one per source node; one primitive per source primitive, same indices,
+mode and material) moves to a new **root-level node** with the source node's
+name, so that its vertices are nrpose's world-space positions whatever the
+ancestors' (possibly animated) transforms; the source node stays in the tree
+without its mesh and skin, and the posed primitives lose ``JOINTS_n``/
+``WEIGHTS_n`` and their own morph targets. The source's animations are
+replaced by the bake (they moved the skeleton, which now deforms nothing); their
+data stays in the buffer, unreferenced, so that nothing is renumbered.
+
+Normals: per vertex, the file's ``NORMAL`` (and ``TANGENT``) is turned by the
+rotation of the vertex's welded neighbourhood from the source geometry to the
+frame (:func:`nrpose.model.normals.local_rotations`): custom normals, seams
+and hard edges keep their shape. Without ``NORMAL`` in the source, the
+smooth normals of the posed surface are written (positions welded across seams).
+
+A source that *requires* an extension nrpose cannot carry faithfully
+(:data:`CARRIED` lists what it can) raises FileFormatError before anything is
+written.
+
+Compact bakes (``quantize=True``, ``KHR_mesh_quantization``): position deltas
+are normalised int16 (8 bytes per vertex: glTF aligns every vertex attribute
+element to 4 bytes), normal and tangent deltas normalised int8 (4 bytes each),
+or int16 (8) for a primitive's frame that int8 cannot hold within
+:data:`DIRECTION_BOUND` degrees, else float (:func:`_direction_delta`: the target
+direction is scaled per vertex to keep its delta within [-1, 1], as clients
+normalise morphed normals).
+The dequantisation scale is the posed node's uniform scale ``S``, the largest
+position delta of the clip (base positions are stored divided by S; normals
+are unaffected by a uniform scale), so a position's error is at most
+``S / 65534``; when that exceeds :data:`QUANTIZATION_BOUND` of the rest
+bounding-box diagonal (clips travelling several body lengths) the node stays
+float. Morph weights stay 0 and 1 (Blender clamps larger shape-key values).
+Identical frames and primitives' arrays are written once (targets share
+accessors). The mesh's
+default ``weights`` select frame 0; ``mesh.extras.targetNames`` are
+``frame0 ...``. Coordinates are written as given (glTF is Y-up, metres).
 Written through :func:`nrpose.io.files.atomic_path`.
 
 :func:`write_glb_with_clip` writes a glTF character file again with one more
@@ -22,14 +57,17 @@ animation: a :class:`~nrpose.model.character.Clip` of its skeleton, one
 sampler per track on its joint's node (float32, the track's times and
 interpolation; a joint node given as a ``matrix`` is rewritten as its TRS, as
 animated nodes must be). The original content (meshes, skins, materials, textures,
-other animations) is kept: every buffer is copied into the single GLB buffer
-(a ``.gltf`` with external buffers or images becomes self-contained) and the
-new data is appended after it.
+other animations unless ``keep_animations=False``) is kept: every buffer is
+copied into the single GLB buffer (a ``.gltf`` with external buffers or images
+becomes self-contained) and the new data is appended after it.
 """
 from __future__ import annotations
 
+import base64
+import hashlib
 import mimetypes
 import urllib.parse
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -37,19 +75,35 @@ import numpy as np
 import pygltflib
 
 from ..checks import real_rows, triangles, within_float32
-from ..errors import InputError, NrposeError
-from .files import atomic_path
+from ..errors import FileFormatError, InputError, NrposeError
+from ..model.normals import local_rotations, smooth_normals, weld
 from ..model.rotation import Rotation
 from ..model.skeleton import polar_rotation
-from .gltf_read import joint_nodes, node_globals, read_document
+from .files import atomic_path
+from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 
-__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "Blob"]
+__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "BakeReport", "Blob",
+           "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
-_FLOAT, _UINT = pygltflib.FLOAT, pygltflib.UNSIGNED_INT
+_FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
+QUANTIZATION = "KHR_mesh_quantization"
+#: largest position error of a quantized frame, as a fraction of the rest bounding-box diagonal
+QUANTIZATION_BOUND = 1e-4
+#: largest angle (degrees) between a quantized frame's normal or tangent and the exact one
+DIRECTION_BOUND = 1.0
+#: required extensions a posed copy keeps faithfully (materials, textures, lights, quantized attributes)
+CARRIED = frozenset({
+    QUANTIZATION, "KHR_texture_transform", "KHR_texture_basisu", "EXT_texture_webp", "EXT_texture_avif",
+    "KHR_lights_punctual", "KHR_materials_unlit", "KHR_materials_emissive_strength", "KHR_materials_ior",
+    "KHR_materials_specular", "KHR_materials_volume", "KHR_materials_transmission", "KHR_materials_clearcoat",
+    "KHR_materials_sheen", "KHR_materials_iridescence", "KHR_materials_anisotropy", "KHR_materials_dispersion",
+    "KHR_materials_variants", "KHR_materials_pbrSpecularGlossiness"})
+#: primitive extensions that define the geometry the bake replaces
+_GEOMETRY_EXTENSIONS = ("KHR_draco_mesh_compression",)
 
 
-def _mesh_list(character_or_meshes) -> list[tuple[str, np.ndarray, np.ndarray]]:
-    """(name, vertices (N, 3) float64, faces (M, 3) int64) per mesh."""
+def _mesh_list(character_or_meshes) -> list[tuple[str, np.ndarray, np.ndarray, tuple | None]]:
+    """(name, vertices (N, 3) float64, faces (M, 3) int64, source indices or None) per mesh."""
     meshes = getattr(character_or_meshes, "meshes", character_or_meshes)
     if meshes is None or isinstance(meshes, (str, bytes)) or len(meshes) == 0:
         raise InputError("write_animated_glb needs a character with meshes, or a list of meshes")
@@ -62,7 +116,7 @@ def _mesh_list(character_or_meshes) -> list[tuple[str, np.ndarray, np.ndarray]]:
         else:
             raise InputError(f"mesh {i}: expected a Mesh or a (vertices, faces) pair")
         V = real_rows(V, f"mesh {i} ({name}) vertices")
-        out.append((str(name), V, triangles(F, len(V), f"mesh {i} ({name}) faces")))
+        out.append((str(name), V, triangles(F, len(V), f"mesh {i} ({name}) faces"), getattr(m, "source", None)))
     return out
 
 
@@ -88,15 +142,17 @@ def _offsets(mesh_offsets, sizes: list[int], total: int) -> np.ndarray:
 
 
 def _check(positions, times, total_needed: int) -> tuple[np.ndarray, np.ndarray]:
-    P = np.asarray(positions, dtype=np.float64)
+    P = np.asarray(positions)
+    if P.dtype.kind != "f":
+        P = P.astype(np.float64)
     if P.ndim != 3 or P.shape[2] != 3 or P.shape[0] == 0:
         raise InputError(f"positions must have shape (frames, vertices, 3) with at least one frame, "
                          f"got {np.shape(positions)}")
     if P.shape[1] < total_needed:
         raise InputError(f"positions have {P.shape[1]} vertices per frame; the meshes need {total_needed}")
-    if not np.isfinite(P).all():
-        f = int(np.flatnonzero(~np.isfinite(P).all(axis=(1, 2)))[0])
-        raise InputError(f"positions of frame {f} contain NaN or inf")
+    for f in range(len(P)):
+        if not np.isfinite(P[f]).all():
+            raise InputError(f"positions of frame {f} contain NaN or inf")
     T = np.asarray(times, dtype=np.float64).reshape(-1)
     if T.shape != (P.shape[0],):
         raise InputError(f"times: expected {P.shape[0]} values (one per frame), got {T.shape[0]}")
@@ -126,10 +182,10 @@ class Blob:
             self.size += pad
         return start
 
-    def raw(self, data: bytes, target=None) -> int:
+    def raw(self, data: bytes, target=None, stride: int | None = None) -> int:
         """A buffer view of raw bytes; its index."""
         self.gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=self.append(data),
-                                                          byteLength=len(data), target=target))
+                                                          byteLength=len(data), target=target, byteStride=stride))
         return len(self.gltf.bufferViews) - 1
 
     def add(self, array: np.ndarray, kind: str, component: int = pygltflib.FLOAT, target=None,
@@ -146,12 +202,266 @@ class Blob:
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
 
+    def normalized_vec3(self, values: np.ndarray, dtype, minmax: bool = False) -> int:
+        """A normalised integer VEC3 vertex attribute of ``values`` (N, 3) (already integers of
+        ``dtype``), padded to a 4-byte stride as glTF requires; its accessor index."""
+        n, size = len(values), np.dtype(dtype).itemsize
+        padded = np.zeros((n, 4), dtype)
+        padded[:, :3] = values
+        view = self.raw(padded.tobytes(), pygltflib.ARRAY_BUFFER, 4 * size)
+        acc = pygltflib.Accessor(bufferView=view, componentType=_SHORT if size == 2 else _BYTE,
+                                 normalized=True, count=n, type="VEC3")
+        if minmax:   # normalised accessors keep min/max in the stored integers
+            acc.min = [int(x) for x in values.min(axis=0)]
+            acc.max = [int(x) for x in values.max(axis=0)]
+        self.gltf.accessors.append(acc)
+        return len(self.gltf.accessors) - 1
+
     def bytes(self) -> bytes:
         return b"".join(self.parts)
 
 
+def check_copyable(source) -> None:
+    """FileFormatError when the glTF file ``source`` requires an extension a posed copy cannot carry
+    (checked again by :func:`write_animated_glb`; call it before the work to fail early)."""
+    _check_required(read_document(Path(source))[0], source)
+
+
+def _check_required(gltf: pygltflib.GLTF2, path) -> None:
+    for name in gltf.extensionsRequired or []:
+        if name not in CARRIED:
+            raise FileFormatError(f"{path}: requires the glTF extension {name!r}, which nrpose cannot carry "
+                                  "into a posed copy faithfully; write .npz, or use a file without it")
+
+
+def _copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
+    """The document at ``path`` with every buffer and image copied into one binary chunk."""
+    gltf, buffers = read_document(path)
+    blob = Blob(gltf)
+    starts = [blob.append(bytes(b)) for b in buffers]
+    for view in gltf.bufferViews:
+        view.byteOffset = (view.byteOffset or 0) + starts[view.buffer]
+        view.buffer = 0
+    for i, image in enumerate(gltf.images or []):
+        if image.uri is None:
+            continue
+        if image.uri.startswith("data:"):
+            header, _, payload = image.uri.partition(",")
+            try:
+                data = base64.b64decode(payload, validate=True) if header.endswith(";base64") \
+                    else urllib.parse.unquote_to_bytes(payload)
+            except ValueError:
+                raise FileFormatError(f"{path}: image {i} has a malformed data: URI") from None
+            mime = header[5:].split(";")[0] or None
+        else:
+            try:
+                data = (path.parent / urllib.parse.unquote(image.uri)).read_bytes()
+            except OSError as exc:
+                raise InputError(f"{path}: image {i}: cannot read {image.uri!r} ({exc.strerror})") from None
+            mime = mimetypes.guess_type(image.uri)[0]
+        image.mimeType = image.mimeType or mime or "image/png"
+        image.bufferView, image.uri = blob.raw(data), None
+    return gltf, blob, buffers
+
+
+def _save(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> None:
+    data = blob.bytes()
+    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
+    gltf.set_binary_blob(data)
+    with atomic_path(out) as tmp:
+        gltf.save_binary(str(tmp))
+
+
+@dataclass
+class BakeReport:
+    """What :func:`write_animated_glb` wrote. target_bytes: bytes of all morph-target
+    accessors; frames x vertices: the baked grid; quantized_frames: frames stored as
+    normalised integers; unique_frames: frames with their own data (the rest reuse an
+    identical frame's); max_error: largest position error after dequantisation, as a
+    fraction of the rest bounding-box diagonal (float32 rounding for float frames)."""
+
+    frames: int
+    vertices: int
+    target_bytes: int
+    quantized_frames: int
+    unique_frames: int
+    max_error: float
+
+    @property
+    def bytes_per_frame_vertex(self) -> float:
+        return self.target_bytes / (self.frames * self.vertices)
+
+
+@dataclass
+class _Primitive:
+    """One posed primitive: its slice of the posed vertices and the source's data for it."""
+
+    start: int
+    rest: np.ndarray               # (N, 3) world rest positions
+    faces: np.ndarray              # (M, 3) triangles
+    bind: np.ndarray               # (N, 3) the source's own positions (its normals' space)
+    normals: np.ndarray | None     # (N, 3) the source's NORMAL, or None
+    tangents: np.ndarray | None    # (N, 4) the source's TANGENT, or None
+    template: pygltflib.Primitive  # the primitive to copy (attributes other than geometry kept)
+
+
+class _Node:
+    """A posed node: its primitives, welded as one surface."""
+
+    def __init__(self, name: str, prims: list[_Primitive]):
+        self.name, self.prims = name, prims
+        sizes = [len(p.rest) for p in prims]
+        self.cuts = np.cumsum([0] + sizes)
+        faces = np.concatenate([p.faces + c for p, c in zip(prims, self.cuts)])
+        bind = np.concatenate([p.bind for p in prims])
+        self.faces, self.groups, self.bind = faces, weld(bind), bind
+        self.authored = np.concatenate([np.full(len(p.rest), p.normals is not None) for p in prims])
+        self.source_normals = np.concatenate([p.normals if p.normals is not None else np.zeros((len(p.rest), 3))
+                                              for p in prims])
+        self.has_tangents = all(p.tangents is not None for p in prims)
+        self.source_tangents = np.concatenate([p.tangents for p in prims]) if self.has_tangents else None
+
+    def frame(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """Positions (N, 3), normals (N, 3) and tangent directions (N, 3) or None of the node's
+        vertices, given ``positions`` (N, 3) of one frame: the source's own normals and tangents
+        turned with their neighbourhood, smooth normals where the source has none."""
+        normals = smooth_normals(positions, self.faces, self.groups)
+        tangents = None
+        if self.authored.any() or self.has_tangents:
+            R = local_rotations(self.bind, positions, self.faces, self.groups)
+            normals[self.authored] = np.einsum("nab,nb->na", R[self.authored], self.source_normals[self.authored])
+            if self.has_tangents:
+                tangents = np.einsum("nab,nb->na", R, self.source_tangents[:, :3])
+        return positions, normals, tangents
+
+
+def _posed_nodes(meshes, starts, source: Path | None, gltf, buffers) -> list[tuple[int | None, _Node]]:
+    """(source node index or None, posed node) per node to write."""
+    groups: dict = {}
+    for k, ((name, V, F, src), start) in enumerate(zip(meshes, starts[:-1])):
+        if source is None:
+            groups[("mesh", k)] = (None, name, [_Primitive(int(start), V, F, V, None, None, None)])
+            continue
+        node, mesh, p = src
+        template = gltf.meshes[mesh].primitives[p]
+        attrs = template.attributes
+        bind = read_accessor(source, gltf, buffers, attrs.POSITION)
+        if len(bind) != len(V):
+            raise NrposeError(f"{source}: mesh {mesh} primitive {p} changed since it was loaded")
+        normals = read_accessor(source, gltf, buffers, attrs.NORMAL) if attrs.NORMAL is not None else None
+        tangents = read_accessor(source, gltf, buffers, attrs.TANGENT) if attrs.TANGENT is not None else None
+        if (normals is not None and normals.shape != (len(V), 3)) or \
+                (tangents is not None and tangents.shape != (len(V), 4)):
+            raise FileFormatError(f"{source}: mesh {mesh} primitive {p}: NORMAL must be VEC3 and TANGENT VEC4")
+        entry = groups.setdefault(("node", node), (node, gltf.nodes[node].name or name, []))
+        entry[2].append(_Primitive(int(start), V, F, bind, normals, tangents, template))
+    return [(node, _Node(name, prims)) for node, name, prims in groups.values()]
+
+
+class _TargetWriter:
+    """Morph-target accessors of one posed node, frame by frame (see the module docstring)."""
+
+    def __init__(self, blob: Blob, node: _Node, scale: float, quantize: bool):
+        """scale: the node's uniform scale (quantized: the largest position delta, so that
+        deltas / scale lie in [-1, 1]; else 1)."""
+        self.blob, self.node, self.scale, self.quantize = blob, node, scale, quantize
+        rest = np.concatenate([p.rest for p in node.prims])
+        self.base_positions = (rest / scale).astype(np.float32)
+        _, normals, tangents = node.frame(rest)
+        self.base_normals, self.base_tangents = normals, tangents
+        self.seen: dict = {}
+        self.target_bytes = self.quantized = self.unique = 0
+        self.max_error = 0.0
+
+    def _accessor(self, values: np.ndarray, dtype, minmax: bool) -> int:
+        index = (self.blob.normalized_vec3(values, dtype, minmax) if dtype != np.float32 else
+                 self.blob.add(values.astype(np.float32), "VEC3", _FLOAT, pygltflib.ARRAY_BUFFER, minmax=minmax))
+        view = self.blob.gltf.bufferViews[self.blob.gltf.accessors[index].bufferView]
+        self.target_bytes += view.byteLength
+        return index
+
+    def frame(self, positions: np.ndarray) -> list[dict]:
+        """Targets (one dict per primitive) of a posed frame (N, 3) of the node."""
+        _, normals, tangents = self.node.frame(positions)
+        base = self.base_positions.astype(np.float64)
+        d_pos = positions / self.scale - base
+        if self.quantize:
+            enc_pos = np.clip(np.round(d_pos * 32767), -32767, 32767).astype(np.int16)
+            got = self.scale * (base + enc_pos / 32767.0)
+            self.quantized += 1
+        else:
+            enc_pos = d_pos.astype(np.float32)
+            got = self.scale * (base + enc_pos)
+        self.max_error = max(self.max_error, float(np.abs(got - positions).max()))
+        enc = {"POSITION": (enc_pos, None), "NORMAL": (normals, self.base_normals)}
+        if tangents is not None:
+            enc["TANGENT"] = (tangents, self.base_tangents)
+        targets, fresh = [{} for _ in self.node.prims], False
+        for k, (a, b) in enumerate(zip(self.node.cuts[:-1], self.node.cuts[1:])):
+            for attr, (values, base) in enc.items():
+                part = values[a:b] if base is None else _direction_delta(values[a:b], base[a:b], self.quantize)
+                key = (k, attr, part.dtype.str, hashlib.blake2b(part.tobytes(), digest_size=32).digest())
+                if key not in self.seen:
+                    fresh = True
+                    self.seen[key] = self._accessor(part, part.dtype, attr == "POSITION")
+                targets[k][attr] = self.seen[key]
+        self.unique += fresh
+        return targets
+
+
+def _direction_delta(posed: np.ndarray, base: np.ndarray, quantize: bool) -> np.ndarray:
+    """Morph delta (N, 3) of unit directions (normals, tangents): float32 ``posed - base``; or,
+    quantized, normalised int8 (else int16) of ``a posed - base`` with the largest per-vertex
+    ``a`` in (0, 1] that keeps it in [-1, 1] (clients normalise morphed directions, so only the
+    direction of ``a posed`` counts), the first whose decoded directions are all within
+    :data:`DIRECTION_BOUND` degrees (a direction turned past 90 degrees may need a small ``a``,
+    which int8 resolves too coarsely); float32 if neither is."""
+    if quantize:
+        # slack of half an int8 step: np.clip absorbs it (and rounding noise near +-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            room = np.where(posed > 0, (1.004 + base) / posed, np.where(posed < 0, (base - 1.004) / posed, np.inf))
+        target = np.minimum(room.min(axis=1), 1.0)[:, None] * posed
+        moving = np.linalg.norm(posed, axis=1) > 0.5
+        for dtype in (np.int8, np.int16):
+            top = np.iinfo(dtype).max
+            q = np.clip(np.round((target - base) * top), -top, top).astype(dtype)
+            decoded = base + q / top
+            cosine = np.einsum("ij,ij->i", decoded, posed) / np.maximum(np.linalg.norm(decoded, axis=1), 1e-30)
+            if (cosine[moving] >= np.cos(np.radians(DIRECTION_BOUND))).all():
+                return q
+    return (posed - base).astype(np.float32)
+
+
+def _primitive(blob: Blob, template, base_positions, base_normals, base_tangents, targets,
+               indices=None, material=None) -> pygltflib.Primitive:
+    """A copy of ``template`` (None: a new triangle primitive) with the baked geometry."""
+    attrs = {k: v for k, v in vars(template.attributes).items() if v is not None} if template else {}
+    for k in list(attrs):
+        if k.startswith(("JOINTS_", "WEIGHTS_")):
+            del attrs[k]
+    attrs["POSITION"] = blob.add(base_positions, "VEC3", _FLOAT, pygltflib.ARRAY_BUFFER, minmax=True)
+    attrs["NORMAL"] = blob.add(base_normals.astype(np.float32), "VEC3", _FLOAT, pygltflib.ARRAY_BUFFER)
+    if base_tangents is not None:
+        attrs["TANGENT"] = blob.add(base_tangents.astype(np.float32), "VEC4", _FLOAT, pygltflib.ARRAY_BUFFER)
+    if template is None:
+        return pygltflib.Primitive(attributes=pygltflib.Attributes(**attrs), indices=indices, material=material,
+                                   mode=pygltflib.TRIANGLES, targets=targets)
+    extensions = {k: v for k, v in (template.extensions or {}).items() if k not in _GEOMETRY_EXTENSIONS}
+    return pygltflib.Primitive(attributes=pygltflib.Attributes(**attrs), indices=template.indices,
+                               material=template.material, mode=template.mode, targets=targets,
+                               extensions=extensions, extras=template.extras)
+
+
+def _unique(name: str, gltf: pygltflib.GLTF2) -> str:
+    """``name``, or ``name.2``, ``name.3`` ... : the first no node of ``gltf`` has."""
+    taken, candidate, k = {n.name for n in gltf.nodes}, name, 2
+    while candidate in taken:
+        candidate, k = f"{name}.{k}", k + 1
+    return candidate
+
+
 def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets: Sequence[int] | None = None,
-                       *, animation_name: str = "baked") -> None:
+                       *, animation_name: str = "baked", source=None, quantize: bool = False) -> BakeReport:
     """Write the meshes with the posed frames baked as morph targets and one animation.
 
     character_or_meshes: a :class:`~nrpose.model.character.Character` (its
@@ -160,55 +470,112 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     the rest geometry. positions: (F, V, 3) posed vertices of all meshes
     concatenated; times: (F,) seconds, non-negative, strictly increasing;
     mesh_offsets: start of each mesh in V (n starts, or n + 1 with the end;
-    None: the meshes back to back from 0). Raises InputError on bad input.
+    None: the meshes back to back from 0). source: the glTF file the meshes
+    were loaded from (each Mesh's ``source`` indices refer to it): the output
+    is a copy of it (module docstring); None: a new document, one node per
+    mesh with a grey material. quantize: compact targets (module docstring).
+    Raises InputError on bad input, FileFormatError for a source that cannot
+    be copied. Returns a :class:`BakeReport`.
     """
     meshes = _mesh_list(character_or_meshes)
-    sizes = [len(V) for _, V, _ in meshes]
+    sizes = [len(m[1]) for m in meshes]
     P, T = _check(positions, times, sum(sizes) if mesh_offsets is None else 0)
     within_float32(P, "positions")
     starts = _offsets(mesh_offsets, sizes, P.shape[1])
     n_frames = len(T)
+    if source is not None:
+        source = Path(source)
+        if any(m[3] is None for m in meshes):
+            raise InputError("write_animated_glb: with source=, every mesh needs its source indices "
+                             "(a Mesh loaded from that file)")
+        gltf, blob, buffers = _copy_document(source)
+        _check_required(gltf, source)
+        gltf.animations = []
+    else:
+        gltf, buffers = pygltflib.GLTF2(asset=pygltflib.Asset(generator="nrpose", version="2.0")), []
+        gltf.scene, gltf.scenes = 0, [pygltflib.Scene(nodes=[])]
+        gltf.materials = [pygltflib.Material(
+            name="nrpose", doubleSided=True,
+            pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(baseColorFactor=[0.62, 0.70, 0.86, 1.0],
+                                                                metallicFactor=0.0, roughnessFactor=0.8))]
+        blob = Blob(gltf)
+    rest_all = np.concatenate([m[1] for m in meshes])
+    diagonal = float(np.linalg.norm(rest_all.max(axis=0) - rest_all.min(axis=0))) or 1.0
 
-    gltf = pygltflib.GLTF2(asset=pygltflib.Asset(generator="nrpose gltf_export", version="2.0"))
-    gltf.scene = 0
-    gltf.scenes = [pygltflib.Scene(nodes=[])]
-    gltf.materials = [pygltflib.Material(
-        name="nrpose", doubleSided=True,
-        pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(baseColorFactor=[0.62, 0.70, 0.86, 1.0],
-                                                            metallicFactor=0.0, roughnessFactor=0.8))]
-    blob = Blob(gltf)
-    onehot = np.eye(n_frames, dtype=np.float32)
     input_acc = blob.add(T.astype(np.float32), "SCALAR", _FLOAT, minmax=True)
-    output_acc = blob.add(onehot.reshape(-1), "SCALAR", _FLOAT)
     animation = pygltflib.Animation(name=str(animation_name), channels=[], samplers=[])
-    for k, ((name, V, F), start) in enumerate(zip(meshes, starts[:-1])):
-        rest = V.astype(np.float32)
-        posed = P[:, start:start + len(V)]
-        pos_acc = blob.add(rest, "VEC3", _FLOAT, pygltflib.ARRAY_BUFFER, minmax=True)
-        idx_acc = blob.add(F.astype(np.uint32).reshape(-1), "SCALAR", _UINT, pygltflib.ELEMENT_ARRAY_BUFFER)
-        targets = []
-        for f in range(n_frames):
-            delta = (posed[f] - rest.astype(np.float64)).astype(np.float32)
-            targets.append({"POSITION": blob.add(delta, "VEC3", _FLOAT, pygltflib.ARRAY_BUFFER, minmax=True)})
-        prim = pygltflib.Primitive(attributes=pygltflib.Attributes(POSITION=pos_acc), indices=idx_acc,
-                                   material=0, mode=pygltflib.TRIANGLES, targets=targets)
-        gltf.meshes.append(pygltflib.Mesh(name=name, primitives=[prim], weights=onehot[0].tolist(),
-                                          extras={"targetNames": [f"frame{f}" for f in range(n_frames)]}))
-        gltf.nodes.append(pygltflib.Node(name=name, mesh=k))
-        gltf.scenes[0].nodes.append(k)
-        animation.samplers.append(pygltflib.AnimationSampler(input=input_acc, output=output_acc,
+    outputs: dict = {}
+    report = BakeReport(n_frames, int(sum(sizes)), 0, 0, 0, 0.0)
+    if not gltf.scenes:
+        gltf.scenes, gltf.scene = [pygltflib.Scene(nodes=[])], 0
+    scene = gltf.scenes[gltf.scene or 0]
+    joints = {j for skin in gltf.skins or [] for j in skin.joints or []}
+    for source_node, node in _posed_nodes(meshes, starts, source, gltf, buffers):
+        def frames():
+            for f in range(n_frames):
+                yield np.concatenate([P[f, p.start:p.start + len(p.rest)] for p in node.prims]).astype(np.float64)
+        rest = np.concatenate([p.rest for p in node.prims])
+        reach = max(float(np.abs(frame - rest).max()) for frame in frames())
+        # int16 steps of reach / 32767 keep the error within the bound, or the positions stay float
+        quantized = quantize and reach / 65534 <= 0.9 * QUANTIZATION_BOUND * diagonal
+        scale = max(reach, 1e-30) if quantized else 1.0
+        writer = _TargetWriter(blob, node, scale, quantized)
+        targets = [[] for _ in node.prims]
+        for frame in frames():
+            for k, t in enumerate(writer.frame(frame)):
+                targets[k].append(t)
+        report.target_bytes += writer.target_bytes
+        report.quantized_frames = max(report.quantized_frames, writer.quantized)
+        report.unique_frames = max(report.unique_frames, writer.unique)
+        report.max_error = max(report.max_error, writer.max_error / diagonal)
+        prims = []
+        for k, (p, a, b) in enumerate(zip(node.prims, node.cuts[:-1], node.cuts[1:])):
+            tangents = None
+            if writer.base_tangents is not None:
+                tangents = np.c_[writer.base_tangents[a:b], p.tangents[:, 3]]
+            if p.template is None:
+                idx = blob.add(p.faces.astype(np.uint32).reshape(-1), "SCALAR", _UINT, pygltflib.ELEMENT_ARRAY_BUFFER)
+                prims.append(_primitive(blob, None, writer.base_positions[a:b], writer.base_normals[a:b], None,
+                                        targets[k], idx, 0))
+            else:
+                prims.append(_primitive(blob, p.template, writer.base_positions[a:b], writer.base_normals[a:b],
+                                        tangents, targets[k]))
+        keys = np.eye(n_frames, dtype=np.float32)
+        old = gltf.meshes[gltf.nodes[source_node].mesh] if source_node is not None else None
+        gltf.meshes.append(pygltflib.Mesh(
+            name=(old.name if old is not None else node.name), primitives=prims, weights=keys[0].tolist(),
+            extras={**(old.extras or {} if old is not None else {}),
+                    "targetNames": [f"frame{f}" for f in range(n_frames)]}))
+        name = node.name
+        if source_node is not None:
+            kept = gltf.nodes[source_node]
+            kept.mesh = kept.skin = None
+            if source_node in joints:
+                name = _unique(f"{node.name}.posed", gltf)
+            else:
+                kept.name = _unique(f"{node.name}.bind", gltf)
+        gltf.nodes.append(pygltflib.Node(name=name, mesh=len(gltf.meshes) - 1,
+                                         scale=[scale] * 3 if scale != 1.0 else None))
+        scene.nodes = list(scene.nodes or []) + [len(gltf.nodes) - 1]
+        key = keys.tobytes()
+        if key not in outputs:
+            outputs[key] = blob.add(keys.reshape(-1), "SCALAR", _FLOAT)
+        animation.samplers.append(pygltflib.AnimationSampler(input=input_acc, output=outputs[key],
                                                              interpolation="LINEAR"))
         animation.channels.append(pygltflib.AnimationChannel(
-            sampler=k, target=pygltflib.AnimationChannelTarget(node=k, path="weights")))
+            sampler=len(animation.samplers) - 1,
+            target=pygltflib.AnimationChannelTarget(node=len(gltf.nodes) - 1, path="weights")))
+    if report.quantized_frames:
+        for field in ("extensionsUsed", "extensionsRequired"):
+            names = list(getattr(gltf, field) or [])
+            if QUANTIZATION not in names:
+                setattr(gltf, field, names + [QUANTIZATION])
     gltf.animations = [animation]
-    data = blob.bytes()
-    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
-    gltf.set_binary_blob(data)
-    with atomic_path(Path(path)) as tmp:
-        gltf.save_binary(str(tmp))
+    _save(gltf, blob, Path(path))
+    return report
 
 
-def write_glb_with_clip(target_path, out_path, target, clip, bounds=None) -> str:
+def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, keep_animations: bool = True) -> str:
     """Write the target glTF plus ``clip`` (a Clip of its skeleton) as a new animation, as a GLB.
 
     Returns the animation's name. Every track of the clip becomes a channel on
@@ -216,27 +583,17 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None) -> str
     is not written). bounds: optional world-space box (min (3,), max (3,)) the
     animated geometry stays in: each skinned mesh node is then placed
     (:func:`fit_skinned_nodes`) so that viewers' culling bounds hold it.
+    keep_animations=False: the clip is the file's only animation.
     """
     path = Path(target_path)
-    gltf, buffers = read_document(path)
+    gltf, blob, buffers = _copy_document(path)
     skeleton, nodes = joint_nodes(path, gltf, buffers)
     if tuple(skeleton.names) != tuple(target.skeleton.names):
         raise NrposeError(f"{path}: its skeleton changed since it was loaded")
     if bounds is not None:
         fit_skinned_nodes(path, gltf, bounds)
-    blob = Blob(gltf)
-    starts = [blob.append(bytes(b)) for b in buffers]
-    for view in gltf.bufferViews:
-        view.byteOffset = (view.byteOffset or 0) + starts[view.buffer]
-        view.buffer = 0
-    for i, image in enumerate(gltf.images or []):
-        if image.uri is not None and not image.uri.startswith("data:"):
-            try:
-                data = (path.parent / urllib.parse.unquote(image.uri)).read_bytes()
-            except OSError as exc:
-                raise InputError(f"{path}: image {i}: cannot read {image.uri!r} ({exc.strerror})") from None
-            image.mimeType = image.mimeType or mimetypes.guess_type(image.uri)[0] or "image/png"
-            image.bufferView, image.uri = blob.raw(data), None
+    if not keep_animations:
+        gltf.animations = []
     taken = {a.name for a in gltf.animations or []}
     name, k = clip.name, 2
     while name in taken:
@@ -265,11 +622,7 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None) -> str
             sampler=len(animation.samplers) - 1,
             target=pygltflib.AnimationChannelTarget(node=int(nodes[track.joint]), path=track.path)))
     gltf.animations = list(gltf.animations or []) + [animation]
-    data = blob.bytes()
-    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
-    gltf.set_binary_blob(data)
-    with atomic_path(Path(out_path)) as tmp:
-        gltf.save_binary(str(tmp))
+    _save(gltf, blob, Path(out_path))
     return name
 
 

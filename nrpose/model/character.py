@@ -128,7 +128,9 @@ class Mesh:
     bind_vertices: (N, 3) float64 the skinned mesh's own POSITION data (glTF
     bind space, transformed by ``G_j @ inverse_bind_j`` in the glTF skinning
     formula), else None; inverse_bind: (J, 4, 4) its skin's inverse bind
-    matrices by skeleton joint (skins may differ), else None.
+    matrices by skeleton joint (skins may differ), else None;
+    source: where a glTF mesh came from, ``(node, mesh, primitive)`` indices of
+    its document, else None (writers copy that primitive's other attributes).
     """
 
     name: str
@@ -139,16 +141,23 @@ class Mesh:
     rigid_joint: int | None = None
     bind_vertices: np.ndarray | None = None
     inverse_bind: np.ndarray | None = None
+    source: tuple[int, int, int] | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class Character:
-    """Meshes, skeleton, inverse bind matrices (J, 4, 4) float64 and clips."""
+    """Meshes, skeleton, inverse bind matrices (J, 4, 4) float64 and clips.
+
+    static_meshes: meshes the skeleton does not move (scenery beside the
+    character), in world space; they are never posed, and glTF outputs keep
+    them as they are.
+    """
 
     skeleton: Skeleton
     meshes: tuple[Mesh, ...] = ()
     clips: tuple[Clip, ...] = ()
     inverse_bind: np.ndarray | None = None
+    static_meshes: tuple[Mesh, ...] = ()
 
     def __post_init__(self):
         if self.inverse_bind is None:
