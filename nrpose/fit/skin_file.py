@@ -18,7 +18,7 @@ import pygltflib
 from ..errors import InputError
 from ..io.files import atomic_path
 from ..io.gltf_read import joint_nodes, node_globals, read_document
-from ..io.gltf_write import Blob, write_glb_with_clip
+from ..io.gltf_write import Blob, check_copyable, write_glb_with_clip
 from ..model.character import Character
 from .character_skin import FittedSkin
 
@@ -73,6 +73,7 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     """Write source_path (.glb/.gltf of ``character``) to out_path (.glb) with the fitted weights
     on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations."""
     path = Path(source_path)
+    check_copyable(path)
     places = skinned_primitives(path, character)
     gltf, buffers = read_document(path)
     _, nodes = joint_nodes(path, gltf, buffers)
