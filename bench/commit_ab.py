@@ -1,7 +1,7 @@
 """This checkout's nrpose against an earlier commit's, posing Table-1 rows in one process.
 
     python bench/commit_ab.py BASE [--rows dragon/segments,box/points] [--rounds 30]
-                              [--poses 40] [--quick] [--json OUT.json]
+                              [--poses 40] [--blend B] [--quick] [--json OUT.json]
 
 Why: on the shared 2-core VM a single thread's speed differs by up to ~1.4x between
 processes and drifts within one, so alternated processes resolve only large changes
@@ -21,7 +21,8 @@ Reported per row (and written with ``--json``): each side's median over all its 
 and the largest difference between the two outputs of one pose relative to the bounding
 box diagonal (0 when the arithmetic is unchanged). The base must pose through the same
 API (``nrpose.Deformer(points, rest)``, ``nrpose.HandleSet.make``, ``nrpose.Pose.make(rest,
-points, segments, rotations=)``). Errors (unknown commit, not a git checkout, unknown row): one line on
+points, segments, rotations=)``); ``--blend`` gives both deformers that blend (default: each
+package's default). Errors (unknown commit, not a git checkout, unknown row): one line on
 stderr, exit status 2.
 """
 from __future__ import annotations
@@ -78,15 +79,16 @@ def import_base(commit: str, folder: pathlib.Path):
 
 
 def measure_row(base, model: str, kind: str, data: pathlib.Path, rounds: int, poses: int,
-                quick: bool) -> dict:
+                quick: bool, blend: str | None = None) -> dict:
     """One row's record (see the module docstring); base: the imported base package."""
     v, rest, diag, row_poses = common.table1_row(model, kind, data, poses=20, seed=1, quick=quick)
     # the package's public names, whatever its module layout
     rest_b = base.HandleSet.make(rest.points, rest.segments)
     poses_b = [base.Pose.make(rest_b, p.handles.points, p.handles.segments,
                               rotations=p.rotations if len(rest.segments) else None) for p in row_poses]
-    sides = {"base": (base.Deformer(v, rest_b), poses_b),
-             "this": (Deformer(v, rest), row_poses)}
+    kw = {} if blend is None else {"blend": blend}
+    sides = {"base": (base.Deformer(v, rest_b, **kw), poses_b),
+             "this": (Deformer(v, rest, **kw), row_poses)}
     diff = float(np.abs(sides["base"][0].pose(poses_b[3]) - sides["this"][0].pose(row_poses[3])).max()) / diag
     pause = 2 * device.standby_s() + 1e-3
     times = {k: [] for k in sides}
@@ -121,13 +123,13 @@ def measure_row(base, model: str, kind: str, data: pathlib.Path, rounds: int, po
 
 
 def run(commit: str, rows: list[tuple[str, str]], rounds: int = 30, poses: int = 40, quick: bool = False,
-        data: pathlib.Path = table1.DEFAULT_DATA, log=print) -> dict:
+        data: pathlib.Path = table1.DEFAULT_DATA, blend: str | None = None, log=print) -> dict:
     with tempfile.TemporaryDirectory(prefix="nrpose-commit-ab-") as tmp:
         base = import_base(commit, pathlib.Path(tmp))
         cpu0, load0 = common.cpu_times(), common.load()
         records = []
         for model, kind in rows:
-            records.append(measure_row(base, model, kind, pathlib.Path(data), rounds, poses, quick))
+            records.append(measure_row(base, model, kind, pathlib.Path(data), rounds, poses, quick, blend))
             r = records[-1]
             if log:
                 log(f"{model:9s} {kind:8s} base {r['base_ms']['median']:.3f} ms, this {r['this_ms']['median']:.3f} ms, "
@@ -138,7 +140,8 @@ def run(commit: str, rows: list[tuple[str, str]], rounds: int = 30, poses: int =
     return {"schema": "nrpose-bench-commit-ab/1", "timestamp": common.now(),
             "git_commit": common.git("rev-parse", "HEAD"), "base_commit": base_commit or commit,
             "environment": common.environment(),
-            "options": {"rounds": rounds, "poses_per_round": poses, "warmup": WARMUP, "quick": quick},
+            "options": {"rounds": rounds, "poses_per_round": poses, "warmup": WARMUP, "quick": quick,
+                        "blend": blend or "each package's default"},
             "timing": "posed = Deformer.pose(p) back to back, ms per pose; the two packages alternated "
                       "in rounds, one process",
             "load_start": load0, "load_end": common.load(),
@@ -149,12 +152,13 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("base", help="the commit to compare against (anything git understands: a hash, HEAD~3, a tag)")
     every = common.add_rows_arguments(ap, rounds=30, poses=40, what="packages")
+    ap.add_argument("--blend", default=None, help="the blend of both deformers (default: each package's default)")
     a = ap.parse_args(argv)
     rows = common.chosen_rows(a, every, "commit_ab")
     if rows is None:
         return 2
     try:
-        doc = run(a.base, rows, a.rounds, a.poses, a.quick, pathlib.Path(a.data))
+        doc = run(a.base, rows, a.rounds, a.poses, a.quick, pathlib.Path(a.data), a.blend)
     except (BaseError, NrposeError) as exc:
         print(f"commit_ab: {exc}", file=sys.stderr)
         return 2

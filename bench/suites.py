@@ -1,6 +1,7 @@
-"""Benchmark suites: the paper's Table 1 on PoCL, roofline, scaling, character clips.
+"""Benchmark suites: the paper's Table 1 on PoCL, roofline, scaling, character clips, and the
+deformation quality suite (bench/quality.py; its close-up and table PNGs in bench/results/quality/).
 
-    python -m bench [--suite table1|scaling|clips|roofline|all] [--repeat N]
+    python -m bench [--suite table1|scaling|clips|roofline|quality|all] [--repeat N]
                     [--quick] [--json OUT.json] [--png PLOT.png] [--data DIR]
 
 (from the checkout's root; ``python bench/suites.py`` and ``make bench`` run the same.)
@@ -27,7 +28,12 @@ from common import table1  # noqa: E402
 from nrpose.errors import InputError, NrposeError  # noqa: E402
 
 SCHEMA = "nrpose-bench-suites/1"
-SUITES = ("table1", "roofline", "scaling", "clips")
+SUITES = ("table1", "roofline", "scaling", "clips", "quality")
+#: what ``--suite all`` runs: the timing suites (the quality suite, minutes of posing and
+#: measuring that no timing depends on, runs when named)
+ALL = ("table1", "roofline", "scaling", "clips")
+#: the quality suite's pictures (bench/quality.py)
+QUALITY_PNG_DIR = HERE / "results" / "quality"
 DEFAULT_JSON = HERE / "results" / "suites.json"
 DEFAULT_PNG = HERE / "results" / "suites.png"
 TARGETS = {"paper_over_pocl_min": 100.0, "speedup_vs_numpy_min": 300.0, "fraction_arithmetic_min": 0.30,
@@ -36,7 +42,7 @@ TARGETS = {"paper_over_pocl_min": 100.0, "speedup_vs_numpy_min": 300.0, "fractio
 
 def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=None) -> dict:
     """Run the suites; return the result document (see bench/README.md)."""
-    chosen = list(SUITES) if "all" in suites else [s for s in SUITES if s in suites]
+    chosen = list(ALL) if "all" in suites else [s for s in SUITES if s in suites]
     unknown = [s for s in suites if s != "all" and s not in SUITES]
     if unknown or not chosen:
         raise ValueError(f"unknown suite(s) {unknown}; choose from {SUITES + ('all',)}")
@@ -71,6 +77,9 @@ def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=No
                     if "kernel_ms" in r:
                         r.update(roofline.assess(r["work"], r["kernel_ms"]["median"], r["pose_ms"]["median"],
                                                  ceil, floor))
+        elif name == "quality":
+            import quality
+            res = quality.run(quick=quick, frames=2 if quick else 6, png_dir=QUALITY_PNG_DIR, data=data, log=log)
         else:
             import clips
             res = clips.run(repeat, quick, data, log=log)
@@ -93,6 +102,11 @@ def run(suites=("all",), repeat: int = 5, quick: bool = False, data=None, log=No
 def targets(doc: dict) -> list[dict]:
     """The issue's targets against this run's medians (``meaningful`` false in quick mode)."""
     s, out, q = doc["suites"], [], doc["options"]["quick"]
+    for t in s.get("quality", {}).get("targets", []):
+        # quality figures do not depend on timing: meaningful in quick mode too
+        out.append({"name": f"quality {t['case']}: {t['target']}", "target": t["target"], "measured": t["measured"],
+                    "where": t["case"], "met": t["met"], "meaningful": True,
+                    **({"why": t["why"]} if "why" in t else {})})
     if "table1" in s:
         rows = s["table1"]["rows"]
         worst = min(rows, key=lambda r: r["paper_over_pocl"])
@@ -234,6 +248,22 @@ def _plot_scaling(ax, res):
     ax.set_title("Scaling: Deformer.pose time vs size (dense blend and sparse k=8 skeletons)", fontsize=9)
     ax.legend(fontsize=6, ncol=3)
     ax.grid(which="both", alpha=0.3)
+
+
+def _plot_quality(ax, res):
+    cases = [c["case"] for c in res["cases"]]
+    methods = res["methods"]
+    x = np.arange(len(cases))
+    w = 0.8 / max(len(methods), 1)
+    for k, m in enumerate(methods):
+        ax.bar(x + (k - len(methods) / 2) * w, [c["methods"][m]["p99.9"] for c in res["cases"]], w, label=m)
+    ax.set_xticks(x, cases, fontsize=6, rotation=60, ha="right")
+    ax.set_yscale("log")
+    ax.set_ylabel("p99.9 edge strain")
+    ax.set_title("Quality: p99.9 edge strain per case and method (full table: bench/results/quality/table.png)",
+                 fontsize=9)
+    ax.legend(fontsize=6, ncol=4)
+    ax.grid(axis="y", which="both", alpha=0.3)
 
 
 def _plot_clips(ax, res):

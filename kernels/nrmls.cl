@@ -1,5 +1,5 @@
-/* Near-rigid MLS pose kernel (Jeong & Kim): relative-rotation blend (default),
- * the paper's blend, or (built with -DQUAT_BLEND) the quaternion blend.
+/* Near-rigid MLS pose kernel (Jeong & Kim): the tree-signed quaternion blend (built with
+ * -DQUAT_BLEND; nrpose's default), the relative-rotation blend or the paper's blend.
  *
  * Reference: nrpose/pose/blend.py (pose_reference), float64. Everything that
  * depends only on the rest configuration is bound once (see nrpose/pose/mls.py);
@@ -74,7 +74,7 @@
  *          table[j][s]: relative/paper blends, TW = 3: log(R_j^-1 R_s) (paper: log R_s), on
  *          rigs of segments only (P = 0) turned into the world frame, R_j log(R_j^-1 R_s) =
  *          log(R_s R_j^-1) (the pose then needs no R_ref product after the rotation);
- *          QUAT_BLEND, TW = 4: Q_s in the hemisphere of Q_j; table' (-DDERIVED_LEVER):
+ *          QUAT_BLEND, TW = 4: Q_s signed by the sign tree (j < S), in the hemisphere of Q_g (j = S); table' (-DDERIVED_LEVER):
  *          each entry times len2[s].
  *          (Each value as a row of VW equal floats, so that the slot loop's multiply-adds
  *          took vector memory operands instead of broadcast loads, made single poses
@@ -213,7 +213,9 @@
  *   BOUND_NPAIRS      (j, i) pairs of the rotation table (table_block)
  *   BOUND_FREC, BOUND_IREC  the float and int chunk records (the header's records)
  *   BOUND_LEN2        len2 [S] float; BOUND_PAIRS [npairs][2] int
- *   BOUND_FIT         the R_g fit's data (double, global_fit.h; GLOBAL_FIT builds) */
+ *   BOUND_FIT         the R_g fit's data (double, global_fit.h; GLOBAL_FIT builds)
+ *   BOUND_TREE        the quaternion blend's sign tree [S][2] int: (segment, parent), parents
+ *                     first, parent -1 at a root (nrpose/pose/blend.py sign_tree) */
 #define BOUND_NP 0
 #define BOUND_NSEGS 1
 #define BOUND_BLOCK 2
@@ -226,6 +228,7 @@
 #define BOUND_LEN2 9
 #define BOUND_PAIRS 10
 #define BOUND_FIT 11
+#define BOUND_TREE 12
 #define BOUND_AT(bound, i, type) ((__global const type *)((bound) + ((__global const int *)(bound))[i]))
 
 /* Unit quaternion (x, y, z, w) of a row-major rotation matrix (Shepperd). */
@@ -319,7 +322,8 @@ static void rotation_items(const int nsegs, const int paper, __global const floa
  * +-log(Q_a^-1 Q_b) with (a, b) = (min, max)(i, j), so that the logs are exactly
  * antisymmetric, log(R_j^-1 R_i) = -log(R_i^-1 R_j) (table' entries: each times its
  * own len2), and blends seen from either handle agree even at an angle of exactly pi;
- * paper blend log(R_i); QUAT_BLEND, Q_i in the hemisphere of Q_j. Rigs of segments only
+ * paper blend log(R_i); QUAT_BLEND, Q_i as signed by the sign tree (tree_signs) for a segment
+ * reference j < S, in the hemisphere of Q_j for j = S (R_g). Rigs of segments only
  * (P = 0) keep the relative logs in the world frame (the header's table).
  * DERIVED_LEVER: times len2[i], segment i's lever factor (the header's table'). */
 static void table_block(const int g0, const int nsegs, const int paper, const int npairs,
@@ -335,7 +339,10 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
         const int j = pairs[2 * g], i = pairs[2 * g + 1];
         dst[l] = TW * (j * S + i);
 #ifdef QUAT_BLEND
-        const float4 A = vload4(j, quats), B = vload4(i, quats);
+        /* a segment reference: Q_i as signed by the tree (tree_signs; A = B keeps the sign);
+         * the global reference R_g: Q_i in its hemisphere */
+        const float4 B = vload4(i, quats);
+        const float4 A = j < S ? B : vload4(j, quats);
         float f = 1.0f;
 #else
         /* paper: Q_a the identity, so that Q_a^-1 Q_b = Q_i */
@@ -389,6 +396,22 @@ static void table_block(const int g0, const int nsegs, const int paper, const in
             table[dst[l] + c] = out[c][l];
 }
 
+#ifdef QUAT_BLEND
+/* The quaternion blend's signs, once per pose: each segment's Q_s (quats, written by
+ * rotation_items) negated where it lies in the opposite hemisphere of its parent's along the
+ * bound sign tree (BOUND_TREE, parents first). One sign per segment for every point, so
+ * that the lever-weighted sum, and the blend, is continuous wherever the levers are. */
+static void tree_signs(const int nsegs, __global const int *tree, __global float *refs)
+{
+    __global float *quats = refs + QUATS_OFFSET(S);
+    for (int m = 0; m < S; ++m) {
+        const int s = tree[2 * m], p = tree[2 * m + 1];
+        if (p >= 0 && dot(vload4(s, quats), vload4(p, quats)) < 0.0f)
+            vstore4(-vload4(s, quats), s, quats);
+    }
+}
+#endif
+
 /* The pose kernel's prologue (share.h), once per job, for its F frames (`frames`): R_g,
  * where some point takes it as its reference (built with -DGLOBAL_FIT: global_fit.h, from
  * the posed handle positions and the bound fit data, written into the frame's pose block),
@@ -406,6 +429,9 @@ static void pose_prologue(const int F, const int nsegs, const int paper, const i
         global_rotation_of(frame, BOUND_AT(bound, BOUND_FIT, double), P + 2 * S, 3 * (P + 2 * S) + 9 * S);
 #endif
         rotation_items(nsegs, paper, frame, refs);
+#ifdef QUAT_BLEND
+        tree_signs(nsegs, BOUND_AT(bound, BOUND_TREE, int), refs);
+#endif
         for (int g0 = 0; g0 < npairs; g0 += VW)
             table_block(g0, nsegs, paper, npairs, pairs, len2, refs);
     }

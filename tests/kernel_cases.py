@@ -37,6 +37,7 @@ from nrpose import Deformer  # noqa: E402
 from nrpose.device import HostArray  # noqa: E402
 from nrpose.pose.mls import GlobalFit  # noqa: E402
 from nrpose.pose.blend import GlobalRotation  # noqa: E402
+from nrpose.pose.cor import CorSkinner, cor_reference  # noqa: E402
 from nrpose.pose.skinning import DqsSkinner, LbsSkinner, dqs_reference, lbs_reference  # noqa: E402
 
 POINTS = 300        # a few blocks of work at 8 or 16 lanes
@@ -106,13 +107,16 @@ def nrmls_cases(rng) -> dict:
 
 
 def skinning_cases(rng) -> dict:
-    """LBS and DQS kernels (kernels/skinning.cl), one frame and a batch, and their references
-    (float32 outputs: into float32 arrays, as the device wrote them)."""
+    """LBS and DQS kernels (kernels/skinning.cl) and CoR's (kernels/cor.cl), one frame and a
+    batch, and their references (float32 outputs: into float32 arrays, as the device wrote them)."""
     rest, joints, weights = make_rig(rng, POINTS, 5, 3)
+    cor = CorSkinner(rest, joints, weights, None)
     out = {}
-    for name, cls, reference, mats in (("lbs", LbsSkinner, lbs_reference, [affine(rng, 5) for _ in range(FRAMES)]),
-                                       ("dqs", DqsSkinner, dqs_reference, [rigid(rng, 5) for _ in range(FRAMES)])):
-        dev = cls(rest, joints, weights)
+    for name, make, reference, mats in (
+            ("lbs", lambda: LbsSkinner(rest, joints, weights), lbs_reference, [affine(rng, 5) for _ in range(FRAMES)]),
+            ("dqs", lambda: DqsSkinner(rest, joints, weights), dqs_reference, [rigid(rng, 5) for _ in range(FRAMES)]),
+            ("cor", lambda: cor, lambda *a: cor_reference(*a, cor.centers), [rigid(rng, 5) for _ in range(FRAMES)])):
+        dev = make()
         want = np.stack([reference(rest, joints, weights, m) for m in mats])
         tol = SKIN_TOL * diag(want)
         out[name] = (dev.pose(mats[0], out=blank((POINTS, 3))), want[0], tol)

@@ -52,3 +52,23 @@ def test_default_k_and_bad_arguments(character):
         bone_weights(character, "euclidean", k=0)
     with pytest.raises(InputError, match="skeleton="):
         bone_weights(Character(character.skeleton), "euclidean")
+
+
+def test_segment_parameters_come_with_the_weights(character):
+    """authored: one bone-weight row and one parameter row per weight group (their centroid's);
+    euclidean: closest points (t None); heat: arrival parameters, or None when not asked for."""
+    from nrpose.bind.bone_weights import group_centers
+    from nrpose.bind.distances import arrival_parameters, segment_parameters
+    from nrpose.model.deformation_metrics import weight_groups
+
+    res = bone_weights(character, "authored", k="all")
+    V, segs = res.meshes.vertices, res.bones.segments
+    labels = weight_groups(authored_joint_weights(character.meshes, character.skeleton.num_joints))
+    np.testing.assert_allclose(res.t, segment_parameters(group_centers(V, labels), segs), atol=1e-12)
+    for g in np.unique(labels[labels >= 0])[:20]:
+        rows = res.weights[labels == g]
+        assert np.ptp(rows, axis=0).max() <= 1e-6          # groups agree to 6 decimals
+    assert bone_weights(character, "euclidean").t is None
+    assert bone_weights(character, "graph", parameters=False).t is None
+    t = bone_weights(character, "graph").t
+    np.testing.assert_allclose(t, arrival_parameters(V, res.meshes.faces, segs))

@@ -14,6 +14,7 @@ from nrpose.io import load_character
 from nrpose.cli import main
 from nrpose.model.handles import handles_document
 from nrpose.io.meshes import read_geometry, write_geometry
+from nrpose.pose.blend import DEFAULT_BLEND
 from nrpose.pose.poser import CharacterPoser
 from nrpose.rigs import box, cylinder
 
@@ -166,13 +167,13 @@ def test_pose_clip_to_npz_and_directory(tmp_path, capsys):
                       "-o", tmp_path / "frames", "--format", "obj"], capsys)
     assert code == 0 and sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["frame_0000.obj",
                                                                                       "frame_0001.obj"]
-    # --blend reaches the poser: the quaternion blend's frames are those of the API's
-    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "quaternion",
+    # --blend reaches the poser: the relative blend's frames (not the default's) are those of the API's
+    code, _, _ = run(["pose", fox, "--clip", "Walk", "--frames", "0:6:2", "--fps", "24", "--blend", "relative",
                       "-o", tmp_path / "walk_q.npz"], capsys)
     assert code == 0
     character = load_character(fox)
     clip = next(c for c in character.clips if c.name == "Walk")
-    expect = CharacterPoser(character, blend="quaternion").pose(clip.sample(np.arange(4) * 2 / 24)).positions
+    expect = CharacterPoser(character, blend="relative").pose(clip.sample(np.arange(4) * 2 / 24)).positions
     got = np.load(tmp_path / "walk_q.npz")["positions"]
     assert np.abs(got - expect).max() <= 1e-5 and np.abs(got - z["positions"]).max() > 0
 
@@ -305,3 +306,18 @@ def test_library_argument_names_become_the_commands_flags():
             == 'give a joint map (--map MAP.json, {"T": "S"}); check it (see --show-map)')
     # names a command does not know, and name=value pairs that are not arguments, stay as they are
     assert flag_text("blend= in x=1, f(), alpha=2", {"blend": "--blend"}) == "--blend in x=1, f(), alpha=2"
+
+
+@needs_data
+def test_pose_default_method_is_nrmls_with_the_default_blend(tmp_path, capsys):
+    """Without --method: nrmls for every kind of weights, with the default (tree-signed
+    quaternion) blend; the frames are that poser's."""
+    fox = DATA / "gltf" / "Fox.glb"
+    for extra in ([], ["--weights", "euclidean"]):
+        out = tmp_path / f"default_{len(extra)}.npz"
+        code, stdout, _ = run(["pose", fox, "--clip", "Run", "--time", "0.3", "-o", out, *extra], capsys)
+        assert code == 0 and ", nrmls (" in stdout
+    character = load_character(fox)
+    expect = CharacterPoser(character, method="nrmls", blend=DEFAULT_BLEND).pose(
+        character.clip("Run").sample(np.array([0.3]))).positions
+    assert np.abs(np.load(tmp_path / "default_0.npz")["positions"] - expect).max() <= 1e-5

@@ -10,6 +10,7 @@ from launches import relaunch, splits, standing_workers_or_skip
 
 from nrpose import Deformer, HandleError, HandleSet, InputError, Pose, device, diagnostics
 from nrpose.pose.blend import deform_reference, rest_terms
+from nrpose.pose import blend as blend_mod
 from nrpose.rigs import cylinder
 from nrpose.model.rotation import Rotation
 
@@ -396,7 +397,14 @@ def test_rotation_table_against_float64(blend, lever, point):
         assert np.abs(np.abs(np.einsum("jc,jc->j", qref, q)) - 1).max() < 1e-6
         sign = np.sign(np.einsum("jic,ic->ji", got, q))
         assert np.abs(got - sign[..., None] * q[None]).max() < 1e-6
-        assert (np.einsum("jc,jic->ji", qref, got) >= 0).all()   # in Q_j's hemisphere
+        # one sign per segment for every segment reference (the sign tree's: each signed
+        # Q_s in its tree parent's hemisphere, up to the sign of the root), Q_j the signed one
+        assert (sign == sign[:1]).all()
+        assert np.abs(qref - got[0]).max() < 1e-6
+        want = blend_mod.tree_signs(q, dev.tree)
+        assert np.ptp(sign[0] * want) == 0
+        child, parent = dev.tree[dev.tree[:, 1] >= 0].T
+        assert (np.einsum("ic,ic->i", got[0, child], got[0, parent]) >= 0).all()
         return
     if blend == "paper":
         assert np.abs(got - rots.as_rotvec()[None]).max() < 1e-6
@@ -867,7 +875,8 @@ def test_bound_block_layout_is_the_kernels():
     assert [(n.lower(), int(i)) for n, i in names] == [(n, i) for i, n in enumerate(BOUND_CONSTANTS + BOUND_ARRAYS)]
     rng = np.random.default_rng(5)
     arrays = {"frec": rng.normal(size=77).astype(np.float32), "irec": np.arange(-5, 40, dtype=np.int32),
-              "len2": np.float32([2.5]), "pairs": np.zeros(0, np.int32), "fit": rng.normal(size=(4, 3))}
+              "len2": np.float32([2.5]), "pairs": np.zeros(0, np.int32), "fit": rng.normal(size=(4, 3)),
+              "tree": np.array([[1, -1], [0, 1]], np.int32)}
     constants = {n: 1000 + i for i, n in enumerate(BOUND_CONSTANTS)}
     block, where = bound_block(constants, arrays)
     assert block.dtype == np.uint8 and block.size % BOUND_ALIGN == 0

@@ -563,4 +563,4 @@ def test_dqs_rejects_reflections_and_bad_quaternions(good):
     dq[:, 3] = 2.0
     _raises(r"unit real parts", d.pose_dual_quaternions, dq)
     _raises(r"method='dqs'", LbsSkinner(rest, joints, weights).pose_dual_quaternions, dq)
-    _raises(r"'lbs' or 'dqs'", Skinner, rest, joints, weights, method="slerp")
+    _raises(r"one of \('lbs', 'dqs', 'cor'\)", Skinner, rest, joints, weights, method="slerp")

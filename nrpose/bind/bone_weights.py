@@ -19,6 +19,20 @@ of all its vertices (meshes concatenated in file order,
 Then each vertex keeps its ``k`` most influential bones (renormalised; the
 others are 0). Default: all bones up to :data:`SKELETON_K`, else ``SKELETON_K``.
 
+With the weights come the segment parameters ``t`` the NR-MLS blend should take
+(:func:`nrpose.pose.blend.rest_terms` ``t``; rest-only, so that equivariance and
+rigid motions are kept):
+
+* ``authored``: a part whose vertices all carry one set of skin weights (a weight
+  group, :func:`nrpose.model.deformation_metrics.weight_groups`, at least 3 vertices)
+  takes its parameters, and its split of each joint's weight among the joint's bones,
+  at the group's centroid: the whole part then has one p* − R⁻¹q* and one rotation,
+  and moves rigidly, as under DQS (elsewhere the closest points of the vertices).
+* ``heat``, ``exact``, ``graph``: where each bone's surface path to the vertex starts
+  (:func:`nrpose.bind.distances.arrival_parameters`), so that the handle point agrees
+  with the weight (the other finger's tip no longer follows the bent finger's tip).
+* ``euclidean``: the closest points (``t`` None).
+
 A mesh attached rigidly to a joint does not deform: its vertices get weight 1
 on the first bone of that joint (or of its nearest ancestor that drives a bone)
 and their Euclidean bone distances.
@@ -35,12 +49,14 @@ import numpy as np
 
 from ..errors import InputError
 from ..model.handles import check_alpha
+from ..model.deformation_metrics import weight_groups
 from ..model.meshset import MeshSet, concatenate_meshes, submesh_faces
 from ..model.skeleton import Bones
-from .distances import point_segment_distances, surface_distances
+from .distances import arrival_parameters, point_segment_distances, segment_parameters, surface_distances
 from .weights import dense_weights, keep_top_k
 
-__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "with_skin_weights"]
+__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "group_centers",
+           "with_skin_weights"]
 
 WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
@@ -51,7 +67,8 @@ class BoneWeights:
     """weights (V, B) float64 rows summing to 1 (at most ``k`` non-zero); distances (V, B)
     float64 vertex-to-bone distances (over the surface for deforming vertices with heat,
     exact, graph; else straight-line); bones; k (bones kept per vertex, B when dense);
-    alpha; meshes: the concatenated meshes the rows belong to."""
+    alpha; meshes: the concatenated meshes the rows belong to; t: (V, B) float64 segment
+    parameters in [0, 1] for the NR-MLS blend (module docstring), or None (closest points)."""
 
     weights: np.ndarray
     distances: np.ndarray
@@ -59,14 +76,17 @@ class BoneWeights:
     k: int
     alpha: float
     meshes: MeshSet
+    t: np.ndarray | None = None
 
 
 def bone_weights(character, weights: str = "authored", k: int | str | None = None,
-                 alpha: float = 1.0) -> BoneWeights:
+                 alpha: float = 1.0, parameters: bool = True) -> BoneWeights:
     """Weights of a character's vertices on its bones (see the module docstring).
 
     weights: one of :data:`WEIGHTS`; k: bones kept per vertex (a positive integer, "all",
-    or None for the default); alpha: the exponent of distance weights.
+    or None for the default); alpha: the exponent of distance weights; parameters: compute
+    the blend's segment parameters ``t`` of topological weights (False: ``t`` None there,
+    for callers that only want the weights).
     """
     if weights not in WEIGHTS:
         raise InputError(f"weights must be one of {', '.join(WEIGHTS)}, got {weights!r}")
@@ -92,11 +112,18 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
     deform = np.flatnonzero(rigid < 0)
     D = point_segment_distances(V, bones.segments)[0] if len(V) else np.zeros((0, B))
     W = np.zeros((len(V), B))
+    t = None
     if len(deform):
         if weights == "authored":
             joint_w = authored_joint_weights([m for m in character.meshes if m.rigid_joint is None],
                                              skel.num_joints)
-            dense = _joint_to_bone_weights(joint_w, D[deform], bones, skel.parents)
+            X = group_centers(V[deform], weight_groups(joint_w))
+            grouped = np.flatnonzero((X != V[deform]).any(axis=1))
+            D_split = D[deform].copy()
+            D_split[grouped] = point_segment_distances(X[grouped], bones.segments)[0]
+            dense = _joint_to_bone_weights(joint_w, D_split, bones, skel.parents)
+            t = segment_parameters(V, bones.segments)
+            t[deform] = segment_parameters(X, bones.segments)
         else:
             if weights != "euclidean":
                 faces = submesh_faces(geo.faces, deform, len(V))
@@ -104,11 +131,31 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
                     raise InputError(f"the character's deforming meshes have no faces: {weights!r} distances "
                                      "run over a surface; use weights='euclidean'")
                 D[deform] = surface_distances(V[deform], faces, np.zeros((0, 3)), bones.segments, weights)
+                if parameters:
+                    t = segment_parameters(V, bones.segments)
+                    t[deform] = arrival_parameters(V[deform], faces, bones.segments)
             dense = dense_weights(D[deform], alpha)
         W[deform] = keep_top_k(dense, k_eff if k_eff < B else None)
     for j in np.unique(rigid[rigid >= 0]):
         W[rigid == j, _rigid_owner_bone(int(j), bones, skel.parents)] = 1.0
-    return BoneWeights(W, D, bones, k_eff, alpha, geo)
+    return BoneWeights(W, D, bones, k_eff, alpha, geo, t)
+
+
+def group_centers(points, labels) -> np.ndarray:
+    """(N, 3): the centroid of each point's group (labels (N,) int, e.g.
+    :func:`nrpose.model.deformation_metrics.weight_groups`), the point itself where the
+    label is −1. points (N, 3)."""
+    X = np.asarray(points, np.float64)
+    lab = np.asarray(labels, np.int64)
+    out = X.copy()
+    g = lab >= 0
+    if g.any():
+        _, inv = np.unique(lab[g], return_inverse=True)
+        inv = inv.reshape(-1)
+        sums = np.zeros((inv.max() + 1, 3))
+        np.add.at(sums, inv, X[g])
+        out[g] = (sums / np.bincount(inv)[:, None])[inv]
+    return out
 
 
 def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:

@@ -155,6 +155,15 @@ def _validate(vertices, faces, point_handles, segment_handles):
 # ----------------------------------------------------------------------------
 # Euclidean geometry
 # ----------------------------------------------------------------------------
+def segment_parameters(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Closest-point parameters t (N, S) of points (N, 3) on segments (S, 2, 3), clamped to [0, 1]."""
+    a = segments[:, 0]
+    ab = segments[:, 1] - a
+    rel = points[:, None, :] - a[None]
+    t = np.einsum("nsk,sk->ns", rel, ab) / np.einsum("sk,sk->s", ab, ab)
+    return np.clip(t, 0.0, 1.0)
+
+
 def point_segment_distances(X: np.ndarray, segments: np.ndarray, chunk: int = 8192):
     """Distances (N, S) from points X (N, 3) to segments (S, 2, 3), and for
     each point the index (N,) of its nearest segment (lowest index on ties)
@@ -541,6 +550,49 @@ def distance_matrix(
     if not np.isfinite(D).all():  # cannot happen: every handle has a source
         raise RuntimeError("internal error: non-finite distance left")
     return D
+
+
+def arrival_parameters(V, faces, segments) -> np.ndarray:
+    """(N, S) float64: for each vertex and bone, the parameter in [0, 1] on the bone of the
+    source (:func:`handle_sources`) that the vertex's shortest path over the surface starts
+    from: where a topological distance, and so the weight, "arrives" from.
+
+    With surface distances the weight of bone i at v measures the path from the bone's
+    nearest source, but the blend's handle point p_i(t) is otherwise the bone's Euclidean
+    closest point to v: on a palm with two fingers, for the other finger's tip, the point
+    beside the bent finger's tip (which moves most) instead of its base, where the path to
+    the tip starts. Taking t where the path starts makes the handle point agree with the
+    weight (:func:`nrpose.pose.blend.rest_terms` ``t``). V (N, 3); faces (M, 3) (graph: mesh
+    edges, coincident vertices welded first) or None (graph: the symmetrised 10 nearest
+    neighbours); segments (S, 2, 3). Dijkstra from a super-source joined to each source by
+    its offset, each vertex's source found by pointer jumping on the predecessors; a vertex
+    no path reaches keeps its closest-point parameter."""
+    X = np.asarray(V, np.float64)
+    segs = np.asarray(segments, np.float64).reshape(-1, 2, 3)
+    F = None if faces is None else np.asarray(faces, np.int64)
+    Xw, inv = weld_vertices(X)
+    if F is not None:
+        F = inv[F]
+        F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    n = len(Xw)
+    G = (_edge_graph(Xw, F) if F is not None else _knn_graph(Xw, 10)).tocoo()
+    t = segment_parameters(Xw, segs)
+    for h, (idx, off) in enumerate(handle_sources(Xw, F, None, segs)[: len(segs)]):
+        shift = 1.0 + float(np.max(off, initial=0.0))     # keeps every source edge positive
+        A = sp.csr_matrix((np.r_[G.data, off + shift], (np.r_[G.row, np.full(len(idx), n)], np.r_[G.col, idx])),
+                          shape=(n + 1, n + 1))
+        d, pred = dijkstra(A, directed=True, indices=n, return_predecessors=True)
+        reached = np.isfinite(d[:n])
+        pred = pred[:n].copy()
+        stop = (pred == n) | ~reached
+        pred[stop] = np.flatnonzero(stop)
+        while True:                                       # pointer jumping to the chain's source
+            nxt = pred[pred]
+            if np.array_equal(nxt, pred):
+                break
+            pred = nxt
+        t[reached, h] = segment_parameters(Xw[pred[reached]], segs[h:h + 1])[:, 0]
+    return t[inv]
 
 
 def surface_distances(V: np.ndarray, faces, points: np.ndarray, segments: np.ndarray, method: str) -> np.ndarray:

@@ -25,7 +25,9 @@ def add_parser(sub) -> None:
     p.add_argument("-H", "--handles", required=True, help="handle file (JSON)")
     p.add_argument("-o", "--output", required=True, help="output mesh or point cloud")
     p.add_argument("--alpha", type=float, help="weight exponent: w = 1/d^(2 alpha) (overrides the file; default 1)")
-    p.add_argument("--blend", choices=BLENDS, default="relative", help="rotation blend (default: relative)")
+    p.add_argument("--blend", choices=BLENDS, default=None,
+                   help="rotation blend (default: quaternion with segment handles, relative with point "
+                        "handles only; both continuous there)")
     p.add_argument("--lever", choices=LEVERS, default="weight", help="segment lever rule (default: weight)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--weights", choices=("euclidean", "heat", "exact", "graph", "knn"), default="euclidean",
@@ -56,5 +58,5 @@ def run(args) -> None:
         save_preview(args.png, [("rest", geometry.vertices, geometry.faces),
                                 ("posed", posed, geometry.faces)],
                      handles=[(rest.points, rest.segments), (pose.handles.points, pose.handles.segments)])
-    print(f"{args.output}: {len(posed)} points, {rest.count} handles, alpha {alpha:g}, {args.blend} blend, "
+    print(f"{args.output}: {len(posed)} points, {rest.count} handles, alpha {alpha:g}, {deformer.blend} blend, "
           f"{args.backend}: bind {bind_ms:.1f} ms, pose {pose_ms:.2f} ms")

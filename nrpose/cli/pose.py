@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pose.blend import BLENDS
+from ..pose.blend import BLENDS, DEFAULT_BLEND
 from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
@@ -37,14 +37,15 @@ def add_parser(sub) -> None:
     p.add_argument("--time", type=float, nargs="+", help="clip times in seconds")
     p.add_argument("--frames", help="frame range A:B[:STEP] at --fps")
     p.add_argument("--fps", type=float, default=30.0, help="frames per second (default 30)")
-    p.add_argument("--method", choices=METHODS, default="nrmls", help="posing method (default nrmls)")
+    p.add_argument("--method", choices=METHODS, default="nrmls",
+                   help="posing method (default nrmls; docs/quality.md compares them)")
     p.add_argument("--weights", choices=WEIGHTS, default="authored", help="weights (default: authored)")
     p.add_argument("--weights-file", help="libigl weight DMAT for a mesh + TGF character (rows = vertices, "
                                           "columns = bones in TGF order); used as its authored weights")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
-    p.add_argument("--blend", choices=BLENDS, default="relative",
-                   help="nrmls rotation blend (default: relative; quaternion is continuous where the "
-                        "dominant bone changes, for bones less than 90 degrees apart)")
+    p.add_argument("--blend", choices=BLENDS, default=None,
+                   help=f"nrmls rotation blend (default: {DEFAULT_BLEND}, continuous at any spread of the "
+                        "bones' rotations; relative jumps where the dominant bone changes among three or more)")
     p.add_argument("--backend", choices=BACKENDS, default="opencl", help="opencl (default) or numpy reference")
     p.add_argument("--format", choices=("ply", "obj"), default="ply", help="per-frame files for a directory OUT")
     p.add_argument("-o", "--output", required=True, help="OUT.npz, OUT.glb or a directory")
@@ -152,7 +153,7 @@ def run(args) -> None:
                               "write .npz or a directory")
         local = clip.sample(times)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
-                           backend=args.backend, blend=args.blend)
+                           backend=args.backend, blend=args.blend or DEFAULT_BLEND)
     frames = poser.pose(local, progress=progress)
     if not np.isfinite(frames.positions).all():
         raise NrposeError("posing produced non-finite coordinates; please report this input")

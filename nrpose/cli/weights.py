@@ -119,7 +119,7 @@ def run(args) -> None:
     bones = character.skeleton.bones()
     b = resolve_bone(args.bone, bones, character.skeleton) if args.bone else None  # fail before the work
     t0 = time.perf_counter()
-    res = bone_weights(character, args.method, args.k, args.alpha)
+    res = bone_weights(character, args.method, args.k, args.alpha, parameters=False)
     bind_ms = 1e3 * (time.perf_counter() - t0)
     with atomic_path(out) as tmp:
         with open(tmp, "wb") as fh:

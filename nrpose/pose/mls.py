@@ -30,7 +30,7 @@ import numpy as np
 from .. import device
 from ..errors import DeviceError, InputError
 from ..model.handles import HandleSet, Pose
-from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers
+from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers, sign_tree, default_blend
 
 BACKENDS = ("opencl", "numpy")
 #: points per block of work taken from the job mailbox (share.h): at least BLOCK_POINTS,
@@ -41,7 +41,7 @@ MAX_BLOCK_POINTS = 4096
 #: the pose kernel's bound block (kernels/nrmls.cl BOUND_*, :func:`bound_block`): its header's
 #: ints, the deformer's constants, then the byte offsets of the rest-only arrays, in this order
 BOUND_CONSTANTS = ("np", "nsegs", "block", "pose_stride", "frame_stride", "paper", "npairs")
-BOUND_ARRAYS = ("frec", "irec", "len2", "pairs", "fit")
+BOUND_ARRAYS = ("frec", "irec", "len2", "pairs", "fit", "tree")
 BOUND_ALIGN = 128       # bytes: each array's offset a multiple (float8 rows are read 32-byte aligned)
 #: index of ``nrmls_pose``'s ``handed`` argument (Deformer._pose_args)
 ARG_HANDED = 3
@@ -75,11 +75,16 @@ class Deformer(device.BoundKernel):
     """A point set bound to rest handles (a :class:`nrpose.device.BoundKernel`).
 
     points: (N, 3) rest positions; rest: rest handles; alpha: weight exponent;
-    blend: "relative" (default, equivariant), "quaternion" (equivariant and
-    continuous where the dominant handle changes) or "paper"; lever: "weight"
+    blend: "quaternion" (equivariant, continuous at any spread of the rotations), "relative"
+    (equivariant; jumps where the dominant segment changes among three or more with different
+    rotations) or "paper"; None: :func:`nrpose.pose.blend.default_blend` (quaternion with
+    segments, relative on point handles only); lever: "weight"
     (default), "length" or "paper" (see :mod:`nrpose.pose.blend`); distances / weights:
     optional (N, H) matrices replacing Euclidean distances / giving the w_i;
-    k: keep the k most influential handles of each point (None: all, dense).
+    k: keep the k most influential handles of each point (None: all, dense); t: optional
+    (N, S) rest-only segment parameters (:func:`nrpose.pose.blend.rest_terms`).
+    ``tree``: the quaternion blend's sign tree (:func:`nrpose.pose.blend.sign_tree` of the
+    bound segment weights; None for the other blends).
     With k < S the kernel stores, per point, k segment slots (which segment,
     its coefficients) instead of all S segments.
 
@@ -99,12 +104,13 @@ class Deformer(device.BoundKernel):
 
     PROLOGUE = True
 
-    def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str = "relative",
+    def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str | None = None,
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
-                 backend: str = "opencl"):
+                 backend: str = "opencl", t=None):
         self.lever = lever
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
+        blend = default_blend(rest) if blend is None else blend
         if blend not in BLENDS:
             raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
         self.rest = rest
@@ -112,18 +118,21 @@ class Deformer(device.BoundKernel):
         self.backend = backend
         self.k = k
         self.lanes = lanes_for(len(rest.segments))
-        self._bind_inputs = (points, alpha, lever, distances, weights, k)
+        self._bind_inputs = (points, alpha, lever, distances, weights, k, t)
+        P = len(rest.points)
         if backend == "opencl":
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
             # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
             kept = rest_terms(points, rest, alpha, lever, distances, weights, k,
-                              per_block=lambda T: slot_terms(T, k, lever))
+                              per_block=lambda T: slot_terms(T, k, lever), t=t)
             self._terms: RestTerms | None = None
             self.n = len(kept["u"])
+            self.tree = sign_tree(segment_weights(kept, P, len(rest.segments))) if blend == "quaternion" else None
             self._bind_device(kept)
         else:
-            self._terms = rest_terms(points, rest, alpha, lever, distances, weights, k)
+            self._terms = rest_terms(points, rest, alpha, lever, distances, weights, k, t=t)
             self.n = len(self._terms.u)
+            self.tree = sign_tree(self._terms.weights[:, P:]) if blend == "quaternion" else None
             self._frame_floats = None
 
     @property
@@ -131,8 +140,8 @@ class Deformer(device.BoundKernel):
         """The rest terms (kept by the numpy backend, recomputed for the OpenCL one)."""
         if self._terms is not None:
             return self._terms
-        points, alpha, lever, distances, weights, k = self._bind_inputs
-        return rest_terms(points, self.rest, alpha, lever, distances, weights, k)
+        points, alpha, lever, distances, weights, k, t = self._bind_inputs
+        return rest_terms(points, self.rest, alpha, lever, distances, weights, k, t=t)
 
     # -- device ---------------------------------------------------------------
     def _bind_device(self, kept: dict) -> None:
@@ -166,7 +175,8 @@ class Deformer(device.BoundKernel):
             {"np": npad, "nsegs": S, "block": self._block // self.lanes, "pose_stride": self._pose_stride,
              "frame_stride": self._frame_stride, "paper": int(blend == "paper"), "npairs": self._npairs},
             {"frec": frec, "irec": irec, "len2": arrays["len2"], "pairs": arrays["pairs"],
-             "fit": self._global.values if self._global is not None else np.zeros(0)})
+             "fit": self._global.values if self._global is not None else np.zeros(0),
+             "tree": (self.tree if self.tree is not None else np.zeros((0, 2))).astype(np.int32)})
         del frec, irec, arrays
         self._bound = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=block)
         del block
@@ -282,7 +292,7 @@ class Deformer(device.BoundKernel):
         of each pose."""
         if not poses:
             return np.zeros((0, self.n, 3))
-        return np.stack([pose_reference(self._terms, self.rest, p, self.blend) for p in poses])
+        return np.stack([pose_reference(self._terms, self.rest, p, self.blend, self.tree) for p in poses])
 
     def _own_output(self) -> None:
         """The next launch writes into its own output slots (not into a caller's frames)."""
@@ -432,6 +442,17 @@ def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:
     if levers_stored(lever, S):
         kept["lever"] = np.concatenate([T.lever[:, :P], take(T.lever[:, P:])], 1)
     return kept
+
+
+def segment_weights(kept: dict, P: int, S: int):
+    """(n, S) scipy sparse matrix of the segment weights ŵ kept by :func:`slot_terms`
+    (the slots' w, on their segments): what :func:`nrpose.pose.blend.sign_tree` reads."""
+    import scipy.sparse as sp
+
+    w = kept["coef"][:, P::2]
+    n, K = w.shape
+    cols = kept["slot"] if "slot" in kept else np.broadcast_to(np.arange(K), (n, K))
+    return sp.csr_matrix((w.ravel(), (np.repeat(np.arange(n), K), np.ravel(cols))), shape=(n, S))
 
 
 def levers_stored(lever: str, segments: int) -> bool:

@@ -11,7 +11,12 @@ Vertices of all the character's meshes are concatenated in file order
   skeleton's bones (:meth:`nrpose.model.skeleton.Skeleton.bones`) as segment
   handles carrying their full rotation, weighted by
   :func:`nrpose.bind.bone_weights.bone_weights`.
-* ``lbs``/``dqs``: linear / dual-quaternion skinning (:mod:`nrpose.pose.skinning`).
+  The blend takes the segment parameters that come with the weights
+  (:class:`nrpose.bind.bone_weights.BoneWeights` ``t``): parts with one set of authored
+  weights move rigidly; topological weights take their handle points where their paths start.
+* ``lbs``/``dqs``/``cor``: linear / dual-quaternion skinning (:mod:`nrpose.pose.skinning`),
+  and skinning with optimized centers of rotation (:mod:`nrpose.pose.cor`, the centers
+  computed at bind from the deforming meshes' rest triangles and the weights).
   With authored weights a glTF mesh is skinned from its own bind-space
   POSITION data with ``G_j @ inverse_bind_j`` of its own skin: the glTF
   specification's formula.
@@ -33,18 +38,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import skinning
+from .cor import centers as cor_centers, cor_reference
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
-from .blend import BLENDS
+from .blend import BLENDS, DEFAULT_BLEND
 from .mls import Deformer
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose
-from ..model.meshset import concatenate_meshes
+from ..model.meshset import concatenate_meshes, submesh_faces
 from ..model.skeleton import LocalPose
 
 __all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames"]
 
-METHODS = ("nrmls", "lbs", "dqs")
+METHODS = ("nrmls", "lbs", "dqs", "cor")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
 BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
@@ -67,19 +73,20 @@ class CharacterPoser:
     """A character bound for posing. See the module docstring for the options.
 
     k: segment slots per vertex for nrmls (default: all bones up to 8, else 8).
-    blend: the nrmls rotation blend (:data:`nrpose.pose.blend.BLENDS`; "quaternion" is
-    continuous where the dominant bone changes, at hips and shoulders).
+    blend: the nrmls rotation blend (:data:`nrpose.pose.blend.BLENDS`; the default
+    "quaternion" is continuous at any spread of the bones' rotations, "relative" jumps
+    where the dominant bone changes among three or more, at hips and shoulders).
     """
 
     def __init__(self, character: Character, method: str = "nrmls", weights: str = "authored",
-                 alpha: float = 1.0, k: int | None = None, backend: str = "opencl", blend: str = "relative"):
+                 alpha: float = 1.0, k: int | None = None, backend: str = "opencl", blend: str = DEFAULT_BLEND):
         if method not in METHODS:
             raise InputError(f"method must be one of {METHODS}, got {method!r}")
         if weights not in WEIGHTS:
             raise InputError(f"weights must be one of {WEIGHTS}, got {weights!r}")
         if blend not in BLENDS:
             raise InputError(f"blend must be one of {BLENDS}, got {blend!r}")
-        if blend != "relative" and method != "nrmls":
+        if blend != DEFAULT_BLEND and method != "nrmls":
             raise InputError(f"blend {blend!r} applies to the nrmls method only; drop blend= or use method='nrmls'")
         if not character.meshes:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
@@ -104,8 +111,10 @@ class CharacterPoser:
             if method == "nrmls":
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
-                W = bone_weights(character, weights, kk, alpha).weights[self._deform_idx]
-                self._deformer = Deformer(V, rest, weights=W, k=kk, backend=backend, blend=blend)
+                bw = bone_weights(character, weights, kk, alpha)
+                t = bw.t[self._deform_idx] if bw.t is not None else None
+                self._deformer = Deformer(V, rest, weights=bw.weights[self._deform_idx], k=kk, backend=backend,
+                                          blend=blend, t=t)
             else:
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
@@ -124,9 +133,16 @@ class CharacterPoser:
                     self._bind_space, src = False, V
                 joints, wts = _compact(joint_w)
                 joints = joints + offset[:, None]
-                cls = skinning.LbsSkinner if method == "lbs" else skinning.DqsSkinner
-                self._deformer = cls(src, joints, wts) if backend == "opencl" else None
-                self._skin_ref = (src, joints, wts)
+                if method == "cor":
+                    faces = submesh_faces(geo.faces, self._deform_idx, self.n)
+                    centers = cor_centers(src, faces if len(faces) else None, joints, wts)
+                    self._deformer = (skinning.Skinner(src, joints, wts, method="cor", centers=centers)
+                                      if backend == "opencl" else None)
+                    self._skin_ref = (src, joints, wts, centers)
+                else:
+                    cls = skinning.LbsSkinner if method == "lbs" else skinning.DqsSkinner
+                    self._deformer = cls(src, joints, wts) if backend == "opencl" else None
+                    self._skin_ref = (src, joints, wts)
         self._backend = backend
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
 
@@ -181,8 +197,9 @@ class CharacterPoser:
                 elif self._deformer is not None:
                     self._deformer.pose_frames(mats[a:b], out=dst)
                 else:
-                    ref = skinning.lbs_reference if self.method == "lbs" else skinning.dqs_reference
-                    dst[...] = [ref(*self._skin_ref, m) for m in mats[a:b]]
+                    ref = {"lbs": skinning.lbs_reference, "dqs": skinning.dqs_reference,
+                           "cor": cor_reference}[self.method]
+                    dst[...] = [ref(*self._skin_ref[:3], m, *self._skin_ref[3:]) for m in mats[a:b]]
                 if not whole:
                     out[a:b, self._deform_idx] = dst
             frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)

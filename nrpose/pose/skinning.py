@@ -46,6 +46,10 @@ launch. DQS converts matrices to dual quaternions on the host;
 
 The numpy references :func:`lbs_reference` and :func:`dqs_reference` compute
 the same in float64 and apply the same validation and weight normalisation.
+
+CoR (``method="cor"``, kernels/cor.cl): skinning with optimized centers of rotation, bound
+through the same class with the vertices' centers (:class:`nrpose.pose.cor.CorSkinner`
+computes them; :func:`nrpose.pose.cor.cor_reference` is its float64 reference).
 """
 from __future__ import annotations
 
@@ -63,8 +67,11 @@ __all__ = ["LbsSkinner", "DqsSkinner", "Skinner", "lbs_reference", "dqs_referenc
 LANES = 8          # vertices per group (float8 lanes)
 # the kernels' arguments (kernels/skinning.cl lbs, dqs): bound data, per-pose parameters
 # and output, sizes, then the job mailbox and the role (share.h)
+# (kernels/cor.cl cor: the same, its `rest` rows the offsets v - c, then the centers c)
 (ARG_REST, ARG_JOINTS, ARG_WEIGHTS, ARG_ROWS, ARG_PARAMS, ARG_OUT, ARG_K, ARG_J, ARG_G, ARG_BLOCK,
  ARG_JOBS, ARG_ROLE) = range(12)
+#: methods and their kernels' programs
+PROGRAMS = {"lbs": "skinning.cl", "dqs": "skinning.cl", "cor": "cor.cl"}
 BLOCK = 32         # groups (of 8 vertices) per block of work taken from the job mailbox (share.h)
 
 
@@ -237,7 +244,9 @@ class Skinner(device.BoundKernel):
     """Skinning deformer bound once to a mesh's rest vertices and influences (a
     :class:`nrpose.device.BoundKernel`).
 
-    ``method`` is ``"lbs"`` or ``"dqs"``. Construction validates the inputs,
+    ``method`` is ``"lbs"``, ``"dqs"`` or ``"cor"`` (skinning with optimized centers of
+    rotation, :mod:`nrpose.pose.cor`, whose :class:`~nrpose.pose.cor.CorSkinner` computes
+    ``centers`` (N, 3), the vertices' centers of rotation, at bind). Construction validates the inputs,
     normalises weights, sorts each vertex's influences by decreasing weight,
     uploads everything once, poses the identity once (PoCL compiles the kernel
     for each device at its first launch) and times one frame of the kernel on
@@ -246,12 +255,20 @@ class Skinner(device.BoundKernel):
     a time (its launches share per-pose arrays and a job mailbox).
     """
 
-    def __init__(self, rest, joints, weights, method: str = "lbs"):
-        if method not in ("lbs", "dqs"):
-            raise InputError(f"skinning method must be 'lbs' or 'dqs', got {method!r}")
+    def __init__(self, rest, joints, weights, method: str = "lbs", centers=None):
+        if method not in PROGRAMS:
+            raise InputError(f"skinning method must be one of {tuple(PROGRAMS)}, got {method!r}")
+        if (centers is None) != (method != "cor"):
+            raise InputError("centers: give them with method 'cor' (only)")
         import pyopencl as cl
         self.method = method
         rest, joints, weights, self.max_joint = prepare_influences(rest, joints, weights)
+        if centers is not None:
+            centers = np.asarray(centers, np.float64)
+            if centers.shape != rest.shape or not np.isfinite(centers).all():
+                raise InputError(f"centers: expected finite values of shape {rest.shape}, got {np.shape(centers)}")
+            # the kernel's bound rows (its `rest`): v - c, then c
+            rest = np.concatenate([rest - centers, centers], axis=1)
         n, k = joints.shape
         self.n_vertices, self.n_influences = n, k
         self.n = n              # points per frame (BoundKernel)
@@ -268,7 +285,7 @@ class Skinner(device.BoundKernel):
         npad = g * LANES
         self.n_groups = g       # groups of 8 vertices (the last one padded)
         self._frame_floats = 3 * npad
-        r = np.zeros((npad, 3), np.float32)
+        r = np.zeros((npad, rest.shape[1]), np.float32)
         r[:n] = rest
         jj = np.zeros((npad, k), np.int32)
         jj[:n] = joints
@@ -288,7 +305,7 @@ class Skinner(device.BoundKernel):
         self._weights = cl.Buffer(ctx, ro, hostbuf=soa(ww))
         self._rows = cl.Buffer(ctx, ro, hostbuf=device.run_coded_rows(rows, LANES))
         self._bound_bytes = sum(b.size for b in (self._rest, self._joints, self._weights, self._rows))
-        self._kernel = cl.Kernel(device.program("skinning.cl"), method)
+        self._kernel = cl.Kernel(device.program(PROGRAMS[method]), method)
         for arg, value in ((ARG_REST, self._rest), (ARG_JOINTS, self._joints), (ARG_WEIGHTS, self._weights),
                            (ARG_ROWS, self._rows), (ARG_K, np.int32(k)), (ARG_G, np.int32(g)),
                            (ARG_BLOCK, np.int32(BLOCK)), (ARG_ROLE, np.int32(device.ROLE_CALLER))):
@@ -338,9 +355,13 @@ class Skinner(device.BoundKernel):
         device.check_out_writable(out)
 
     def _params(self, mats: np.ndarray) -> np.ndarray:
+        """Per-pose kernel parameters (F, J, W) of matrices (F, J, 4, 4): lbs, the rows 0..2
+        (12); dqs, unit dual quaternions (8); cor, the 12 rows and the rotation quaternion (16)."""
+        rows = mats[:, :, :3, :].reshape(mats.shape[0], mats.shape[1], 12)
         if self.method == "lbs":
-            return mats[:, :, :3, :].reshape(mats.shape[0], mats.shape[1], 12)
-        return dual_quaternions(mats)
+            return rows
+        dq = dual_quaternions(mats)
+        return dq if self.method == "dqs" else np.concatenate([rows, dq[..., :4]], axis=-1)
 
     def _array(self, which: str, n: int, arg: int, **kw) -> device.HostArray:
         """HostArray `which` with >= n elements, bound to kernel argument `arg`
