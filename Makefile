@@ -9,7 +9,7 @@ BLENDER_VENV := .venv-blender
 .PHONY: venv demo test bench blender
 venv:
 	@test -x $(PY) || { $(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip; }
-	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench]'
+	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench,ray]'
 
 demo: venv
 	$(VENV)/bin/nrpose demo

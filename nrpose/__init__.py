@@ -10,10 +10,26 @@ Data flow: load (:mod:`nrpose.io`) → bind (:mod:`nrpose.bind`, rest-only work)
     deformer = Deformer(points, rest, alpha=1.0)          # bind once
     posed = deformer.pose(Pose.make(rest, segments=posed_segments, rotations=rotations))
 """
-from .pose.mls import Deformer
+import importlib
+
 from .errors import DeviceError, FileFormatError, HandleError, InputError, NrposeError
-from .io.poses import load_handles
-from .model.handles import HandleSet, Pose
 
 __all__ = ["Deformer", "HandleSet", "Pose", "load_handles", "NrposeError", "InputError",
            "HandleError", "FileFormatError", "DeviceError"]
+
+#: public name -> the module defining it, imported on first use (PEP 562): ``import nrpose``
+#: (and so every ``nrpose`` command) then costs only what it uses
+LAZY = {"Deformer": ".pose.mls", "load_handles": ".io.poses", "HandleSet": ".model.handles",
+        "Pose": ".model.handles"}
+
+
+def __getattr__(name: str):
+    if name not in LAZY:
+        raise AttributeError(f"module 'nrpose' has no attribute {name!r}")
+    value = getattr(importlib.import_module(LAZY[name], __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(LAZY))

@@ -8,6 +8,7 @@ The issue's bound is 0.10.
 """
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -23,7 +24,7 @@ from nrpose.bind import distances as distances_mod  # noqa: E402
 from nrpose.io import load_character  # noqa: E402
 from nrpose.bind.distances import distance_matrix  # noqa: E402
 from nrpose.io.meshes import write_geometry  # noqa: E402
-from nrpose.pose.poser import CharacterPoser  # noqa: E402
+from nrpose.pose.poser import BIND_CACHE_FOLDER, CharacterPoser  # noqa: E402
 from nrpose.model.rotation import Rotation  # noqa: E402
 from nrpose.rigs.fingers import fingers_shape  # noqa: E402
 
@@ -170,6 +171,8 @@ def test_cache_file_of_a_pose_run_is_rebuilt_when_corrupt(fingers_files, counted
     CharacterPoser(ch, weights="heat")
     (path,) = (tmp_path / "cache").glob("*.npz")
     path.write_bytes(b"not an npz file")
+    # the character's whole bind is cached too (its folder): without it the bind reads the distances again
+    shutil.rmtree(tmp_path / "cache" / BIND_CACHE_FOLDER)
     CharacterPoser(ch, weights="heat")
     assert counted == ["heat", "heat"]
     with np.load(path) as z:

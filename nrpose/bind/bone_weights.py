@@ -55,8 +55,8 @@ from ..model.skeleton import Bones
 from .distances import arrival_parameters, point_segment_distances, segment_parameters, surface_distances
 from .weights import dense_weights, keep_top_k
 
-__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "group_centers",
-           "with_skin_weights"]
+__all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "authored_bone_weights",
+           "skin_entries", "group_centers", "with_skin_weights"]
 
 WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
@@ -118,10 +118,8 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
             joint_w = authored_joint_weights([m for m in character.meshes if m.rigid_joint is None],
                                              skel.num_joints)
             X = group_centers(V[deform], weight_groups(joint_w))
-            grouped = np.flatnonzero((X != V[deform]).any(axis=1))
-            D_split = D[deform].copy()
-            D_split[grouped] = point_segment_distances(X[grouped], bones.segments)[0]
-            dense = _joint_to_bone_weights(joint_w, D_split, bones, skel.parents)
+            dense = authored_bone_weights([m for m in character.meshes if m.rigid_joint is None], X, bones,
+                                          skel.parents)
             t = segment_parameters(V, bones.segments)
             t[deform] = segment_parameters(X, bones.segments)
         else:
@@ -158,20 +156,28 @@ def group_centers(points, labels) -> np.ndarray:
     return out
 
 
-def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
-    """Dense (V, J) skin weights of the meshes (concatenated), rows summing to 1."""
+def skin_entries(meshes) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every authored skin weight of the meshes (concatenated) as (row (E,) int64, joint (E,)
+    int64, weight (E,) float64), weights divided by their row's sum."""
     missing = [m.name for m in meshes if m.joints is None or m.weights is None]
     if missing:
         raise InputError(f"mesh {missing[0]!r} has no skin weights; use weights='euclidean' "
                          "(or heat, exact, graph)")
-    rows = []
+    rows, base = [], 0
     for m in meshes:
-        W = np.zeros((len(m.vertices), n_joints))
-        np.add.at(W, (np.repeat(np.arange(len(m.vertices)), m.joints.shape[1]), m.joints.ravel()),
-                  m.weights.ravel())
-        rows.append(W)
-    W = np.concatenate(rows)
-    return W / W.sum(axis=1, keepdims=True)
+        rows.append(np.repeat(np.arange(base, base + len(m.vertices)), m.joints.shape[1]))
+        base += len(m.vertices)
+    r = np.concatenate(rows) if rows else np.zeros(0, np.int64)
+    j = np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in meshes]) if meshes else r
+    w = np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in meshes]) if meshes else np.zeros(0)
+    return r, j, w / np.bincount(r, weights=w, minlength=base)[r]
+
+
+def authored_joint_weights(meshes, n_joints: int) -> np.ndarray:
+    """Dense (V, J) skin weights of the meshes (concatenated), rows summing to 1."""
+    r, j, w = skin_entries(meshes)
+    n = sum(len(m.vertices) for m in meshes)
+    return np.bincount(r * n_joints + j, weights=w, minlength=n * n_joints).reshape(n, n_joints)
 
 
 def with_skin_weights(character, joint_weights: np.ndarray):
@@ -191,25 +197,46 @@ def with_skin_weights(character, joint_weights: np.ndarray):
     return replace(character, meshes=tuple(meshes))
 
 
-def _joint_to_bone_weights(joint_w: np.ndarray, D: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
-    """(V, B) bone weights from (V, J) joint weights and (V, B) bone distances (module docstring)."""
-    owner = np.arange(joint_w.shape[1])
-    driven = np.zeros(joint_w.shape[1], bool)
+def authored_bone_weights(meshes, X: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:
+    """(V, B) bone weights of the meshes' vertices X (V, 3) (concatenated) from their authored
+    skin weights (module docstring): a vertex's weight on a joint is shared between that
+    joint's bones by inverse squared distance. Distances are taken only to the bones of the
+    joints each vertex is weighted on."""
+    n_joints = len(parents)
+    owner = np.arange(n_joints)
+    driven = np.zeros(n_joints, bool)
     driven[bones.joints] = True
-    for j in range(len(owner)):                      # parents come first: resolve in order
+    for j in range(n_joints):                        # parents come first: resolve in order
         if not driven[j]:
             p = parents[j]
             owner[j] = owner[p] if p >= 0 else -1
-    lost = (owner < 0) & (joint_w.sum(axis=0) > 0)
+    r, j, w = skin_entries(meshes)
+    lost = (owner[j] < 0) & (w > 0)
     if lost.any():
-        raise InputError(f"joint {int(np.flatnonzero(lost)[0])} carries skin weight but neither it nor "
+        raise InputError(f"joint {int(j[lost].min())} carries skin weight but neither it nor "
                          "an ancestor drives a bone")
-    jw = np.zeros_like(joint_w)
-    np.add.at(jw.T, owner[owner >= 0], joint_w.T[owner >= 0])
-    share = 1.0 / np.maximum(D ** 2, 1e-12)
-    per_joint = np.zeros((len(D), jw.shape[1]))
-    np.add.at(per_joint.T, bones.joints, share.T)
-    return jw[:, bones.joints] * share / per_joint[:, bones.joints]
+    use = (w != 0) & (owner[j] >= 0)
+    # one entry per (vertex, owning joint): weights of joints with the same owner add up
+    key, inverse = np.unique(r[use] * n_joints + owner[j[use]], return_inverse=True)
+    weight = np.bincount(inverse, weights=w[use], minlength=len(key))
+    ev, ej = key // n_joints, key % n_joints
+    # each entry expanded to its joint's bones
+    order = np.argsort(bones.joints, kind="stable")
+    count = np.bincount(bones.joints, minlength=n_joints)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    per = count[ej]
+    entry = np.repeat(np.arange(len(key)), per)
+    bone = order[first[ej][entry] + np.arange(len(entry)) - np.repeat(np.cumsum(per) - per, per)]
+    A = bones.segments[bone, 0]
+    AB = bones.segments[bone, 1] - A
+    L2 = np.einsum("ij,ij->i", AB, AB)
+    x = X[ev[entry]]
+    t = np.clip(np.einsum("ij,ij->i", x - A, AB) * np.where(L2 > 0, 1.0 / np.where(L2 > 0, L2, 1.0), 0.0), 0.0, 1.0)
+    d = np.linalg.norm(x - (A + t[:, None] * AB), axis=1)
+    share = 1.0 / np.maximum(d ** 2, 1e-12)
+    W = np.zeros((len(X), len(bones)))
+    W[ev[entry], bone] = weight[entry] * share / np.bincount(entry, weights=share, minlength=len(key))[entry]
+    return W
 
 
 def _rigid_owner_bone(j: int, bones: Bones, parents: np.ndarray) -> int:

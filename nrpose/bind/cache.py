@@ -22,7 +22,9 @@ API: ``cached(key_parts, compute) -> dict[str, np.ndarray]`` (and
 """
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib
 import json
 import os
 import tempfile
@@ -35,7 +37,7 @@ import numpy as np
 from ..errors import InputError
 
 __all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status",
-           "binding_key_parts"]
+           "binding_key_parts", "code_version"]
 
 FORMAT_VERSION = 2  # 2: surface distances weld coincident vertices (old files are stale)
 _META = "__nrpose_cache_key__"
@@ -86,6 +88,16 @@ def cache_key(key_parts: Mapping[str, object]) -> str:
             except (TypeError, ValueError) as exc:
                 raise InputError(f"key part {name!r} cannot be hashed: {exc}") from None
             h.update(b"\0json\0" + text.encode())
+    return h.hexdigest()
+
+
+@functools.lru_cache(maxsize=None)
+def code_version(modules: tuple[str, ...]) -> str:
+    """sha256 hex digest over the source files of ``modules`` (imported module names): a key
+    part that makes a cached result stale when the code that computed it changes."""
+    h = hashlib.sha256()
+    for name in modules:
+        h.update(name.encode() + b"\0" + Path(importlib.import_module(name).__file__).read_bytes() + b"\0")
     return h.hexdigest()
 
 

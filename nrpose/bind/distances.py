@@ -107,15 +107,16 @@ empty inputs, no handles, unknown method → :class:`~nrpose.errors.InputError`
 from __future__ import annotations
 
 import warnings
+from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components, dijkstra
-from scipy.spatial import cKDTree
 
 from ..checks import real_rows, triangles
 from ..errors import HandleError, InputError
 from .cache import binding_key_parts, cached
+
+if TYPE_CHECKING:     # scipy is imported where a graph is built (not on the posing path)
+    import scipy.sparse as sp
 
 __all__ = [
     "surface_distances",
@@ -208,6 +209,7 @@ def euclidean_distances(X, point_handles=None, segment_handles=None) -> np.ndarr
 # graphs and components
 # ----------------------------------------------------------------------------
 def _edge_graph(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
+    import scipy.sparse as sp
     E = np.vstack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
     E = np.sort(E, axis=1)
     E = E[E[:, 0] != E[:, 1]]
@@ -216,6 +218,8 @@ def _edge_graph(V: np.ndarray, F: np.ndarray) -> sp.csr_matrix:
 
 
 def _knn_graph(V: np.ndarray, k: int) -> sp.csr_matrix:
+    import scipy.sparse as sp
+    from scipy.spatial import cKDTree
     n = len(V)
     k = int(min(k, n - 1))
     if k < 1:
@@ -230,6 +234,7 @@ def _knn_graph(V: np.ndarray, k: int) -> sp.csr_matrix:
 
 
 def _symmetric_graph(V: np.ndarray, E: np.ndarray) -> sp.csr_matrix:
+    import scipy.sparse as sp
     n = len(V)
     w = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
     # csgraph drops explicit zeros: coincident vertices stay joined by a tiny edge
@@ -243,6 +248,8 @@ def _symmetric_graph(V: np.ndarray, E: np.ndarray) -> sp.csr_matrix:
 def mesh_components(n_vertices: int, faces: np.ndarray | None) -> np.ndarray:
     """Connected-component label (N,) int64 of every vertex; vertices used by
     no face are singleton components. Labels are deterministic."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
     if faces is None or len(faces) == 0:
         return np.arange(n_vertices, dtype=np.int64)
     F = np.asarray(faces, dtype=np.int64)
@@ -346,6 +353,8 @@ def handle_sources(V, F, point_handles, segment_handles, *, visibility: bool = T
 # ----------------------------------------------------------------------------
 def _dijkstra_offsets(G: sp.csr_matrix, sources) -> np.ndarray:
     """Exact min_s (graph(s, v) + o_s) per handle via a super-source node."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import dijkstra
     n = G.shape[0]
     out = np.full((n, len(sources)), np.inf)
     Gc = G.tocoo()
@@ -461,6 +470,7 @@ def _bridge_unreached(V: np.ndarray, D: np.ndarray) -> None:
 
     Handles with the same unreached set share one k-d tree and one query
     (run on all cores: per-query results do not depend on the split)."""
+    from scipy.spatial import cKDTree
     bad = ~np.isfinite(D)
     if not bad.any():
         return
@@ -567,6 +577,8 @@ def arrival_parameters(V, faces, segments) -> np.ndarray:
     neighbours); segments (S, 2, 3). Dijkstra from a super-source joined to each source by
     its offset, each vertex's source found by pointer jumping on the predecessors; a vertex
     no path reaches keeps its closest-point parameter."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import dijkstra
     X = np.asarray(V, np.float64)
     segs = np.asarray(segments, np.float64).reshape(-1, 2, 3)
     F = None if faces is None else np.asarray(faces, np.int64)

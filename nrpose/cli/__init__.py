@@ -1,9 +1,10 @@
-"""Command line: ``nrpose deform | pose | info | weights | retarget | demo | fit-skin``.
+"""Command line: ``nrpose deform | pose | info | weights | retarget | bake | demo | fit-skin``.
 
 One module per command, each with ``add_parser(subparsers)`` and ``run(args)``.
 Every user mistake (bad file, bad option, no OpenCL platform) ends with one
 line on stderr and exit status 2; outputs are written to a temporary name
-and renamed, so a failed run leaves no output behind.
+and renamed, so a failed run leaves no output behind. A command's ``run``
+returns its exit status (None: 0); Ctrl-C ends a command with status 130.
 
 Library errors name arguments as Python spells them (``weights='euclidean'``,
 ``skeleton=``, ``format_map()``); :func:`flag_text` rewrites them with the
@@ -12,17 +13,18 @@ flags of the command that ran (each command module's ``FLAGS``).
 from __future__ import annotations
 
 import argparse
+import importlib
 import re
 import sys
 
 import numpy as np
 
 from ..errors import NrposeError
-from . import deform, demo, fit_skin, info, pose, retarget, weights
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
-COMMANDS = (deform, pose, weights, retarget, info, demo, fit_skin)
+#: the commands, each a module of this package (imported when its parser is built)
+COMMANDS = ("deform", "pose", "weights", "retarget", "bake", "info", "demo", "fit_skin")
 
 # name='value' | name= (before a space, punctuation or the end) | name()
 _ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
@@ -37,11 +39,13 @@ class Parser(argparse.ArgumentParser):
         raise UsageError(f"{self.prog}: {message}")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command line parser; with ``only`` (a name in :data:`COMMANDS`) that command's
+    alone, so that a run imports the modules of the command it runs and no other."""
     parser = Parser(prog="nrpose", description="Nearly rigid MLS deformation and skeletal posing on OpenCL.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=Parser)
-    for command in COMMANDS:
-        command.add_parser(sub)
+    for name in COMMANDS if only is None else (only,):
+        importlib.import_module(f".{name}", __name__).add_parser(sub)
     return parser
 
 
@@ -57,21 +61,30 @@ def flag_text(message: str, flags: dict[str, str]) -> str:
 
 
 def main(argv=None) -> int:
-    args = None
+    args, status = None, 0
     try:
-        args = build_parser().parse_args(argv)
+        argv = sys.argv[1:] if argv is None else list(argv)
+        module = argv[0].replace("-", "_") if argv else None     # `fit-skin` is module fit_skin
+        args = build_parser(module if module in COMMANDS else None).parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
         # so in one line; numpy's floating-point warnings on the way would add lines to stderr
         # (nrpose's own warnings, e.g. a binding cache not written, still show)
         with np.errstate(all="ignore"):
-            args.func(args)
+            status = args.func(args) or 0
     except UsageError as exc:
         return fail(str(exc))
     except NrposeError as exc:
         return fail(f"nrpose: error: {flag_text(str(exc), getattr(args, 'flags', {}))}")
     except OSError as exc:
         return fail(f"nrpose: error: {exc.filename or ''}: {exc.strerror or exc}")
-    return 0
+    except KeyboardInterrupt:
+        print("nrpose: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return status
+
+
+#: the exit status of a command stopped by Ctrl-C (128 + SIGINT, as a shell reports it)
+EXIT_INTERRUPTED = 128 + 2
 
 
 def fail(message: str) -> int:

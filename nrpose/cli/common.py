@@ -13,6 +13,7 @@ from ..errors import NrposeError
 from ..io.files import atomic_path, check_writable
 from ..io.gltf_write import write_animated_glb
 from ..io.meshes import write_geometry
+from ..io.npz import write_npz
 
 __all__ = ["median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
 
@@ -69,8 +70,8 @@ def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, sourc
     if kind == "npz":
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:
-                np.savez(fh, positions=frames.positions, faces=frames.faces, times=times,
-                         mesh_names=np.array(frames.mesh_names), mesh_offsets=frames.mesh_offsets)
+                write_npz(fh, {"positions": frames.positions, "faces": frames.faces, "times": times,
+                               "mesh_names": np.array(frames.mesh_names), "mesh_offsets": frames.mesh_offsets})
     elif kind == "glb":
         return write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets,
                                   source=source, quantize=quantize, animation_name=name)

@@ -130,33 +130,11 @@ def run(args) -> None:
             raise NrposeError(f"--weights-file gives the weights; drop --weights {args.weights}")
         W = read_dmat_weights(args.weights_file, skel, sum(len(m.vertices) for m in character.meshes))
         character = with_skin_weights(character, W)
-    if args.rest:
-        local, times, name = skel.rest_pose, np.zeros(1), "rest"
-    elif args.pose:
-        local, times, name = load_pose(args.pose, skel), np.zeros(1), Path(args.pose).stem
-    else:
-        if args.clip:
-            clip = character.clip(args.clip)
-        elif Path(args.motion).suffix.lower() == ".dmat":
-            clip = read_dmat_animation(args.motion, skel, args.fps)
-        else:
-            motion = load_character(args.motion)
-            clip = motion_clip(motion, skel, args.motion)
-        name = clip.name
-        if args.time and args.frames:
-            raise NrposeError("give either --time or --frames, not both")
-        times = (np.asarray(args.time, dtype=np.float64) if args.time
-                 else parse_frames(args.frames, args.fps) if args.frames
-                 else sample_times(clip.duration, args.fps))
-        if kind == "glb" and (np.diff(times) <= 0).any():
-            raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
-                              "write .npz or a directory")
-        local = clip.sample(times)
+    local, times, name = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
+                                    time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
-    frames = poser.pose(local, progress=progress)
-    if not np.isfinite(frames.positions).all():
-        raise NrposeError("posing produced non-finite coordinates; please report this input")
+    frames = posed_frames(poser, local, progress)
     if args.bake == "skin":
         single = local.rotation.ndim == 2
         keys = type(local)(*(getattr(local, p)[None] if single else getattr(local, p)
@@ -178,6 +156,47 @@ def run(args) -> None:
     print(f"{args.output}: {len(ms)} frame(s) × {poser.n} vertices, {args.method} ({args.weights} weights) on "
           f"{args.backend}: bind {poser.bind_ms:.0f} ms; per frame median {np.median(ms):.3f} ms, "
           f"min {ms.min():.3f}, max {ms.max():.3f}; {1e3 / np.median(ms):.0f} frames/s")
+
+
+def pose_input(character, *, clip: str | Clip | None = None, motion: str | None = None, pose: str | None = None,
+               rest: bool = False, time=None, frames: str | None = None, fps: float = 30.0,
+               kind: str = "npz") -> tuple:
+    """(local pose (F, J, ...) as ``Clip.sample`` gives it, times (F,) float64 seconds, name: the
+    clip's, the pose file's stem or "rest") that ``nrpose pose`` poses for these options: the
+    rest pose, a pose file, or a clip (a name of the character's, or a :class:`Clip`, e.g. a
+    retargeted one) or ``motion`` (BVH, or a libigl DMAT animation at ``fps``) sampled at
+    ``time`` (seconds), ``frames`` (``A:B[:STEP]``) or every frame at ``fps``.
+    ``kind``: :func:`frames_output_kind` of the output ("glb" needs strictly increasing times)."""
+    skel = character.skeleton
+    if rest:
+        return skel.rest_pose, np.zeros(1), "rest"
+    if pose:
+        return load_pose(pose, skel), np.zeros(1), Path(pose).stem
+    if isinstance(clip, Clip):
+        source = clip
+    elif clip:
+        source = character.clip(clip)
+    elif Path(motion).suffix.lower() == ".dmat":
+        source = read_dmat_animation(motion, skel, fps)
+    else:
+        source = motion_clip(load_character(motion), skel, motion)
+    if time and frames:
+        raise NrposeError("give either --time or --frames, not both")
+    times = (np.asarray(time, dtype=np.float64) if time
+             else parse_frames(frames, fps) if frames
+             else sample_times(source.duration, fps))
+    if kind == "glb" and (np.diff(times) <= 0).any():
+        raise NrposeError("--time: an animated .glb needs strictly increasing times; sort them or "
+                          "write .npz or a directory")
+    return source.sample(times), times, source.name
+
+
+def posed_frames(poser: CharacterPoser, local, progress=None):
+    """``poser.pose(local)``, refused (NrposeError) when a coordinate is not finite."""
+    frames = poser.pose(local, progress=progress)
+    if not np.isfinite(frames.positions).all():
+        raise NrposeError("posing produced non-finite coordinates; please report this input")
+    return frames
 
 
 def motion_clip(motion, skel, path) -> Clip:

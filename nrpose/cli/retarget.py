@@ -46,7 +46,7 @@ from ..io.poses import load_map
 from ..pose.retarget import ROOT_MODES, coverage, format_map, joint_map, make_clip, retarget_pose, skinned_bounds
 from ..render.retarget_sheet import save_retarget_sheet
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "run", "retarget_clip", "SOURCE_SUFFIXES", "TARGET_SUFFIXES"]
 
 #: library argument name -> the flag users type
 FLAGS = {"user_map": "--map MAP.json,", "format_map": "--show-map", "root": "--root", "fps": "--fps",
@@ -111,16 +111,10 @@ def run(args) -> None:
         print(format_map(mapping, source.skeleton, target.skeleton))
     if args.output is None:
         return
-    if not mapping:
-        raise InputError(f"no joint of {args.target} maps to a joint of {args.source}: the rigs share no known "
-                         "joint names; give a joint map (--map MAP.json, {\"TargetJoint\": \"SourceJoint\"})")
-    if not source.clips:
-        raise InputError(f"{args.source}: has no animation: no motion to retarget")
-    clip = source.clip(args.source_clip) if args.source_clip else source.clips[0]
     out = Path(args.output)
     bvh = out.suffix.lower() == ".bvh"
-    times, local, plan = retarget_pose(source, clip, target, mapping, root, args.fps, args.force, close=not bvh)
-    result = make_clip(clip.name, times, local, plan, target.skeleton)
+    clip, times, local, plan, result = retarget_clip(source, target, mapping, args.source, args.target,
+                                                     args.source_clip, root, args.fps, args.force, close=not bvh)
     if not bvh:
         name = write_glb_with_clip(args.target, out, target, result, skinned_bounds(target, local))
     else:
@@ -133,3 +127,19 @@ def run(args) -> None:
           f"{len(plan.mapping)} of {target.skeleton.num_joints} target joints mapped "
           f"({100 * coverage(target.skeleton, mapping).fraction:.0f}% of its bone length), root motion x{plan.scale:.4g}"
           f", root {root}, lift {plan.lift:+.3g}")
+
+
+def retarget_clip(source, target, mapping: dict, source_path: str, target_path: str, source_clip: str | None = None,
+                  root: str = "origin", fps: float = 30.0, force: bool = False, close: bool = True):
+    """The retargeting ``nrpose retarget`` writes: (source clip, times (F,) s, target local pose,
+    plan, the target's new Clip). ``mapping``: :func:`nrpose.pose.retarget.joint_map`; the paths
+    name the characters in errors (InputError: no mapped joint, no animation, unknown clip);
+    ``root``, ``force``, ``close``: :func:`nrpose.pose.retarget.retarget_pose`'s."""
+    if not mapping:
+        raise InputError(f"no joint of {target_path} maps to a joint of {source_path}: the rigs share no known "
+                         "joint names; give a joint map (--map MAP.json, {\"TargetJoint\": \"SourceJoint\"})")
+    if not source.clips:
+        raise InputError(f"{source_path}: has no animation: no motion to retarget")
+    clip = source.clip(source_clip) if source_clip else source.clips[0]
+    times, local, plan = retarget_pose(source, clip, target, mapping, root, fps, force, close=close)
+    return clip, times, local, plan, make_clip(clip.name, times, local, plan, target.skeleton)

@@ -48,9 +48,13 @@ def may_pin_workers() -> bool:
     return allowed == set(range(os.cpu_count() or 0))
 
 
-def pocl_settings() -> dict[str, str]:
+def pocl_settings(cpus: int | None = None) -> dict[str, str]:
     """The PoCL variables nrpose sets while PoCL starts; a variable the user has set
     (to anything but the empty string) is left alone.
+
+    ``cpus``: this process's share of the CPUs when several processes pose side by side
+    (default: :func:`usable_cpus`, all of them). With a share, ``POCL_AFFINITY=0``:
+    pinned, every process's worker i would run on CPU i.
 
     * ``POCL_DEVICES="pthread basic"`` (``"basic"`` on a single CPU): the worker-thread
       device and the device that runs kernels in the calling thread
@@ -64,12 +68,15 @@ def pocl_settings() -> dict[str, str]:
       two workers onto one CPU, and a sub-millisecond kernel then runs on one thread.
     """
     out = {}
+    share = cpus is not None
+    cpus = max(1, cpus) if share else usable_cpus()
+    if share and not os.environ.get("POCL_AFFINITY"):
+        out["POCL_AFFINITY"] = "0"
     if not os.environ.get("POCL_DEVICES"):
-        cpus = usable_cpus()
         out["POCL_DEVICES"] = "pthread basic" if cpus >= 2 else "basic"
         if cpus >= 2 and not os.environ.get("POCL_MAX_PTHREAD_COUNT"):
             out["POCL_MAX_PTHREAD_COUNT"] = str(cpus - 1)
-    elif may_pin_workers():
+    elif not share and may_pin_workers():
         out["POCL_AFFINITY"] = "1"
     return out
 

@@ -2,8 +2,10 @@
 (context, kernel file, build options) for the life of the process."""
 from __future__ import annotations
 
+import concurrent.futures
 import functools
 import re
+import threading
 from importlib import resources
 
 from ..errors import DeviceError
@@ -34,10 +36,31 @@ def program_options(options=()) -> tuple[str, ...]:
     return tuple(options) + (("-DPLAIN_OPENCL",) if plain_opencl() else ())
 
 
+#: builds started by :func:`prefetch`, by (context, name, options), until :func:`program` takes them
+_PENDING: dict = {}
+_PENDING_LOCK = threading.Lock()
+_BUILDER = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="nrpose-build")
+
+
 def program(name: str, options: tuple[str, ...] = ()):
     """Build (once per context) and return the program for kernel file ``name``, with
-    ``options`` (:func:`program_options`)."""
-    return _program(context()[0], name, program_options(options))
+    ``options`` (:func:`program_options`); a build :func:`prefetch` started is waited for."""
+    key = (context()[0], name, program_options(options))
+    with _PENDING_LOCK:
+        started = _PENDING.pop(key, None)
+    if started is not None:
+        started.result()          # its DeviceError, if any, is raised here
+    return _program(*key)
+
+
+def prefetch(name: str, options: tuple[str, ...] = ()) -> None:
+    """Start building the program :func:`program` will be asked for, in a background thread,
+    so that its compile (~1 s on PoCL without a cached binary: mostly a fixed cost per
+    build) overlaps the host work of a bind; pyopencl releases the GIL while it builds."""
+    key = (context()[0], name, program_options(options))
+    with _PENDING_LOCK:
+        if key not in _PENDING:
+            _PENDING[key] = _BUILDER.submit(_program, *key)
 
 
 @functools.lru_cache(maxsize=None)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from .rotation import Rotation
+from .rotation import quat_slerp
 from .skeleton import LocalPose, Skeleton
 from .timing import clip_times
 
@@ -81,9 +81,7 @@ class Track:
                 out = out / np.linalg.norm(out, axis=1, keepdims=True)
             return out
         if self.path == "rotation":
-            r0 = Rotation.from_quat(v[k])
-            step = (r0.inv() * Rotation.from_quat(v[k + 1])).as_rotvec()
-            return (r0 * Rotation.from_rotvec(s * step)).as_quat()
+            return quat_slerp(v[k], v[k + 1], s)
         return (1 - s) * v[k] + s * v[k + 1]
 
 

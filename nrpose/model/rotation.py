@@ -11,17 +11,96 @@ Conventions (followed everywhere in nrpose):
 * No axis conversion is ever applied: coordinates stay in the input's frame
   (glTF is Y-up, metres; BVH and OBJ as authored).
 
-Rotation algebra goes through :class:`scipy.spatial.transform.Rotation`.
+Batched conversions on the posing path (quaternion -> matrix, slerp) are plain numpy
+here; other rotation algebra goes through :class:`scipy.spatial.transform.Rotation`,
+reached as :data:`Rotation`, which imports scipy.spatial (~0.3 s) on first use only.
 """
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ..errors import InputError
 
-__all__ = ["Rotation", "unit_quaternions", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "covariance_rotation",
+__all__ = ["Rotation", "quat_matrices", "matrix_quats", "quat_slerp", "unit_quaternions", "minimal_rotvec", "minimal_quat", "quat_multiply", "kabsch", "covariance_rotation",
            "relative_rotvec_table"]
+
+
+class LazyRotation:
+    """Stands for :class:`scipy.spatial.transform.Rotation`: attribute access (``Rotation.from_quat``)
+    imports scipy.spatial then, so that a module using it only off the posing path does not
+    import it at start."""
+
+    def __getattr__(self, name):
+        from scipy.spatial.transform import Rotation as scipy_rotation
+        return getattr(scipy_rotation, name)
+
+
+Rotation = LazyRotation()
+
+
+def quat_matrices(q: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) float64 of quaternions q (n, 4) (x, y, z, w), normalised first
+    (scipy's ``Rotation.from_quat(q).as_matrix()`` to round-off)."""
+    q = np.asarray(q, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    x, y, z, w = np.moveaxis(q, -1, 0)
+    xx, yy, zz, ww = x * x, y * y, z * z, w * w
+    xy, zw, xz, yw, yz, xw = x * y, z * w, x * z, y * w, y * z, x * w
+    out = np.empty(q.shape[:-1] + (3, 3))
+    out[..., 0, 0] = xx - yy - zz + ww
+    out[..., 1, 0] = 2 * (xy + zw)
+    out[..., 2, 0] = 2 * (xz - yw)
+    out[..., 0, 1] = 2 * (xy - zw)
+    out[..., 1, 1] = -xx + yy - zz + ww
+    out[..., 2, 1] = 2 * (yz + xw)
+    out[..., 0, 2] = 2 * (xz + yw)
+    out[..., 1, 2] = 2 * (yz - xw)
+    out[..., 2, 2] = -xx - yy + zz + ww
+    return out
+
+
+def matrix_quats(m: np.ndarray) -> np.ndarray:
+    """Quaternions (n, 4) (x, y, z, w), unit, of rotation matrices m (n, 3, 3) taken as exact
+    rotations (scipy's ``Rotation.from_matrix(m, assume_valid=True).as_quat()``: the same
+    branch on the largest of the diagonal and the trace, so the same sign)."""
+    m = np.asarray(m, dtype=np.float64)
+    n = len(m)
+    diag = np.stack([m[:, 0, 0], m[:, 1, 1], m[:, 2, 2]], axis=1)
+    trace = diag.sum(axis=1)
+    choice = np.argmax(np.concatenate([diag, trace[:, None]], axis=1), axis=1)
+    q = np.empty((n, 4))
+    rows = np.arange(n)
+    for i in range(3):
+        sel = rows[choice == i]
+        j, k = (i + 1) % 3, (i + 2) % 3
+        q[sel, i] = 1.0 - trace[sel] + 2.0 * m[sel, i, i]
+        q[sel, j] = m[sel, j, i] + m[sel, i, j]
+        q[sel, k] = m[sel, k, i] + m[sel, i, k]
+        q[sel, 3] = m[sel, k, j] - m[sel, j, k]
+    sel = rows[choice == 3]
+    q[sel, 0] = m[sel, 2, 1] - m[sel, 1, 2]
+    q[sel, 1] = m[sel, 0, 2] - m[sel, 2, 0]
+    q[sel, 2] = m[sel, 1, 0] - m[sel, 0, 1]
+    q[sel, 3] = 1.0 + trace[sel]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def quat_slerp(q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """Spherical interpolation (n, 4) from unit quaternions q0 to q1 (n, 4) (x, y, z, w) at
+    fractions s (n, 1), along the shorter arc; as scipy's ``r0 * Rotation.from_rotvec(s *
+    (r0.inv() * r1).as_rotvec())`` (the same quaternion sign)."""
+    q0, q1 = np.asarray(q0, dtype=np.float64), np.asarray(q1, dtype=np.float64)
+    q0 = q0 / np.linalg.norm(q0, axis=1, keepdims=True)
+    q1 = q1 / np.linalg.norm(q1, axis=1, keepdims=True)
+    d = quat_multiply(q0 * [-1.0, -1.0, -1.0, 1.0], q1)          # r0^-1 r1
+    d = np.where(d[:, 3:] < 0, -d, d)                             # shorter arc
+    v = d[:, :3]
+    sv = np.linalg.norm(v, axis=1, keepdims=True)
+    half = np.arctan2(sv, d[:, 3:]) * s                           # half angle of the step
+    small = sv < 1e-12
+    axis = np.where(small, 0.0, v / np.where(small, 1.0, sv))
+    step = np.concatenate([np.where(small, v * s, axis * np.sin(half)), np.cos(half)], axis=1)
+    return quat_multiply(q0, step)
 
 
 def unit_quaternions(q: np.ndarray, labels, error: type[InputError] = InputError) -> np.ndarray:

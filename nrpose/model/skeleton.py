@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InputError
-from .rotation import Rotation, unit_quaternions
+from .rotation import quat_matrices, unit_quaternions
 
 __all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components",
            "det_components"]
@@ -77,7 +77,7 @@ def local_matrices(translation: np.ndarray, rotation: np.ndarray, scale: np.ndar
     rotation = np.asarray(rotation, dtype=np.float64)
     scale = np.asarray(scale, dtype=np.float64)
     batch = np.broadcast_shapes(translation.shape[:-1], rotation.shape[:-1], scale.shape[:-1])
-    R = Rotation.from_quat(np.broadcast_to(rotation, batch + (4,)).reshape(-1, 4)).as_matrix()
+    R = quat_matrices(np.broadcast_to(rotation, batch + (4,)).reshape(-1, 4))
     M = np.zeros(batch + (4, 4))
     M[..., :3, :3] = R.reshape(batch + (3, 3)) * np.broadcast_to(scale, batch + (3,))[..., None, :]
     M[..., :3, 3] = translation

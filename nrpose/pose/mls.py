@@ -86,7 +86,9 @@ class Deformer(device.BoundKernel):
     ``tree``: the quaternion blend's sign tree (:func:`nrpose.pose.blend.sign_tree` of the
     bound segment weights; None for the other blends).
     With k < S the kernel stores, per point, k segment slots (which segment,
-    its coefficients) instead of all S segments.
+    its coefficients) instead of all S segments. layout: on OpenCL, :func:`bind_layout`
+    of these same arguments from an earlier bind (the binding cache), used instead of
+    computing it.
 
     ``terms``: the :class:`nrpose.pose.blend.RestTerms` (float64, dense (N, H)). The
     numpy backend keeps them. The OpenCL deformer never holds them for all points:
@@ -106,7 +108,7 @@ class Deformer(device.BoundKernel):
 
     def __init__(self, points, rest: HandleSet, alpha: float = 1.0, blend: str | None = None,
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
-                 backend: str = "opencl", t=None):
+                 backend: str = "opencl", t=None, layout: dict | None = None):
         self.lever = lever
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -123,12 +125,14 @@ class Deformer(device.BoundKernel):
         if backend == "opencl":
             # block by block, only what the kernel keeps (slot_terms): the dense (N, H)
             # rest terms of a 1M-point, 65-bone cloud would take 1.6 GB at once
-            kept = rest_terms(points, rest, alpha, lever, distances, weights, k,
-                              per_block=lambda T: slot_terms(T, k, lever), t=t)
+            prefetch_program(rest, k, lever, blend)
+            if layout is None:
+                layout = bind_layout(kept_terms(points, rest, alpha, lever, distances, weights, k, t), rest, lever,
+                                     blend)
             self._terms: RestTerms | None = None
-            self.n = len(kept["u"])
-            self.tree = sign_tree(segment_weights(kept, P, len(rest.segments))) if blend == "quaternion" else None
-            self._bind_device(kept)
+            self.n = int(layout["points"])
+            self.tree = layout["tree"].astype(np.int64) if blend == "quaternion" else None
+            self._bind_device(layout)
         else:
             self._terms = rest_terms(points, rest, alpha, lever, distances, weights, k, t=t)
             self.n = len(self._terms.u)
@@ -144,17 +148,17 @@ class Deformer(device.BoundKernel):
         return rest_terms(points, self.rest, alpha, lever, distances, weights, k, t=t)
 
     # -- device ---------------------------------------------------------------
-    def _bind_device(self, kept: dict) -> None:
-        """Upload the per-point terms the kernel keeps (:func:`slot_terms`, all points)."""
+    def _bind_device(self, layout: dict) -> None:
+        """Upload the per-point terms the kernel keeps (:func:`bind_layout`, all points)."""
         import pyopencl as cl
 
         ctx, self._queue = device.context()
         blend = self.blend
         P, S = len(self.rest.points), len(self.rest.segments)
-        refs_global = bool((kept["ref"] == S).any())
+        refs_global, K = bool(layout["refs_global"]), int(layout["slots"])
         quat = blend == "quaternion"
-        arrays, K = device_layout(kept, self.rest, self.lever, self.lanes, quat)
-        del kept
+        arrays = {name: a for name, a in layout.items() if name not in BIND_SCALARS}
+        del layout
         npad = len(arrays["ref"])
         self._npad, self.slots = npad, K
         self._frame_floats = 3 * npad
@@ -183,9 +187,7 @@ class Deformer(device.BoundKernel):
         # handle counts are build-time constants of the kernels (nrmls.cl says why): one
         # program per (P, K, dense or sparse, blend, lever), built (~1-1.5 s, PoCL caches
         # it on disk) at the first bind of that configuration in a process
-        options = ((f"-DVW={self.lanes}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
-                   + (() if levers_stored(self.lever, S) else ("-DDERIVED_LEVER",)) + (("-DQUAT_BLEND",) if quat else ())
-                   + (("-DGLOBAL_FIT",) if self._global is not None else ()))
+        options = kernel_options(self.lanes, P, S, K, self.lever, quat, self._global is not None)
         self._options = options
         self._kernel = cl.Kernel(device.program("nrmls.cl", options), "nrmls_pose")
         # the pose kernel's job mailbox (kernels/share.h)
@@ -405,6 +407,53 @@ class GlobalFit:
             cl.enqueue_nd_range_kernel(queue, kernel, (len(poses),), None)
         block.download()
         return rows[: len(poses), 3 * M:].reshape(-1, 3, 3).copy()
+
+
+def kernel_options(lanes: int, P: int, S: int, K: int, lever: str, quat: bool, global_fit: bool) -> tuple[str, ...]:
+    """Build options of kernels/nrmls.cl for a bind: lanes per work-item, P point handles,
+    S segments, K slots per point, the lever rule, the quaternion blend, R_g on the device."""
+    return ((f"-DVW={lanes}", f"-DNPOINTS={P}", f"-DNSLOTS={K}") + (("-DSPARSE",) if K < S else ())
+            + (() if levers_stored(lever, S) else ("-DDERIVED_LEVER",)) + (("-DQUAT_BLEND",) if quat else ())
+            + (("-DGLOBAL_FIT",) if global_fit else ()))
+
+
+def prefetch_program(rest: HandleSet, k: int | None = None, lever: str = "weight", blend: str | None = None) -> None:
+    """Start compiling the pose kernel an OpenCL :class:`Deformer` of these arguments will
+    use (:func:`nrpose.device.prefetch`), where its options are known before the rest
+    terms: without point handles (or with the paper blend) no point takes the global
+    rotation as reference, so R_g is not fitted on the device."""
+    P, S = len(rest.points), len(rest.segments)
+    blend = default_blend(rest) if blend is None else blend
+    if P and blend != "paper":
+        return
+    K = S if k is None or k >= S else int(k)
+    device.prefetch("nrmls.cl", kernel_options(lanes_for(S), P, S, K, lever, blend == "quaternion", False))
+
+
+#: the entries of :func:`bind_layout` besides :func:`device_layout`'s arrays
+BIND_SCALARS = ("points", "slots", "refs_global", "tree")
+
+
+def bind_layout(kept: dict, rest: HandleSet, lever: str = "weight", blend: str | None = None) -> dict:
+    """What an OpenCL :class:`Deformer` uploads of the kept terms (:func:`kept_terms`):
+    :func:`device_layout`'s arrays, ``tree`` (the quaternion blend's sign tree, (0, 2) for
+    the other blends), and (0-d arrays) ``points`` (n), ``slots`` (K) and ``refs_global``
+    (whether some point takes R_g as reference). A Deformer of the same arguments can be
+    given it (``layout=``) instead of computing it: the binding cache stores it."""
+    P, S = len(rest.points), len(rest.segments)
+    blend = default_blend(rest) if blend is None else blend
+    arrays, K = device_layout(kept, rest, lever, lanes_for(S), blend == "quaternion")
+    tree = sign_tree(segment_weights(kept, P, S)) if blend == "quaternion" else np.zeros((0, 2), np.int64)
+    return {**arrays, "tree": tree, "points": np.array(len(kept["u"])), "slots": np.array(K),
+            "refs_global": np.array(bool((kept["ref"] == S).any()))}
+
+
+def kept_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight", distances=None,
+               weights=None, k: int | None = None, t=None) -> dict:
+    """What an OpenCL :class:`Deformer` of these arguments keeps of its rest terms
+    (:func:`slot_terms`, all points), computed block by block (:func:`bind_layout` takes them)."""
+    return rest_terms(points, rest, alpha, lever, distances, weights, k,
+                      per_block=lambda T: slot_terms(T, k, lever), t=t)
 
 
 def slot_terms(T: RestTerms, k: int | None, lever: str) -> dict:

@@ -40,8 +40,10 @@ import numpy as np
 from . import skinning
 from .cor import centers as cor_centers, cor_reference
 from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
+from ..bind.cache import cache_dir, cached_status, code_version
 from .blend import BLENDS, DEFAULT_BLEND
-from .mls import Deformer
+from .mls import Deformer, bind_layout, kept_terms, prefetch_program
+from .. import device
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose
@@ -52,6 +54,11 @@ __all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames"]
 
 METHODS = ("nrmls", "lbs", "dqs", "cor")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
+#: the modules whose code an NR-MLS bind runs: their source is part of the binding cache's key
+BIND_MODULES = ("nrpose.pose.poser", "nrpose.pose.mls", "nrpose.pose.blend", "nrpose.bind.bone_weights",
+                "nrpose.bind.weights", "nrpose.bind.distances", "nrpose.model.skeleton", "nrpose.model.meshset",
+                "nrpose.model.rotation", "nrpose.model.handles", "nrpose.model.deformation_metrics")
+BIND_CACHE_FOLDER = "binds"   # character binds, beside the topological distances in the cache directory
 BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
 
@@ -92,7 +99,7 @@ class CharacterPoser:
             raise InputError("the character has no mesh to pose (a skeleton-only file); "
                              "give a mesh and pass the skeleton with skeleton=")
         t0 = time.perf_counter()
-        self.character, self.method = character, method
+        self.character, self.method, self._backend = character, method, backend
         skel = character.skeleton
         meshes = character.meshes
         geo = concatenate_meshes(meshes)
@@ -105,17 +112,22 @@ class CharacterPoser:
         self._rest_inv = np.linalg.inv(skel.rest_globals())
         self.bones = skel.bones()
         deform_meshes = [m for m in meshes if m.rigid_joint is None]
-        self._deformer, self._bind_space = None, False
+        self._deformer, self._bind_space, self._device_args, self.bind_cache = None, False, None, None
         if deform_meshes:
             V = self._rest_world[self._deform_idx]
             if method == "nrmls":
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
-                bw = bone_weights(character, weights, kk, alpha)
-                t = bw.t[self._deform_idx] if bw.t is not None else None
-                self._deformer = Deformer(V, rest, weights=bw.weights[self._deform_idx], k=kk, backend=backend,
-                                          blend=blend, t=t)
+                if backend == "opencl":
+                    prefetch_program(rest, kk, blend=blend)     # compiles while the host binds
+                    W, t, layout = self._nrmls_bind(character, V, rest, weights, kk, alpha, blend)
+                else:
+                    bw = bone_weights(character, weights, kk, alpha)
+                    W, t, layout = bw.weights[self._deform_idx], bw.t[self._deform_idx] if bw.t is not None else None, None
+                self._device_args = (V, rest, W, kk, blend, t, layout)
             else:
+                if backend == "opencl":
+                    device.prefetch("skinning.cl")
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
                     joint_w = authored_joint_weights(deform_meshes, skel.num_joints)
@@ -136,21 +148,80 @@ class CharacterPoser:
                 if method == "cor":
                     faces = submesh_faces(geo.faces, self._deform_idx, self.n)
                     centers = cor_centers(src, faces if len(faces) else None, joints, wts)
-                    self._deformer = (skinning.Skinner(src, joints, wts, method="cor", centers=centers)
-                                      if backend == "opencl" else None)
-                    self._skin_ref = (src, joints, wts, centers)
+                    self._device_args = (src, joints, wts, centers)
                 else:
-                    cls = skinning.LbsSkinner if method == "lbs" else skinning.DqsSkinner
-                    self._deformer = cls(src, joints, wts) if backend == "opencl" else None
-                    self._skin_ref = (src, joints, wts)
-        self._backend = backend
+                    self._device_args = (src, joints, wts)
+            self._deformer = self._device_build()
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
+
+    def _device_build(self):
+        """The deformer made from the host binding (``_device_args``): rest terms, buffers and
+        programs on the device (nrmls on the numpy backend: the float64 reference)."""
+        if self._device_args is None:
+            return None
+        if self.method == "nrmls":
+            V, rest, W, k, blend, t, layout = self._device_args
+            return Deformer(V, rest, weights=W, k=k, backend=self._backend, blend=blend, t=t, layout=layout)
+        if self._backend != "opencl":
+            return None
+        if self.method == "cor":
+            src, joints, wts, centers = self._device_args
+            return skinning.Skinner(src, joints, wts, method="cor", centers=centers)
+        cls = skinning.LbsSkinner if self.method == "lbs" else skinning.DqsSkinner
+        return cls(*self._device_args)
+
+    def __getstate__(self) -> dict:
+        """The host binding alone (the character, weights, handles, vertices: numpy arrays and
+        small objects), picklable: a binding made once can be shipped to other processes or nodes."""
+        return dict(self.__dict__, _deformer=None)
+
+    def __setstate__(self, state: dict) -> None:
+        """A shipped binding: its device part is built in this process when first needed
+        (:attr:`deformer`), so unpickling a binding that is not used costs no device work."""
+        self.__dict__.update(state)
+
+    def _nrmls_bind(self, character, V, rest, weights, k, alpha, blend) -> tuple[np.ndarray, np.ndarray | None, dict]:
+        """(bone weights (V, B) of the deforming vertices, their segment parameters (V, B) or
+        None, the Deformer's :func:`bind_layout`),
+        from the binding cache (:mod:`nrpose.bind.cache`, its folder :data:`BIND_CACHE_FOLDER`)
+        when the same character, options and code were bound before (``self.bind_cache``:
+        "hit", "miss" or "rebuilt")."""
+        skel = character.skeleton
+        deform = [m for m in character.meshes if m.rigid_joint is None]
+        skinned = weights == "authored" and all(m.joints is not None and m.weights is not None for m in deform)
+        parts = {"kind": "nrmls-character-bind", "code": code_version(BIND_MODULES),
+                 "vertices": np.ascontiguousarray(V, np.float64), "faces": np.ascontiguousarray(self.faces, np.int64),
+                 "deform": self._deform_idx, "bones": np.ascontiguousarray(rest.segments, np.float64),
+                 "bone_joints": np.asarray(self.bones.joints, np.int64),
+                 "parents": np.asarray(skel.parents, np.int64),
+                 "skin_joints": np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in deform])
+                 if skinned else np.zeros(0, np.int64),
+                 "skin_weights": np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in deform])
+                 if skinned else np.zeros(0),
+                 "options": {"weights": weights, "k": k, "alpha": float(alpha), "blend": blend,
+                             "skin_shapes": [list(np.shape(m.joints)) for m in deform] if skinned else []}}
+
+        def compute() -> dict:
+            bw = bone_weights(character, weights, k, alpha)
+            W = bw.weights[self._deform_idx]
+            t = bw.t[self._deform_idx] if bw.t is not None else None
+            cols = np.argsort(W == 0, axis=1, kind="stable")[:, :max(int((W != 0).sum(axis=1).max(initial=0)), 1)]
+            layout = bind_layout(kept_terms(V, rest, weights=W, k=k, t=t), rest, blend=blend)
+            return {**{f"layout_{n}": a for n, a in layout.items()}, **({} if t is None else {"t": t}),
+                    "weight_bones": cols, "weight_values": np.take_along_axis(W, cols, axis=1)}
+
+        got, self.bind_cache = cached_status(parts, compute, cache_dir() / BIND_CACHE_FOLDER)
+        W = np.zeros((len(V), len(rest.segments)))
+        np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
+        return W, got.get("t"), {n[7:]: a for n, a in got.items() if n.startswith("layout_")}
 
     # ------------------------------------------------------------------ posing
     @property
     def deformer(self):
         """The bound deformer on the device (NR-MLS :class:`~nrpose.pose.mls.Deformer` or a
         :class:`~nrpose.pose.skinning.Skinner`), or None on the numpy backend."""
+        if self._deformer is None and self._device_args is not None:
+            self._deformer = self._device_build()
         return self._deformer
 
     def pose(self, local: LocalPose, progress=None) -> Frames:
@@ -158,7 +229,7 @@ class CharacterPoser:
 
         progress: optional callable(done, total) called after each frame.
         """
-        skel = self.character.skeleton
+        skel, deformer = self.character.skeleton, self.deformer
         if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
             raise InputError("no frames to pose: give at least one time")
         G = skel.forward_kinematics(local)
@@ -167,7 +238,7 @@ class CharacterPoser:
         F = len(G)
         whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
         # on OpenCL: the frames in memory the deformer's kernel writes directly (no copy per frame)
-        out = (self._deformer.frames_array(F) if whole and self._backend == "opencl"
+        out = (deformer.frames_array(F) if whole and self._backend == "opencl"
                else np.empty((F, self.n, 3), np.float32))
         frame_ms = np.empty(F)
         # (F, J, 4, 4): skinning matrices, for rigidly attached meshes and for LBS/DQS of rest-space
@@ -192,21 +263,21 @@ class CharacterPoser:
                 dst = out[a:b] if whole else np.empty((b - a, len(self._deform_idx), 3), np.float32)
                 if self.method == "nrmls":
                     # FK output is consistent by construction: no Pose.make validation
-                    self._deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
-                                               out=dst)
-                elif self._deformer is not None:
-                    self._deformer.pose_frames(mats[a:b], out=dst)
+                    deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
+                                         out=dst)
+                elif deformer is not None:
+                    deformer.pose_frames(mats[a:b], out=dst)
                 else:
                     ref = {"lbs": skinning.lbs_reference, "dqs": skinning.dqs_reference,
                            "cor": cor_reference}[self.method]
-                    dst[...] = [ref(*self._skin_ref[:3], m, *self._skin_ref[3:]) for m in mats[a:b]]
+                    dst[...] = [ref(*self._device_args[:3], m, *self._device_args[3:]) for m in mats[a:b]]
                 if not whole:
                     out[a:b, self._deform_idx] = dst
             frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
             if progress:
                 progress(b, F)
-        if self._backend == "opencl" and self._deformer is not None:
-            self._deformer.release_frames()       # the Frames are the caller's: not kept by the poser
+        if self._backend == "opencl" and deformer is not None:
+            deformer.release_frames()                 # the Frames are the caller's: not kept by the poser
         return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
 
 

@@ -54,11 +54,11 @@ computes them; :func:`nrpose.pose.cor.cor_reference` is its float64 reference).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .. import device
 from ..checks import real_rows
 from ..errors import InputError
+from ..model.rotation import matrix_quats
 from ..model.skeleton import det_components, polar_components
 
 __all__ = ["LbsSkinner", "DqsSkinner", "Skinner", "lbs_reference", "dqs_reference",
@@ -165,7 +165,7 @@ def dual_quaternions(mats) -> np.ndarray:
         raise InputError(f"{int(np.count_nonzero(det <= 0))} skinning matrices have a "
                          f"non-positive determinant (reflection or collapse); DQS needs rotations")
     rot = np.moveaxis(polar_components(C, lin), -1, 0)
-    qr = Rotation.from_matrix(rot, assume_valid=True).as_quat()
+    qr = matrix_quats(rot)
     t = flat[:, :3, 3]
     out = np.empty((len(flat), 8))
     out[:, :4] = qr                                   # (x, y, z, w)

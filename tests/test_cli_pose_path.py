@@ -1,0 +1,111 @@
+"""What ``nrpose pose`` imports: only what the command uses.
+
+A plain glTF pose (authored weights, every method) runs in a fresh interpreter and reports
+``sys.modules`` after :func:`nrpose.cli.main`; plotting, mesh-processing and graph libraries
+must not be among them. The rotation helpers that replaced scipy on the posing path are
+checked against scipy here too.
+"""
+from __future__ import annotations
+
+import json
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+FOX = ROOT.parent / "shared" / "data" / "gltf" / "Fox.glb"
+HEAVY = ("matplotlib", "pymeshlab", "igl", "scipy.spatial")
+
+PROBE = """
+import json, sys
+from nrpose.cli import main
+code = main(sys.argv[1:])
+print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
+"""
+
+
+def modules_after(args, tmp_path) -> set:
+    env = {"NRPOSE_CACHE_DIR": str(tmp_path / "cache"), "PATH": "/usr/bin:/bin"}
+    r = subprocess.run([sys.executable, "-c", PROBE, *map(str, args)], capture_output=True, text=True,
+                       cwd=ROOT, env=env, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    doc = json.loads(r.stdout.strip().splitlines()[-1])
+    assert doc["code"] == 0, r.stderr[-2000:]
+    return set(doc["modules"])
+
+
+@pytest.mark.parametrize("method", ["nrmls", "lbs", "dqs"])
+def test_pose_imports_no_heavy_library(method, tmp_path):
+    if not FOX.exists():
+        pytest.skip(f"shared data not found at {FOX}")
+    pytest.importorskip("pyopencl")
+    mods = modules_after(["pose", FOX, "--clip", "Run", "--time", "0", "0.4", "--method", method,
+                          "-o", tmp_path / "out.npz"], tmp_path)
+    assert "nrpose.pose.poser" in mods and "pyopencl" in mods          # the probe saw the real job
+    heavy = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in HEAVY))
+    assert not heavy, heavy
+    others = sorted(m for m in mods if m.startswith("nrpose.cli.") and m not in ("nrpose.cli.pose", "nrpose.cli.common"))
+    assert not others, others                                           # no other command's module
+
+
+def test_import_nrpose_is_light():
+    r = subprocess.run([sys.executable, "-c", "import json, sys, nrpose; print(json.dumps(sorted(sys.modules)))"],
+                       capture_output=True, text=True, cwd=ROOT, timeout=120)
+    mods = set(json.loads(r.stdout))
+    assert not any(m.startswith(("scipy", "pyopencl", "nrpose.pose", "nrpose.io")) for m in mods)
+    import nrpose
+    from nrpose.pose.mls import Deformer
+    assert nrpose.Deformer is Deformer and "Deformer" in dir(nrpose)
+    with pytest.raises(AttributeError):
+        nrpose.no_such_name
+
+
+def test_quat_matrices_and_matrix_quats_equal_scipy():
+    from scipy.spatial.transform import Rotation
+
+    from nrpose.model.rotation import matrix_quats, quat_matrices
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(500, 4)) * rng.uniform(0.1, 10, size=(500, 1))     # any length: normalised first
+    np.testing.assert_allclose(quat_matrices(q), Rotation.from_quat(q).as_matrix(), rtol=0, atol=1e-15)
+    m = Rotation.random(500, random_state=4).as_matrix()
+    # each branch of the largest-of-diagonal-and-trace choice, and half turns (trace -1)
+    m = np.concatenate([m, np.eye(3)[None], np.diag([1.0, -1, -1])[None], np.diag([-1.0, 1, -1])[None],
+                        np.diag([-1.0, -1, 1])[None]])
+    np.testing.assert_allclose(matrix_quats(m), Rotation.from_matrix(m, assume_valid=True).as_quat(),
+                               rtol=0, atol=1e-15)
+
+
+def test_quat_slerp_equals_scipy_composition():
+    from scipy.spatial.transform import Rotation
+
+    from nrpose.model.rotation import quat_slerp
+    rng = np.random.default_rng(5)
+    q0, q1 = rng.normal(size=(400, 4)), rng.normal(size=(400, 4))
+    q1[:50] = q0[:50] * 3.0                 # the same rotation: a zero step
+    q1[50:100] = -q0[50:100]                # the same rotation, other sign: the shorter arc is zero
+    s = rng.uniform(size=(400, 1))
+    s[:10] = 0.0
+    s[10:20] = 1.0
+    r0 = Rotation.from_quat(q0)
+    ref = (r0 * Rotation.from_rotvec(s * (r0.inv() * Rotation.from_quat(q1)).as_rotvec())).as_quat()
+    np.testing.assert_allclose(quat_slerp(q0, q1, s), ref, rtol=0, atol=1e-12)
+
+
+def test_write_npz_reads_back_as_savez(tmp_path):
+    from nrpose.io.npz import write_npz
+    rng = np.random.default_rng(6)
+    arrays = {"positions": rng.normal(size=(5, 7, 3)).astype(np.float32), "faces": np.arange(12).reshape(4, 3),
+              "times": np.linspace(0, 1, 5), "mesh_names": np.array(["body", "hat"]),
+              "mesh_offsets": np.array([0, 4]), "empty": np.zeros((0, 3), np.float32),
+              "strided": np.arange(20.0)[::2], "many_axes": np.zeros((1,) * 30, np.int8)}
+    with open(tmp_path / "ours.npz", "wb") as fh:
+        write_npz(fh, arrays)
+    np.savez(tmp_path / "numpy.npz", **arrays)
+    with np.load(tmp_path / "ours.npz") as ours, np.load(tmp_path / "numpy.npz") as ref:
+        assert ours.files == ref.files == list(arrays)
+        for name in arrays:
+            assert ours[name].dtype == ref[name].dtype and ours[name].shape == ref[name].shape, name
+            assert ours[name].tobytes() == ref[name].tobytes(), name

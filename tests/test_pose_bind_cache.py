@@ -1,0 +1,127 @@
+"""NR-MLS binds of characters in the binding cache: a cached bind equals a fresh one bitwise;
+a changed vertex, skin weight or option, or another code version, is a new bind."""
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nrpose.bind import cache
+from nrpose.model.character import Character
+from nrpose.model.skeleton import LocalPose
+from nrpose.pose import poser as poser_module
+from nrpose.pose.poser import CharacterPoser
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+FOX = DATA / "gltf" / "Fox.glb"
+
+
+@pytest.fixture
+def fox():
+    if not FOX.exists():
+        pytest.skip(f"shared assets not found at {FOX}")
+    pytest.importorskip("pyopencl")
+    from nrpose.io import load_character
+    return load_character(FOX)
+
+
+@pytest.fixture(autouse=True)
+def own_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("NRPOSE_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def some_poses(ch: Character) -> LocalPose:
+    clip = ch.clips[0]
+    return clip.sample(np.linspace(0.0, clip.duration, 7))
+
+
+def bind_state(p: CharacterPoser) -> dict:
+    """The bound deformer's rest terms (recomputed from the arrays it was bound with)."""
+    t = p.deformer.terms
+    return {n: np.asarray(getattr(t, n)) for n in ("weights", "t", "p_star", "u", "lever", "ref")}
+
+
+def test_cached_bind_equals_fresh_bitwise(fox):
+    fresh = CharacterPoser(fox, method="nrmls")
+    assert fresh.bind_cache == "miss"
+    again = CharacterPoser(fox, method="nrmls")
+    assert again.bind_cache == "hit"
+    a, b = bind_state(fresh), bind_state(again)
+    for name in a:
+        assert a[name].dtype == b[name].dtype and np.array_equal(a[name], b[name]), name
+        assert a[name].tobytes() == b[name].tobytes(), name
+    local = some_poses(fox)
+    pa, pb = fresh.pose(local).positions, again.pose(local).positions
+    assert pa.tobytes() == pb.tobytes()
+
+
+def test_cached_layout_equals_fresh_bitwise(fox, monkeypatch):
+    stored = {}
+    real = poser_module.cached_status
+
+    def spy(parts, compute, directory=None):
+        stored["fresh"] = compute()
+        got, status = real(parts, lambda: stored["fresh"], directory)
+        return got, status
+
+    monkeypatch.setattr(poser_module, "cached_status", spy)
+    CharacterPoser(fox, method="nrmls")
+    monkeypatch.setattr(poser_module, "cached_status", real)
+    files = list((cache.cache_dir() / poser_module.BIND_CACHE_FOLDER).glob("*.npz"))   # the first bind's file: the same arrays, bit for bit
+    assert len(files) == 1
+    with np.load(files[0]) as z:
+        for name, arr in stored["fresh"].items():
+            assert z[name].dtype == arr.dtype and z[name].tobytes() == np.ascontiguousarray(arr).tobytes(), name
+
+
+def changed_vertex(ch: Character) -> Character:
+    m = ch.meshes[0]
+    v = m.vertices.copy()
+    v[5, 1] += 1e-9
+    return dataclasses.replace(ch, meshes=(dataclasses.replace(m, vertices=v),) + tuple(ch.meshes[1:]))
+
+
+def changed_weight(ch: Character) -> Character:
+    m = ch.meshes[0]
+    w = m.weights.copy()
+    w[3] = w[3][::-1] if (w[3] != w[3][::-1]).any() else np.full_like(w[3], 1.0 / w.shape[1])
+    return dataclasses.replace(ch, meshes=(dataclasses.replace(m, weights=w),) + tuple(ch.meshes[1:]))
+
+
+@pytest.mark.parametrize("change", ["vertex", "weight", "k", "alpha", "blend", "weights", "code"])
+def test_a_change_is_a_new_bind(fox, change, monkeypatch):
+    assert CharacterPoser(fox, method="nrmls").bind_cache == "miss"
+    assert CharacterPoser(fox, method="nrmls").bind_cache == "hit"
+    ch, opts = fox, {}
+    if change == "vertex":
+        ch = changed_vertex(fox)
+    elif change == "weight":
+        ch = changed_weight(fox)
+    elif change == "k":
+        opts = {"k": 3}
+    elif change == "alpha":
+        opts = {"alpha": 2.0}
+    elif change == "blend":
+        opts = {"blend": "relative"}          # the default is the quaternion blend
+    elif change == "weights":
+        opts = {"weights": "euclidean"}
+    else:
+        monkeypatch.setattr(poser_module, "code_version", lambda modules: "another version")
+    p = CharacterPoser(ch, method="nrmls", **opts)
+    assert p.bind_cache == "miss"
+    fresh = CharacterPoser(ch, method="nrmls", **opts)
+    assert fresh.bind_cache == "hit"
+    local = some_poses(fox)
+    assert p.pose(local).positions.tobytes() == fresh.pose(local).positions.tobytes()
+
+
+def test_code_version_follows_the_source(tmp_path, monkeypatch):
+    mod = tmp_path / "bindmod_probe.py"
+    mod.write_text("x = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    first = cache.code_version.__wrapped__(("bindmod_probe",))
+    mod.write_text("x = 2\n")
+    assert cache.code_version.__wrapped__(("bindmod_probe",)) != first
+    assert len(first) == 64
