@@ -1,4 +1,4 @@
-"""Command line: ``nrpose deform | pose | info | weights | retarget | bake | demo``.
+"""Command line: ``nrpose deform | pose | info | weights | retarget | bake | demo | fit-skin``.
 
 One module per command, each with ``add_parser(subparsers)`` and ``run(args)``.
 Every user mistake (bad file, bad option, no OpenCL platform) ends with one
@@ -27,7 +27,7 @@ from ..io.files import output_transaction
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
 #: the commands, each a module of this package (imported when its parser is built)
-COMMANDS = ("deform", "pose", "weights", "retarget", "bake", "info", "demo")
+COMMANDS = ("deform", "pose", "weights", "retarget", "bake", "info", "demo", "fit_skin")
 
 # name='value' | name= (before a space, punctuation or the end) | name()
 _ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
@@ -79,7 +79,8 @@ def main(argv=None) -> int:
     notes: list[str] = []
     try:
         argv = sys.argv[1:] if argv is None else list(argv)
-        args = build_parser(argv[0] if argv and argv[0] in COMMANDS else None).parse_args(argv)
+        module = argv[0].replace("-", "_") if argv else None     # `fit-skin` is module fit_skin
+        args = build_parser(module if module in COMMANDS else None).parse_args(argv)
         # the commands check their inputs and results for NaN and infinity themselves and say
         # so in one line; numpy's floating-point warnings on the way would add lines to stderr.
         # nrpose's own warnings (a binding cache not written...) show as one line each after a

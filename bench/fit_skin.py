@@ -1,0 +1,103 @@
+"""NR-MLS fitted as LBS (``nrpose fit-skin``): error table, fit time and file size per character.
+
+Cases (issue 35's targets): Fox trained on Walk + Survey, Run held out; Mannequin and Ely
+trained on their own clip + the range of motion, CMU 131_03 retargeted onto them
+(``nrpose retarget``, in a temporary folder) held out. Each case is fitted with 4 and 8
+influences, no helper joints. Output: the reports of ``nrpose fit-skin --report`` in one
+JSON (``results/fit_skin.json``), a table on stdout (RMS / max as % of the height), and per
+character a map of the held-out error of the 4-influence fit (``results/fit_skin_<name>.png``:
+per-vertex RMS over the held-out frames, colour scale 0 to 1 % of the height).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import pathlib
+import sys
+import tempfile
+
+import numpy as np
+
+import common
+import table1
+from nrpose.cli import main as nrpose
+from nrpose.cli.fit_skin import motion
+from nrpose.fit.character_skin import FittedSkin, character_height, fitted_positions, nrmls_targets
+from nrpose.io import load_character
+from nrpose.pose.poser import CharacterPoser
+from nrpose.render.weightmap import save_weight_maps
+
+MAP_SCALE = 0.01     # error map colour scale: 0 .. 1 % of the height
+
+CASES = (("Fox", ["Walk", "Survey"], "Run"),
+         ("Mannequin", ["Armature|mixamo.com|Layer0"], "131_03"),
+         ("Ely", ["Armature|mixamo.com|Layer0"], "131_03"))
+
+
+def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: str, k: int) -> dict:
+    src = data / "gltf" / f"{name}.glb"
+    if holdout == "131_03":
+        motion = tmp / f"{name}_131_03.glb"
+        if not motion.exists() and nrpose(["retarget", str(data / "bvh" / "131_03.bvh"), str(src),
+                                           "-o", str(motion)]):
+            raise SystemExit(2)
+        holdout = str(motion)
+    report, out = tmp / f"{name}_{k}.json", tmp / f"{name}_{k}.glb"
+    if nrpose(["fit-skin", str(src), "--train", *train, "--holdout", holdout, "--influences", str(k),
+               "-o", str(out), "--report", str(report)]):
+        raise SystemExit(2)
+    if k == 4:
+        error_map(src, out, holdout, pathlib.Path(__file__).with_name("results") / f"fit_skin_{name}.png")
+    return json.loads(report.read_text())
+
+
+def error_map(src: pathlib.Path, fitted_file: pathlib.Path, holdout: str, png: pathlib.Path) -> None:
+    """Per-vertex RMS over the held-out frames of the fitted file's LBS vs NR-MLS, drawn at rest."""
+    character, back = load_character(src), load_character(fitted_file)
+    _, local, _ = motion(character, holdout, 30.0, pose_ok=False)
+    G, targets = nrmls_targets(CharacterPoser(character, method="nrmls"), local)
+    skin = FittedSkin(tuple(None if m.rigid_joint is not None else m.joints for m in back.meshes),
+                      tuple(None if m.rigid_joint is not None else m.weights for m in back.meshes), 0.0)
+    rms = np.sqrt(((fitted_positions(character, skin, G) - targets) ** 2).sum(axis=2).mean(axis=0))
+    V = np.concatenate([m.vertices for m in character.meshes])
+    offsets = np.cumsum([0] + [len(m.vertices) for m in character.meshes])
+    F = np.concatenate([m.faces + o for m, o in zip(character.meshes, offsets)])
+    scaled = np.clip(rms / (MAP_SCALE * character_height(character)), 0, 1)
+    save_weight_maps(V, F, {"held-out RMS / 1 % of height": scaled}, png,
+                     title=f"{src.stem}: fitted LBS vs NR-MLS on {pathlib.Path(holdout).name} (yellow >= 1 %)")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="bench/fit_skin.py", description=__doc__.splitlines()[0])
+    ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (gltf/, bvh/)")
+    ap.add_argument("--json", default=str(pathlib.Path(__file__).with_name("results") / "fit_skin.json"))
+    ap.add_argument("--influences", type=int, nargs="+", default=[4, 8], choices=(4, 8))
+    a = ap.parse_args(argv)
+    data = pathlib.Path(a.data)
+    if not (data / "gltf").is_dir():
+        print(f"bench/fit_skin.py: error: no gltf/ folder in {data}", file=sys.stderr)
+        return 2
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name, train, holdout in CASES:
+            for k in a.influences:
+                r = run_case(data, pathlib.Path(tmp), name, train, holdout, k)
+                for label, e in r["errors"].items():
+                    rows.append({"character": name, "influences": k, "helpers": 0,
+                                 "set": "training" if label == "training" else "held-out",
+                                 "rms_pct": 100 * e["rms_fraction"], "max_pct": 100 * e["max_fraction"],
+                                 "authored_rms_pct": 100 * r["authored_lbs_errors"][label]["rms_fraction"],
+                                 "fit_seconds": r["fit_seconds"], "file_bytes": r["size"]["file_bytes"],
+                                 "bake_10s_bytes": r["size"]["morph_bake_bytes_10s"], "report": r})
+    print(f"{'character':10} {'k':>2} {'set':9} {'RMS %':>7} {'max %':>7} {'authored RMS %':>15} "
+          f"{'fit s':>6} {'file / bake10s':>15}")
+    for row in rows:
+        print(f"{row['character']:10} {row['influences']:2d} {row['set']:9} {row['rms_pct']:7.3f} "
+              f"{row['max_pct']:7.3f} {row['authored_rms_pct']:15.3f} {row['fit_seconds']:6.1f} "
+              f"{row['file_bytes'] / row['bake_10s_bytes']:15.4f}")
+    common.write_record({"created": common.now(), "environment": common.environment(), "rows": rows}, a.json)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,153 @@
+"""``nrpose fit-skin``: NR-MLS exported as standard skinning (fitted LBS weights in a copy of the glTF)."""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import NrposeError
+from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
+                                  nrmls_targets)
+from ..fit.rom import ROM_DEGREES, range_of_motion
+from ..fit.skin_file import skinned_primitives, write_fitted_glb
+from ..io import load_character
+from ..io.files import atomic_path
+from ..io.poses import load_pose
+from ..model.character import Character
+from ..model.skeleton import LocalPose
+from ..model.timing import sample_times
+from ..pose.poser import WEIGHTS, CharacterPoser
+from .common import check_outputs
+from .pose import motion_clip
+
+FLAGS = {"weights": "--weights", "alpha": "--alpha", "influences": "--influences", "skeleton": "--skeleton"}
+INFLUENCES = (4, 8)
+BAKE_BYTES = 12      # morph-target bake: one float32 xyz per vertex per frame
+BAKE_SECONDS, BAKE_FPS = 10.0, 30.0
+MAX_VERTEX_FRAMES = 40_000_000   # poses x vertices held at once (targets and fitted, ~1.5 GB)
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("fit-skin", help="fit LBS weights that reproduce NR-MLS; write a copy of the glTF "
+                                        "any engine plays")
+    p.add_argument("character", help=".glb/.gltf character (skinned)")
+    p.add_argument("--method", choices=("nrmls",), default="nrmls", help="deformer fitted (nrmls)")
+    p.add_argument("--weights", choices=WEIGHTS, default="authored", help="NR-MLS weights (default: authored)")
+    p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
+    p.add_argument("--train", nargs="+", default=[], metavar="CLIP|BVH|GLB|POSE",
+                   help="training motion: a clip of the character, a BVH or glTF (its last clip) on its "
+                        "skeleton, or a pose JSON")
+    p.add_argument("--holdout", nargs="+", default=[], metavar="CLIP|BVH|GLB",
+                   help="motions evaluated in the report but not trained on")
+    p.add_argument("--export", nargs="+", default=[], metavar="BVH|GLB",
+                   help="BVH/glTF motions added to the output as animations (the source's clips are kept)")
+    p.add_argument("--rom-degrees", type=float, default=ROM_DEGREES,
+                   help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}; 0: none)")
+    p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation")
+    p.add_argument("--influences", type=int, default=4, help="joints per vertex: 4 or 8 (default 4)")
+    p.add_argument("--helpers", type=int, default=0, help="helper joints (not available yet: 0)")
+    p.add_argument("-o", "--output", required=True, help="OUT.glb")
+    p.add_argument("--report", help="R.json: errors vs NR-MLS, sizes, times")
+    p.set_defaults(func=run, flags=FLAGS)
+
+
+def motion(character, spec: str, fps: float, pose_ok: bool = True):
+    """(name, LocalPose (F, J, ...), clip or None) of a --train/--holdout/--export entry."""
+    names = [c.name for c in character.clips]
+    if spec in names:
+        clip = character.clip(spec)
+    elif Path(spec).suffix.lower() in (".bvh", ".glb", ".gltf"):
+        # a glTF motion: its last clip (where `nrpose retarget` puts the retargeted one)
+        loaded = load_character(spec)
+        if not loaded.clips:
+            raise NrposeError(f"{spec}: no animation in the file")
+        clip = motion_clip(Character(loaded.skeleton, (), loaded.clips[-1:]), character.skeleton, spec)
+    elif pose_ok and Path(spec).suffix.lower() == ".json":
+        pose = load_pose(spec, character.skeleton)
+        return spec, LocalPose(*(a[None] for a in (pose.translation, pose.rotation, pose.scale))), None
+    else:
+        raise NrposeError(f"{spec!r}: not a clip of the character ({', '.join(map(repr, names)) or 'none'}), "
+                          f"a .bvh, a .glb on its skeleton{' or a pose .json' if pose_ok else ''}")
+    return spec, clip.sample(sample_times(clip.duration, fps)), clip
+
+
+def concat(poses) -> LocalPose:
+    return LocalPose(*(np.concatenate([getattr(p, k) for p in poses]) for k in ("translation", "rotation", "scale")))
+
+
+def run(args) -> None:
+    if args.influences not in INFLUENCES:
+        raise NrposeError(f"--influences {args.influences}: expected 4 or 8")
+    if args.helpers < 0:
+        raise NrposeError(f"--helpers {args.helpers}: expected a count >= 0")
+    if args.helpers > 0:
+        raise NrposeError("--helpers: helper joints are not implemented yet; use --helpers 0")
+    if not args.train:
+        raise NrposeError("no training motion: give --train CLIP|BVH|POSE (the range of motion is added to it)")
+    if not (np.isfinite(args.fps) and args.fps > 0):
+        raise NrposeError(f"--fps {args.fps}: expected a positive number")
+    if not (np.isfinite(args.rom_degrees) and 0 <= args.rom_degrees <= 180):
+        raise NrposeError(f"--rom-degrees {args.rom_degrees}: expected 0 to 180")
+    check_outputs(args.output, (".glb",), None)
+    if args.report:
+        check_outputs(args.report, (".json",), None)
+    if Path(args.character).suffix.lower() not in (".glb", ".gltf"):
+        raise NrposeError(f"{args.character}: fit-skin writes a copy of a glTF character; give a .glb/.gltf")
+    character = load_character(args.character)
+    places = skinned_primitives(args.character, character)
+    train = [motion(character, s, args.fps) for s in args.train]
+    holdout = [motion(character, s, args.fps, pose_ok=False) for s in args.holdout]
+    export = [motion(character, s, args.fps, pose_ok=False) for s in args.export]
+    local = concat([m[1] for m in train])
+    rom_frames = 0
+    if args.rom_degrees > 0:
+        rom = range_of_motion(character.skeleton, args.rom_degrees)
+        rom_frames = len(rom.rotation)
+        local = concat([local, rom])
+    V = sum(len(m.vertices) for m in character.meshes)
+    for name, pose in [("the training set", local)] + [(h[0], h[1]) for h in holdout]:
+        if len(pose.rotation) * V > MAX_VERTEX_FRAMES:
+            raise NrposeError(f"{name}: {len(pose.rotation)} poses x {V} vertices is more than "
+                              f"{MAX_VERTEX_FRAMES:,} at once; lower --fps or --rom-degrees, or train on less")
+    poser = CharacterPoser(character, method="nrmls", weights=args.weights, alpha=args.alpha)
+    t0 = time.perf_counter()
+    G, targets = nrmls_targets(poser, local)
+    target_s = time.perf_counter() - t0
+    allowed = [None if p is None else p[3] for p in places]
+    fitted = fit_character(character, G, targets, args.influences, allowed)
+    new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
+    write_fitted_glb(args.character, args.output, character, fitted, new_clips)
+    print(f"{args.output}: {V} vertices, {args.influences} influences fitted to {len(G)} poses "
+          f"({rom_frames} range of motion) in {fitted.seconds:.1f} s (NR-MLS targets {target_s:.1f} s)")
+    if args.report:
+        # the file's own weights, as a baseline: how far plain LBS of the source is from NR-MLS
+        authored = FittedSkin(tuple(None if m.rigid_joint is not None else m.joints for m in character.meshes),
+                              tuple(None if m.rigid_joint is not None else m.weights for m in character.meshes), 0.0)
+        errors, baseline = {}, {}
+        for name, pose in [("training", None)] + [(h[0], h[1]) for h in holdout]:
+            Gh, Th = (G, targets) if pose is None else nrmls_targets(poser, pose)
+            errors[name] = error_table(character, fitted_positions(character, fitted, Gh), Th)
+            baseline[name] = {k: v for k, v in error_table(character, fitted_positions(character, authored, Gh),
+                                                           Th).items() if k != "regions"}
+        size = Path(args.output).stat().st_size
+        frames = sum(len(m[1].rotation) for m in train + holdout)
+        report = {
+            "character": str(args.character), "vertices": V, "height": character_height(character),
+            "influences": args.influences, "helpers": 0,
+            "training": {"motions": list(args.train), "poses": int(len(G)), "range_of_motion_poses": rom_frames,
+                         "range_of_motion_degrees": args.rom_degrees},
+            "fit_seconds": fitted.seconds, "targets_seconds": target_s, "errors": errors,
+            "authored_lbs_errors": baseline,
+            "size": {"file_bytes": size, "source_bytes": Path(args.character).stat().st_size,
+                     "morph_bake_bytes_of_clips": BAKE_BYTES * frames * V, "clip_frames": frames,
+                     "morph_bake_bytes_10s": int(BAKE_BYTES * BAKE_SECONDS * BAKE_FPS * V)},
+        }
+        with atomic_path(args.report) as tmp:
+            Path(tmp).write_text(json.dumps(report, indent=1))
+        for name, e in errors.items():
+            b = baseline[name]
+            print(f"  {name}: RMS {100 * e['rms_fraction']:.3f} % of height, max {100 * e['max_fraction']:.3f} %"
+                  f" ({e['frames']} frames; authored weights: RMS {100 * b['rms_fraction']:.3f} %, "
+                  f"max {100 * b['max_fraction']:.3f} %)")
