@@ -118,7 +118,7 @@ def run(args) -> None:
     allowed = [None if p is None else p[3] for p in places]
     fitted = fit_character(character, G, targets, args.influences, allowed)
     new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
-    write_fitted_glb(args.character, args.output, character, fitted, new_clips)
+    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips)
     print(f"{args.output}: {V} vertices, {args.influences} influences fitted to {len(G)} poses "
           f"({rom_frames} range of motion) in {fitted.seconds:.1f} s (NR-MLS targets {target_s:.1f} s)")
     if args.report:
@@ -131,7 +131,6 @@ def run(args) -> None:
             errors[name] = error_table(character, fitted_positions(character, fitted, Gh), Th)
             baseline[name] = {k: v for k, v in error_table(character, fitted_positions(character, authored, Gh),
                                                            Th).items() if k != "regions"}
-        size = Path(args.output).stat().st_size
         frames = sum(len(m[1].rotation) for m in train + holdout)
         report = {
             "character": str(args.character), "vertices": V, "height": character_height(character),

@@ -69,9 +69,10 @@ def skinned_primitives(path, character: Character) -> list:
     return found
 
 
-def write_fitted_glb(source_path, out_path, character: Character, fitted: FittedSkin, clips=()) -> None:
+def write_fitted_glb(source_path, out_path, character: Character, fitted: FittedSkin, clips=()) -> int:
     """Write source_path (.glb/.gltf of ``character``) to out_path (.glb) with the fitted weights
-    on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations."""
+    on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations; returns
+    the file's size in bytes (the file itself is in place when the command's outputs commit)."""
     path = Path(source_path)
     check_copyable(path)
     places = skinned_primitives(path, character)
@@ -115,3 +116,4 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
         gltf.save_binary(str(tmp))
         for clip in clips:
             write_glb_with_clip(tmp, tmp, character, clip)
+        return tmp.stat().st_size
