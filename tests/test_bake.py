@@ -260,11 +260,15 @@ def test_fox_clips_and_retargeted_bvh_equal_the_commands(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- faults
 
+#: frames per second of the heavy jobs: 2,501 frames each
+HEAVY_FPS = 2500
+
+
 def heavy_library(rig: Path, n: int = 14) -> dict:
     """n jobs of 2,501 frames each (seconds in all: the driver is still running when a test signals it), for killing and interrupting."""
     methods = ("nrmls", "lbs", "dqs")
     return {"defaults": {"character": "human.obj", "skeleton": "walk.bvh", "weights": "euclidean", "clip": "walk",
-                         "fps": 2500},
+                         "fps": HEAVY_FPS},
             "jobs": [{"output": f"j{i:02d}.npz", "method": methods[i % 3], "alpha": 1.0 + i // 3}
                      for i in range(n)]}
 
@@ -369,7 +373,7 @@ def test_ray_local_equals_pose_command_and_survives_a_killed_worker(rig, referen
     doc = library(rig)
     doc["jobs"] += heavy_library(rig, 8)["jobs"]
     for j in doc["jobs"][8:]:
-        j["fps"] = 400
+        j["fps"] = HEAVY_FPS
     jobs = write_jobs(rig / "ray.json", doc)
     out = tmp_path / "out"
     killed = []
