@@ -67,7 +67,7 @@ BAD_HANDLES = {
     "shape": json.dumps({"points": [{"rest": [0, 0], "pose": [0, 0, 0]}]}),
     "bad rotation": json.dumps({"segments": [{"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [0, 1, 0]],
                                               "rotation": [[1, 0, 0], [0, 1, 0], [0, 0, 1]]}]}),
-    # found by fuzzing the CLI (twenty-first session): each was a traceback
+    # found by fuzzing the CLI: each was a traceback
     "ragged rotation": json.dumps({"segments": [{"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [0, 1, 0]],
                                                  "rotation": [[1, 0, 0], [0, 1], [0, 0, 1]]}]}),
     "400-digit number": '{"points": [{"rest": [' + "9" * 400 + ', 0, 0], "pose": [0, 0, 0]}]}',
@@ -106,7 +106,7 @@ def test_deform_bad_inputs_exit_2(cylinder_case, tmp_path, capsys):
 
 
 def test_deform_odd_inputs_and_outputs(cylinder_case, tmp_path, capsys):
-    """Fuzzing finds (twenty-first session): a FIFO as input (its read would wait for a
+    """Fuzzing finds: a FIFO as input (its read would wait for a
     writer), a PLY face index 1.5 or an OBJ one of 23 digits, a path with a newline, a
     twist of 1e300 (a rotation like any other), and an output name of 240 characters,
     legal, whose temporary name used to be too long."""

@@ -120,7 +120,7 @@ def _reads_gltf_fields(name: str) -> bool:
 @pytest.fixture()
 def fork_safe():
     """Cases fork from this process: one holding an OpenCL context already (an earlier test
-    of the session made one) gives children PoCL without its threads, and they hang."""
+    of this pytest run made one) gives children PoCL without its threads, and they hang."""
     from nrpose.device.env import context
     if context.cache_info().currsize:
         pytest.skip("an earlier test made an OpenCL context in this process; run tests/test_fuzz.py "
