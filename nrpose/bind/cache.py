@@ -35,6 +35,7 @@ from typing import Callable, Mapping
 import numpy as np
 
 from ..errors import InputError
+from ..io.npz import read_npz, write_npz
 
 __all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status",
            "binding_key_parts", "code_version"]
@@ -125,12 +126,11 @@ def binding_key_parts(vertices, faces, point_handles, segment_handles, options: 
 def _load(path: Path, key: str) -> dict[str, np.ndarray] | None:
     """Arrays of a valid cache file, or None (and the file deleted) if not."""
     try:
-        with np.load(path, allow_pickle=False) as z:
-            if _META not in z.files or str(z[_META][()]) != f"{FORMAT_VERSION}:{key}":
-                raise ValueError("key or version mismatch")
-            return {name: np.array(z[name]) for name in z.files if name != _META}
-    except FileNotFoundError:
-        return None
+        arrays = read_npz(path)
+        meta = arrays.pop(_META, None)
+        if meta is None or str(meta[()]) != f"{FORMAT_VERSION}:{key}":
+            raise ValueError("key or version mismatch")
+        return arrays
     except Exception:  # corrupt, truncated, foreign: never trusted
         try:
             path.unlink()
@@ -144,7 +144,7 @@ def _store(path: Path, key: str, arrays: Mapping[str, np.ndarray]) -> None:
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem[:16]}.", suffix=".tmp", dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{_META: np.array(f"{FORMAT_VERSION}:{key}")}, **arrays)
+            write_npz(f, {_META: np.array(f"{FORMAT_VERSION}:{key}"), **arrays})
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

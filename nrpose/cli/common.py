@@ -11,9 +11,7 @@ import numpy as np
 
 from ..errors import NrposeError
 from ..io.files import atomic_path, check_writable, on_commit
-from ..io.gltf_write import write_animated_glb
-from ..io.meshes import write_geometry
-from ..io.npz import write_npz
+from ..io.npz import Streamed, write_npz
 
 __all__ = ["add_budget_options", "check_budget", "median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
 
@@ -94,26 +92,39 @@ def check_outputs(out: str | None, suffixes, png: str | None, out_is_dir: bool =
 
 def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, source=None, quantize: bool = False,
                  name: str = "baked"):
-    """Posed frames (:class:`nrpose.pose.poser.Frames`) to OUT.npz, OUT.glb or a directory of
-    ``frame_NNNN.<fmt>`` files. source, quantize, name (the animation's): for OUT.glb, see
+    """Posed frames to OUT.npz, OUT.glb or a directory of ``frame_NNNN.<fmt>`` files:
+    :class:`nrpose.pose.poser.Frames`, or for OUT.npz and a directory a
+    :class:`nrpose.pose.poser.FrameStream`, whose frames are written as they are posed.
+    source, quantize, name (the animation's): for OUT.glb, see
     :func:`nrpose.io.gltf_write.write_animated_glb`, whose report is returned (else None)."""
     path = Path(out)
     kind = frames_output_kind(out)
+    streamed = hasattr(frames, "batches")
     if kind == "npz":
+        positions = (Streamed((frames.count, frames.vertices, 3), np.float32, frames.batches) if streamed
+                     else frames.positions)
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as fh:
-                write_npz(fh, {"positions": frames.positions, "faces": frames.faces, "times": times,
+                write_npz(fh, {"positions": positions, "faces": frames.faces, "times": times,
                                "mesh_names": np.array(frames.mesh_names), "mesh_offsets": frames.mesh_offsets})
     elif kind == "glb":
+        if streamed:
+            raise NrposeError(f"{out}: a .glb is written from all the frames at once (CharacterPoser.pose)")
+        from ..io.gltf_write import write_animated_glb      # pygltflib: imported for .glb outputs only
         return write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets,
                                   source=source, quantize=quantize, animation_name=name)
     else:
+        from ..io.meshes import write_geometry
         # all frames go to a temporary sibling directory first; only at commit is the
         # directory made, the previous run's frame files removed and the new ones moved in
         tmp = Path(tempfile.mkdtemp(prefix=".nrpose-", dir=path.parent))
         try:
-            for f, pos in enumerate(frames.positions):
-                write_geometry(tmp / f"frame_{f:04d}.{fmt}", pos, frames.faces)
+            batches = frames.batches if streamed else [frames.positions]
+            f = 0
+            for batch in batches:
+                for pos in batch:
+                    write_geometry(tmp / f"frame_{f:04d}.{fmt}", pos, frames.faces)
+                    f += 1
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise

@@ -1,6 +1,7 @@
 """``nrpose pose``: a character posed from its clips, a BVH motion, a pose file or its rest pose."""
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -9,14 +10,11 @@ from ..pose.blend import BLENDS, DEFAULT_BLEND
 from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
-from ..io.gltf_write import check_copyable, write_glb_with_clip
-from ..io.poses import load_pose
 from ..io.tgf import read_dmat_animation, read_dmat_weights
 from ..bind.bone_weights import with_skin_weights
 from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
-from ..render.sheet import save_contact_sheet
 from .common import add_budget_options, check_budget, check_outputs, frames_output_kind, progress, write_frames
 
 #: library argument name -> the flag users type
@@ -82,6 +80,7 @@ def check_bake(args, kind: str) -> None:
         if args.quantize:
             raise NrposeError("--quantize compacts morph targets; --bake skin writes none")
     elif kind == "glb" and gltf_source:
+        from ..io.gltf_write import check_copyable     # pygltflib: imported for .glb outputs only
         check_copyable(args.character)
 
 
@@ -136,12 +135,14 @@ def run(args) -> None:
                  args.output)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
-    frames = posed_frames(poser, local, progress)
+    # an .npz or a directory takes the frames as they are posed, unless a contact sheet needs them all
+    frames = posed_frames(poser, local, progress, stream=kind != "glb" and not args.png)
     if args.bake == "skin":
         single = local.rotation.ndim == 2
         keys = type(local)(*(getattr(local, p)[None] if single else getattr(local, p)
                              for p in ("translation", "rotation", "scale")))
         bounds = (frames.positions.min(axis=(0, 1)), frames.positions.max(axis=(0, 1)))   # viewers' culling
+        from ..io.gltf_write import write_glb_with_clip
         write_glb_with_clip(args.character, args.output, character, sampled_clip(name, times, keys, skel.rest_pose),
                             bounds, keep_animations=False)
     else:
@@ -152,6 +153,7 @@ def run(args) -> None:
                   f"({report.quantized_frames} of {report.frames} frames quantized, {report.unique_frames} "
                   f"written; largest position error {report.max_error:.1e} of the bounding-box diagonal)")
     if args.png:
+        from ..render.sheet import save_contact_sheet
         save_contact_sheet(args.png, frames.positions, frames.faces, times,
                            title=f"{Path(args.character).name}: {args.method}, {args.weights} weights")
     ms = frames.frame_ms
@@ -173,6 +175,7 @@ def pose_input(character, *, clip: str | Clip | None = None, motion: str | None 
     if rest:
         return skel.rest_pose, np.zeros(1), "rest"
     if pose:
+        from ..io.poses import load_pose
         return load_pose(pose, skel), np.zeros(1), Path(pose).stem
     if isinstance(clip, Clip):
         source = clip
@@ -193,12 +196,28 @@ def pose_input(character, *, clip: str | Clip | None = None, motion: str | None 
     return source.sample(times), times, source.name
 
 
-def posed_frames(poser: CharacterPoser, local, progress=None):
-    """``poser.pose(local)``, refused (NrposeError) when a coordinate is not finite."""
+def posed_frames(poser: CharacterPoser, local, progress=None, stream: bool = False):
+    """``poser.pose(local)``, refused (NrposeError) when a coordinate is not finite; with
+    ``stream``, ``poser.stream(local)``, each of whose batches is refused as it is posed."""
+    if stream:
+        frames = poser.stream(local, progress=progress)
+        return dataclasses.replace(frames, batches=finite_batches(frames.batches))
     frames = poser.pose(local, progress=progress)
-    if not np.isfinite(frames.positions).all():
-        raise NrposeError("posing produced non-finite coordinates; please report this input")
+    check_finite(frames.positions)
     return frames
+
+
+def finite_batches(batches):
+    """The batches of posed frames, each checked by :func:`check_finite` before it is passed on."""
+    for batch in batches:
+        check_finite(batch)
+        yield batch
+
+
+def check_finite(positions: np.ndarray) -> None:
+    """NrposeError when a posed coordinate is not finite."""
+    if not np.isfinite(positions).all():
+        raise NrposeError("posing produced non-finite coordinates; please report this input")
 
 
 def motion_clip(motion, skel, path) -> Clip:

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -51,7 +52,7 @@ from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.meshset import concatenate_meshes, submesh_faces
 from ..model.skeleton import LocalPose
 
-__all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames"]
+__all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames", "FrameStream"]
 
 METHODS = ("nrmls", "lbs", "dqs", "cor")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
@@ -59,6 +60,10 @@ SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
 BIND_MODULES = ("nrpose.pose.poser", "nrpose.pose.mls", "nrpose.pose.blend", "nrpose.bind.bone_weights",
                 "nrpose.bind.weights", "nrpose.bind.distances", "nrpose.model.skeleton", "nrpose.model.meshset",
                 "nrpose.model.rotation", "nrpose.model.handles", "nrpose.model.deformation_metrics")
+#: the modules whose code an lbs/dqs/cor bind runs (joint weights, their compact form, the centers)
+SKIN_BIND_MODULES = ("nrpose.pose.poser", "nrpose.pose.cor", "nrpose.pose.skinning", "nrpose.bind.bone_weights",
+                     "nrpose.bind.weights", "nrpose.bind.distances", "nrpose.model.skeleton", "nrpose.model.meshset",
+                     "nrpose.model.handles", "nrpose.model.deformation_metrics")
 BIND_CACHE_FOLDER = "binds"   # character binds, beside the topological distances in the cache directory
 BATCH = 16            # frames posed per kernel launch (bound data read once per batch)
 
@@ -75,6 +80,27 @@ class Frames:
     mesh_names: tuple[str, ...]
     mesh_offsets: np.ndarray
     frame_ms: np.ndarray
+
+
+@dataclass(frozen=True)
+class FrameStream:
+    """Posed frames as they come (:meth:`CharacterPoser.stream`): ``batches``, read once,
+    poses the frames a batch at a time and yields each batch, (f, V, 3) float32 laid out as
+    :attr:`Frames.positions`, valid until the next is taken; faces, mesh_names and
+    mesh_offsets as :class:`Frames`; frame_ms (F,) filled in as the frames are posed;
+    vertices: V."""
+
+    batches: Iterator[np.ndarray]
+    faces: np.ndarray
+    mesh_names: tuple[str, ...]
+    mesh_offsets: np.ndarray
+    frame_ms: np.ndarray
+    vertices: int
+
+    @property
+    def count(self) -> int:
+        """F, the frames the stream yields in all."""
+        return len(self.frame_ms)
 
 
 class CharacterPoser:
@@ -131,28 +157,16 @@ class CharacterPoser:
                 if backend == "opencl":
                     device.prefetch("skinning.cl")
                 offset = np.zeros(len(V), np.int64)
-                if weights == "authored":
-                    joint_w = authored_joint_weights(deform_meshes, skel.num_joints)
-                    self._bind_space = all(m.bind_vertices is not None and m.inverse_bind is not None
-                                           for m in deform_meshes)
-                    src = (np.concatenate([m.bind_vertices for m in deform_meshes]) if self._bind_space else V)
-                    if self._bind_space:
-                        # each distinct skin's inverse binds get their own block of J matrices
-                        self._ibms, group = _distinct([m.inverse_bind for m in deform_meshes])
-                        offset = np.repeat(group * skel.num_joints, [len(m.vertices) for m in deform_meshes])
-                else:
-                    bone_w = bone_weights(character, weights, SKIN_INFLUENCES, alpha).weights[self._deform_idx]
-                    joint_w = np.zeros((len(V), skel.num_joints))
-                    np.add.at(joint_w.T, self.bones.joints, bone_w.T)
-                    self._bind_space, src = False, V
-                joints, wts = _compact(joint_w)
-                joints = joints + offset[:, None]
-                if method == "cor":
-                    faces = submesh_faces(geo.faces, self._deform_idx, self.n)
-                    centers = cor_centers(src, faces if len(faces) else None, joints, wts)
-                    self._device_args = (src, joints, wts, centers)
-                else:
-                    self._device_args = (src, joints, wts)
+                self._bind_space = weights == "authored" and all(
+                    m.bind_vertices is not None and m.inverse_bind is not None for m in deform_meshes)
+                src = np.concatenate([m.bind_vertices for m in deform_meshes]) if self._bind_space else V
+                if self._bind_space:
+                    # each distinct skin's inverse binds get their own block of J matrices
+                    self._ibms, group = _distinct([m.inverse_bind for m in deform_meshes])
+                    offset = np.repeat(group * skel.num_joints, [len(m.vertices) for m in deform_meshes])
+                faces = submesh_faces(geo.faces, self._deform_idx, self.n) if method == "cor" else None
+                joints, wts, centers = self._skin_bind(character, V, src, offset, faces, weights, alpha)
+                self._device_args = (src, joints, wts) + ((centers,) if method == "cor" else ())
             self._deformer = self._device_build()
         self.bind_ms = 1e3 * (time.perf_counter() - t0)
 
@@ -217,6 +231,47 @@ class CharacterPoser:
         np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
         return W, got.get("t"), {n[7:]: a for n, a in got.items() if n.startswith("layout_")}
 
+    def _skin_bind(self, character, V, src, offset, faces, weights, alpha) -> tuple:
+        """(joints (V, K) int64, their weights (V, K) float64, centers of rotation (V, 3) or
+        None without ``faces``) of the deforming vertices V (world rest) for lbs/dqs/cor:
+        joint rows ``offset`` (V,) apart per distinct skin, centers computed from ``src``
+        (the skinned rest vertices) and the deforming meshes' ``faces`` (cor only). From the
+        binding cache when the same character, options and code were bound before
+        (``self.bind_cache``: "hit", "miss" or "rebuilt")."""
+        skel = character.skeleton
+        deform = [m for m in character.meshes if m.rigid_joint is None]
+        authored = weights == "authored"
+        parts = {"kind": "skin-character-bind", "code": code_version(SKIN_BIND_MODULES),
+                 "vertices": np.ascontiguousarray(V, np.float64), "source": np.ascontiguousarray(src, np.float64),
+                 "offset": offset, "faces": np.ascontiguousarray(self.faces, np.int64),
+                 "deform": self._deform_idx, "bones": np.ascontiguousarray(self.bones.segments, np.float64),
+                 "bone_joints": np.asarray(self.bones.joints, np.int64),
+                 "parents": np.asarray(skel.parents, np.int64),
+                 "skin_joints": np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in deform])
+                 if authored else np.zeros(0, np.int64),
+                 "skin_weights": np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in deform])
+                 if authored else np.zeros(0),
+                 "options": {"weights": weights, "alpha": float(alpha), "influences": SKIN_INFLUENCES,
+                             "centers": faces is not None,
+                             "skin_shapes": [list(np.shape(m.joints)) for m in deform] if authored else []}}
+
+        def compute() -> dict:
+            if authored:
+                joint_w = authored_joint_weights(deform, skel.num_joints)
+            else:
+                bone_w = bone_weights(character, weights, SKIN_INFLUENCES, alpha).weights[self._deform_idx]
+                joint_w = np.zeros((len(V), skel.num_joints))
+                np.add.at(joint_w.T, self.bones.joints, bone_w.T)
+            joints, wts = _compact(joint_w)
+            joints = joints + offset[:, None]
+            if faces is None:
+                return {"joints": joints, "weights": wts}
+            return {"joints": joints, "weights": wts,
+                    "centers": cor_centers(src, faces if len(faces) else None, joints, wts)}
+
+        got, self.bind_cache = cached_status(parts, compute, cache_dir() / BIND_CACHE_FOLDER)
+        return got["joints"], got["weights"], got.get("centers")
+
     # ------------------------------------------------------------------ posing
     @property
     def deformer(self):
@@ -229,23 +284,52 @@ class CharacterPoser:
     def pose(self, local: LocalPose, progress=None) -> Frames:
         """Posed frames for a local pose (J, ...) or a batch (F, J, ...).
 
-        progress: optional callable(done, total) called after each frame.
+        progress: optional callable(done, total) called after each batch of frames.
         """
-        skel, deformer = self.character.skeleton, self.deformer
+        G = self._joint_transforms(local)
+        # on OpenCL: the frames in memory the deformer's kernel writes directly (no copy per frame)
+        out = self._frames_memory(len(G))
+        frame_ms = np.empty(len(G))
+        for _ in self._posed_batches(G, out, frame_ms, progress):
+            pass
+        return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
+
+    def stream(self, local: LocalPose, progress=None) -> FrameStream:
+        """The frames of a local pose (J, ...) or a batch (F, J, ...), posed batch by batch
+        as the returned stream's ``batches`` are taken (no array of every frame is made).
+        The pose is checked now (InputError), the posing runs as the stream is read."""
+        G = self._joint_transforms(local)
+        frame_ms = np.empty(len(G))
+        batches = self._posed_batches(G, self._frames_memory(min(len(G), BATCH)), frame_ms, progress)
+        return FrameStream(batches, self.faces, self.mesh_names, self.mesh_offsets, frame_ms, self.n)
+
+    def _joint_transforms(self, local: LocalPose) -> np.ndarray:
+        """Global joint transforms (F, J, 4, 4) of a local pose (J, ...) or (F, J, ...),
+        InputError where there is no frame or a transform is not finite or too large."""
         if np.ndim(local.rotation) == 3 and len(local.rotation) == 0:
             raise InputError("no frames to pose: give at least one time")
-        G = skel.forward_kinematics(local)
+        G = self.character.skeleton.forward_kinematics(local)
         if not np.isfinite(G).all():
             raise InputError("the pose moves or scales joints to infinity; check its translations and scales")
         check_magnitude(G[..., :3, :], "posed joint transforms (translations, scaled rotations)")
-        if G.ndim == 3:
-            G = G[None]
-        F = len(G)
+        return G[None] if G.ndim == 3 else G
+
+    def _frames_memory(self, frames: int) -> np.ndarray:
+        """Uninitialised (frames, n, 3) float32 for posed frames: on OpenCL without rigid
+        meshes the deformer's :meth:`~nrpose.device.BoundKernel.frames_array`, which its
+        kernel writes into directly; else a plain array."""
+        if len(self._deform_idx) == self.n and self._backend == "opencl":
+            return self.deformer.frames_array(frames)
+        return np.empty((frames, self.n, 3), np.float32)
+
+    def _posed_batches(self, G: np.ndarray, out: np.ndarray, frame_ms: np.ndarray, progress) -> Iterator[np.ndarray]:
+        """Pose the frames of G (F, J, 4, 4) BATCH at a time into ``out`` (from
+        :meth:`_frames_memory`): frames a..b into ``out[a:b]`` where it holds all F, else into
+        its first b - a (one batch's memory, reused); yield each batch's frames (a view of
+        ``out``) when posed, its per-frame milliseconds in ``frame_ms[a:b]``, then
+        ``progress(b, F)``. The deformer lets go of ``out`` when the generator ends."""
+        deformer, F = self.deformer, len(G)
         whole = len(self._deform_idx) == self.n       # no rigid meshes: write in place
-        # on OpenCL: the frames in memory the deformer's kernel writes directly (no copy per frame)
-        out = (deformer.frames_array(F) if whole and self._backend == "opencl"
-               else np.empty((F, self.n, 3), np.float32))
-        frame_ms = np.empty(F)
         # (F, J, 4, 4): skinning matrices, for rigidly attached meshes and for LBS/DQS of rest-space
         # vertices (bind-space vertices take their skins' own inverse binds instead)
         skin_rest = (G @ self._rest_inv
@@ -257,33 +341,36 @@ class CharacterPoser:
         else:
             mats = (np.concatenate([G @ ibm for ibm in self._ibms], axis=1) if self._bind_space
                     else skin_rest)
-        for a in range(0, F, BATCH):
-            b = min(a + BATCH, F)
-            t0 = time.perf_counter()
-            if self._rigid_idx.size:
-                M = skin_rest[a:b, self._rigid_joint]                     # (f, n, 4, 4)
-                V = self._rest_world[self._rigid_idx]
-                out[a:b, self._rigid_idx] = np.einsum("fnij,nj->fni", M[..., :3, :3], V) + M[..., :3, 3]
-            if self._deform_idx.size:
-                dst = out[a:b] if whole else np.empty((b - a, len(self._deform_idx), 3), np.float32)
-                if self.method == "nrmls":
-                    # FK output is consistent by construction: no Pose.make validation
-                    deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
-                                         out=dst)
-                elif deformer is not None:
-                    deformer.pose_frames(mats[a:b], out=dst)
-                else:
-                    ref = {"lbs": skinning.lbs_reference, "dqs": skinning.dqs_reference,
-                           "cor": cor_reference}[self.method]
-                    dst[...] = [ref(*self._device_args[:3], m, *self._device_args[3:]) for m in mats[a:b]]
-                if not whole:
-                    out[a:b, self._deform_idx] = dst
-            frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
-            if progress:
-                progress(b, F)
-        if self._backend == "opencl" and deformer is not None:
-            deformer.release_frames()                 # the Frames are the caller's: not kept by the poser
-        return Frames(out, self.faces, self.mesh_names, self.mesh_offsets, frame_ms)
+        try:
+            for a in range(0, F, BATCH):
+                b = min(a + BATCH, F)
+                t0 = time.perf_counter()
+                batch = out[a:b] if len(out) == F else out[:b - a]
+                if self._rigid_idx.size:
+                    M = skin_rest[a:b, self._rigid_joint]                     # (f, n, 4, 4)
+                    V = self._rest_world[self._rigid_idx]
+                    batch[:, self._rigid_idx] = np.einsum("fnij,nj->fni", M[..., :3, :3], V) + M[..., :3, 3]
+                if self._deform_idx.size:
+                    dst = batch if whole else np.empty((b - a, len(self._deform_idx), 3), np.float32)
+                    if self.method == "nrmls":
+                        # FK output is consistent by construction: no Pose.make validation
+                        deformer.pose_frames([Pose(HandleSet(empty, segs[f]), rots[f]) for f in range(a, b)],
+                                             out=dst)
+                    elif deformer is not None:
+                        deformer.pose_frames(mats[a:b], out=dst)
+                    else:
+                        ref = {"lbs": skinning.lbs_reference, "dqs": skinning.dqs_reference,
+                               "cor": cor_reference}[self.method]
+                        dst[...] = [ref(*self._device_args[:3], m, *self._device_args[3:]) for m in mats[a:b]]
+                    if not whole:
+                        batch[:, self._deform_idx] = dst
+                frame_ms[a:b] = 1e3 * (time.perf_counter() - t0) / (b - a)
+                yield batch
+                if progress:
+                    progress(b, F)
+        finally:
+            if self._backend == "opencl" and deformer is not None:
+                deformer.release_frames()             # the frames are the caller's: not kept by the poser
 
 
 # ---------------------------------------------------------------------- helpers
