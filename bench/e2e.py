@@ -76,12 +76,14 @@ BPY_PYTHON = (3, 11)            # the only CPython the bpy 5 wheels are built fo
 # the frames fall on the clip's keys (measured ~1e-5)
 AGREEMENT_TOLERANCE = 1e-4
 # (stage, module path regex, qualified function name regex): the functions timed as the
-# stages of a job; nested calls within a stage count once. Update the paths when the
-# package moves.
+# stages of a job. Stage times are exclusive: a stage's function called inside another
+# stage's (frames posed as the writer takes them) counts for its own stage only; nested
+# calls within a stage count once; a generator function is timed while it runs (each
+# step). Update the paths when the package moves.
 STAGE_RULES = (
     ("load", r"nrpose/io/__init__\.py$", r"load_character"),
     ("bind", r"nrpose/pose/poser\.py$", r"CharacterPoser\.__init__"),
-    ("pose", r"nrpose/pose/poser\.py$", r"CharacterPoser\.pose"),
+    ("pose", r"nrpose/pose/poser\.py$", r"CharacterPoser\.(pose|stream|_posed_batches)"),
     ("pose", r"nrpose/model/character\.py$", r"(Clip|Track)\.sample"),   # the clip's local poses
     ("write", r"nrpose/cli/(pose|common)\.py$", r"write_frames"),       # the pose command's writer
 )
@@ -103,20 +105,52 @@ for m in mods:
         importlib.import_module(m)
     except Exception:
         pass
-spent, busy, wrapped = {}, set(), {}
+spent, running, wrapped = {}, [], {}   # running: [stage, since] of the stages entered, innermost last
+
+def enter(stage):
+    now = time.perf_counter()
+    if running:                      # the enclosing stage pauses
+        outer = running[-1]
+        spent[outer[0]] = spent.get(outer[0], 0.0) + now - outer[1]
+    running.append([stage, now])
+
+def leave():
+    now = time.perf_counter()
+    stage, since = running.pop()
+    spent[stage] = spent.get(stage, 0.0) + now - since
+    if running:
+        running[-1][1] = now
 
 def timer(f, stage):
+    def inside():
+        return running and running[-1][0] == stage
+    if inspect.isgeneratorfunction(f):
+        @functools.wraps(f)
+        def timed_steps(*a, **k):
+            it = f(*a, **k)
+            while True:
+                nested = inside()
+                if not nested:
+                    enter(stage)
+                try:
+                    item = next(it)
+                except StopIteration as stop:
+                    return stop.value
+                finally:
+                    if not nested:
+                        leave()
+                yield item
+        return timed_steps
+
     @functools.wraps(f)
     def timed(*a, **k):
-        if stage in busy:
+        if inside():
             return f(*a, **k)
-        busy.add(stage)
-        t = time.perf_counter()
+        enter(stage)
         try:
             return f(*a, **k)
         finally:
-            spent[stage] = spent.get(stage, 0.0) + time.perf_counter() - t
-            busy.discard(stage)
+            leave()
     return timed
 
 if mode == "timers":

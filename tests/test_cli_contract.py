@@ -95,7 +95,7 @@ def test_a_failing_png_leaves_no_main_output(deform_case, tmp_path, capsys, monk
 
 @needs_data
 def test_failing_frames_leave_no_directory(tmp_path, capsys, monkeypatch):
-    import nrpose.cli.common as common
+    import nrpose.io.meshes as meshes
     written = []
 
     def write_one_then_fail(path, *args):
@@ -103,7 +103,7 @@ def test_failing_frames_leave_no_directory(tmp_path, capsys, monkeypatch):
             raise OSError(27, "File too large", str(path))
         written.append(path)
         Path(path).write_text("frame")
-    monkeypatch.setattr(common, "write_geometry", write_one_then_fail)
+    monkeypatch.setattr(meshes, "write_geometry", write_one_then_fail)
     code, _, err = run(["pose", FOX, "--clip", "Run", "--frames", "0:2", "-o", tmp_path / "frames"], capsys)
     assert code == 2 and err.count("\n") == 1 and written
     assert list(tmp_path.iterdir()) == []
