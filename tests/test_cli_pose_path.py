@@ -2,7 +2,7 @@
 
 A plain glTF pose (authored weights, every method) runs in a fresh interpreter and reports
 ``sys.modules`` after :func:`nrpose.cli.main`; plotting, mesh-processing and graph libraries
-must not be among them. The rotation helpers that replaced scipy on the posing path are
+must not be among them, nor the glTF writer's library (pygltflib) for an ``.npz`` output. The rotation helpers that replaced scipy on the posing path are
 checked against scipy here too.
 """
 from __future__ import annotations
@@ -18,6 +18,8 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parent.parent
 FOX = ROOT.parent / "shared" / "data" / "gltf" / "Fox.glb"
 HEAVY = ("matplotlib", "pymeshlab", "igl", "scipy.spatial")
+#: what an .npz output does not need: the glTF writer (and its library) and the contact sheet
+NOT_FOR_NPZ = ("pygltflib", "nrpose.io.gltf_write", "nrpose.render")
 
 PROBE = """
 import json, sys
@@ -45,10 +47,21 @@ def test_pose_imports_no_heavy_library(method, tmp_path):
     mods = modules_after(["pose", FOX, "--clip", "Run", "--time", "0", "0.4", "--method", method,
                           "-o", tmp_path / "out.npz"], tmp_path)
     assert "nrpose.pose.poser" in mods and "pyopencl" in mods          # the probe saw the real job
-    heavy = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in HEAVY))
+    heavy = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in HEAVY + NOT_FOR_NPZ))
     assert not heavy, heavy
     others = sorted(m for m in mods if m.startswith("nrpose.cli.") and m not in ("nrpose.cli.pose", "nrpose.cli.common"))
     assert not others, others                                           # no other command's module
+
+
+def test_glb_output_imports_its_writer(tmp_path):
+    """The probe sees the writer where the output needs it (the test above is not vacuous)."""
+    if not FOX.exists():
+        pytest.skip(f"shared data not found at {FOX}")
+    pytest.importorskip("pyopencl")
+    mods = modules_after(["pose", FOX, "--clip", "Run", "--time", "0", "0.4", "--method", "lbs",
+                          "-o", tmp_path / "out.glb"], tmp_path)
+    assert {"pygltflib", "nrpose.io.gltf_write"} <= mods
+    assert not any(m == h or m.startswith(h + ".") for m in mods for h in HEAVY)
 
 
 def test_import_nrpose_is_light():
@@ -92,20 +105,3 @@ def test_quat_slerp_equals_scipy_composition():
     r0 = Rotation.from_quat(q0)
     ref = (r0 * Rotation.from_rotvec(s * (r0.inv() * Rotation.from_quat(q1)).as_rotvec())).as_quat()
     np.testing.assert_allclose(quat_slerp(q0, q1, s), ref, rtol=0, atol=1e-12)
-
-
-def test_write_npz_reads_back_as_savez(tmp_path):
-    from nrpose.io.npz import write_npz
-    rng = np.random.default_rng(6)
-    arrays = {"positions": rng.normal(size=(5, 7, 3)).astype(np.float32), "faces": np.arange(12).reshape(4, 3),
-              "times": np.linspace(0, 1, 5), "mesh_names": np.array(["body", "hat"]),
-              "mesh_offsets": np.array([0, 4]), "empty": np.zeros((0, 3), np.float32),
-              "strided": np.arange(20.0)[::2], "many_axes": np.zeros((1,) * 30, np.int8)}
-    with open(tmp_path / "ours.npz", "wb") as fh:
-        write_npz(fh, arrays)
-    np.savez(tmp_path / "numpy.npz", **arrays)
-    with np.load(tmp_path / "ours.npz") as ours, np.load(tmp_path / "numpy.npz") as ref:
-        assert ours.files == ref.files == list(arrays)
-        for name in arrays:
-            assert ours[name].dtype == ref[name].dtype and ours[name].shape == ref[name].shape, name
-            assert ours[name].tobytes() == ref[name].tobytes(), name

@@ -1,5 +1,6 @@
-"""NR-MLS binds of characters in the binding cache: a cached bind equals a fresh one bitwise;
-a changed vertex, skin weight or option, or another code version, is a new bind."""
+"""Character binds in the binding cache (NR-MLS; LBS, DQS and CoR): a cached bind equals a
+fresh one bitwise; a changed vertex, skin weight or option, or another code version, is a new
+bind."""
 from __future__ import annotations
 
 import dataclasses
@@ -125,3 +126,79 @@ def test_code_version_follows_the_source(tmp_path, monkeypatch):
     mod.write_text("x = 2\n")
     assert cache.code_version.__wrapped__(("bindmod_probe",)) != first
     assert len(first) == 64
+
+
+# ---------------------------------------------------------------------- skinning binds
+SKIN_METHODS = ("lbs", "dqs", "cor")
+
+
+def skin_state(p: CharacterPoser) -> dict:
+    """The host bind the skinning deformer is made from (source vertices, joints, weights[, centers])."""
+    return {f"arg{i}": np.asarray(a) for i, a in enumerate(p._device_args)}
+
+
+@pytest.mark.parametrize("method", SKIN_METHODS)
+def test_cached_skin_bind_equals_fresh_bitwise(fox, method):
+    fresh = CharacterPoser(fox, method=method)
+    assert fresh.bind_cache == "miss"
+    again = CharacterPoser(fox, method=method)
+    assert again.bind_cache == "hit"
+    a, b = skin_state(fresh), skin_state(again)
+    assert len(a) == (4 if method == "cor" else 3)
+    for name in a:
+        assert a[name].dtype == b[name].dtype and a[name].shape == b[name].shape, name
+        assert a[name].tobytes() == b[name].tobytes(), name
+    local = some_poses(fox)
+    assert fresh.pose(local).positions.tobytes() == again.pose(local).positions.tobytes()
+
+
+def test_lbs_and_dqs_share_a_bind_and_cor_has_its_own(fox):
+    assert CharacterPoser(fox, method="lbs").bind_cache == "miss"
+    assert CharacterPoser(fox, method="dqs").bind_cache == "hit"     # the same joints and weights
+    assert CharacterPoser(fox, method="cor").bind_cache == "miss"    # and the centers of rotation
+
+
+def test_cached_distance_weight_skin_bind_equals_fresh(fox):
+    fresh = CharacterPoser(fox, method="lbs", weights="euclidean", alpha=1.5)
+    again = CharacterPoser(fox, method="lbs", weights="euclidean", alpha=1.5)
+    assert (fresh.bind_cache, again.bind_cache) == ("miss", "hit")
+    a, b = skin_state(fresh), skin_state(again)
+    assert all(a[n].tobytes() == b[n].tobytes() for n in a)
+
+
+@pytest.mark.parametrize("change", ["vertex", "weight", "weights", "alpha", "code"])
+@pytest.mark.parametrize("method", ["lbs", "cor"])
+def test_a_change_is_a_new_skin_bind(fox, method, change, monkeypatch):
+    base = {"weights": "euclidean"} if change == "alpha" else {}
+    assert CharacterPoser(fox, method=method, **base).bind_cache == "miss"
+    assert CharacterPoser(fox, method=method, **base).bind_cache == "hit"
+    ch, opts = fox, dict(base)
+    if change == "vertex":
+        ch = changed_vertex(fox)
+    elif change == "weight":
+        ch = changed_weight(fox)
+    elif change == "weights":
+        opts = {"weights": "euclidean"}
+    elif change == "alpha":
+        opts["alpha"] = 2.0
+    else:
+        monkeypatch.setattr(poser_module, "code_version", lambda modules: "another version")
+    p = CharacterPoser(ch, method=method, **opts)
+    assert p.bind_cache == "miss"
+    fresh = CharacterPoser(ch, method=method, **opts)
+    assert fresh.bind_cache == "hit"
+    a, b = skin_state(p), skin_state(fresh)
+    assert all(a[n].tobytes() == b[n].tobytes() for n in a)
+
+
+def test_a_damaged_skin_bind_file_is_rebuilt(fox):
+    first = CharacterPoser(fox, method="lbs")
+    files = list((cache.cache_dir() / poser_module.BIND_CACHE_FOLDER).glob("*.npz"))
+    assert len(files) == 1
+    raw = bytearray(files[0].read_bytes())
+    raw[len(raw) // 2] ^= 0x01                     # inside a member's data: its CRC-32 no longer holds
+    files[0].write_bytes(bytes(raw))
+    again = CharacterPoser(fox, method="lbs")
+    assert again.bind_cache == "rebuilt"
+    a, b = skin_state(first), skin_state(again)
+    assert all(a[n].tobytes() == b[n].tobytes() for n in a)
