@@ -66,6 +66,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import mimetypes
+import struct
 import urllib.parse
 from dataclasses import dataclass
 from pathlib import Path
@@ -162,7 +163,8 @@ def _check(positions, times, total_needed: int) -> tuple[np.ndarray, np.ndarray]
 
 
 class Blob:
-    """The binary chunk of a GLB being written: 4-byte aligned buffer views and accessors.
+    """The binary chunk of a GLB being written: aligned buffer views (4 bytes; 8 where the document
+    needs it) and accessors.
 
     Appends to ``gltf.bufferViews`` / ``gltf.accessors`` (all views in buffer 0);
     :meth:`bytes` is the chunk's content.
@@ -170,13 +172,14 @@ class Blob:
 
     def __init__(self, gltf: pygltflib.GLTF2):
         self.gltf, self.parts, self.size = gltf, [], 0
+        self.align = max(4, gltf.required_alignment())     # 8 for documents that use EXT_structural_metadata
 
     def append(self, data: bytes) -> int:
-        """Append raw bytes (then pad to 4); their byte offset."""
+        """Append raw bytes (then pad to the document's alignment, 4 or 8); their byte offset."""
         start = self.size
         self.parts.append(data)
         self.size += len(data)
-        pad = (-self.size) % 4
+        pad = (-self.size) % self.align
         if pad:
             self.parts.append(b"\0" * pad)
             self.size += pad
@@ -265,11 +268,22 @@ def _copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
 
 
 def _save(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> None:
-    data = blob.bytes()
-    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
-    gltf.set_binary_blob(data)
-    with atomic_path(out) as tmp:
-        gltf.save_binary(str(tmp))
+    """The GLB of ``gltf`` with ``blob`` as its binary chunk, written chunk by chunk: the
+    blob's parts go to the file as they are, never joined into one copy (pygltflib's
+    ``save_binary`` would join them, then copy every view again)."""
+    align = max(blob.align, gltf.required_alignment())
+    tail = -blob.size % align
+    gltf.buffers = [pygltflib.Buffer(byteLength=blob.size + tail)]
+    text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+    text += b" " * (-(12 + len(text)) % align)     # the binary chunk's data start aligned in the file
+    with atomic_path(out) as tmp, open(tmp, "wb") as f:
+        f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + 8 + blob.size + tail))
+        f.write(struct.pack("<I4s", len(text), b"JSON"))
+        f.write(text)
+        f.write(struct.pack("<I4s", blob.size + tail, b"BIN\0"))
+        for part in blob.parts:
+            f.write(part)
+        f.write(b"\0" * tail)
 
 
 @dataclass
