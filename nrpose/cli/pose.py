@@ -14,7 +14,7 @@ from ..io.tgf import read_dmat_animation, read_dmat_weights
 from ..bind.bone_weights import with_skin_weights
 from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
-from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
+from ..pose.poser import METHODS, WEIGHTS, CharacterPoser, prefetch
 from .common import add_budget_options, check_budget, check_outputs, frames_output_kind, progress, write_frames
 
 #: library argument name -> the flag users type
@@ -118,6 +118,7 @@ def run(args) -> None:
         raise NrposeError(f"--fps {args.fps}: expected a positive number of frames per second")
     if (args.rest or args.pose) and (args.time or args.frames):
         raise NrposeError("--time and --frames sample a clip; with --rest or --pose there is one frame: drop them")
+    prefetch(args.method, args.backend)       # a skinning program compiles while the character loads
     character = load_character(args.character, args.skeleton)
     skel = character.skeleton
     if args.weights_file:

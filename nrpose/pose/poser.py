@@ -52,7 +52,7 @@ from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.meshset import concatenate_meshes, submesh_faces
 from ..model.skeleton import LocalPose
 
-__all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames", "FrameStream"]
+__all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames", "FrameStream", "prefetch"]
 
 METHODS = ("nrmls", "lbs", "dqs", "cor")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
@@ -154,8 +154,7 @@ class CharacterPoser:
                     W, t, layout = bw.weights[self._deform_idx], bw.t[self._deform_idx] if bw.t is not None else None, None
                 self._device_args = (V, rest, W, kk, blend, t, layout)
             else:
-                if backend == "opencl":
-                    device.prefetch("skinning.cl")
+                prefetch(method, backend)
                 offset = np.zeros(len(V), np.int64)
                 self._bind_space = weights == "authored" and all(
                     m.bind_vertices is not None and m.inverse_bind is not None for m in deform_meshes)
@@ -371,6 +370,16 @@ class CharacterPoser:
         finally:
             if self._backend == "opencl" and deformer is not None:
                 deformer.release_frames()             # the frames are the caller's: not kept by the poser
+
+
+def prefetch(method: str, backend: str = "opencl") -> None:
+    """Start building, in the background, the device program a poser of ``method`` on
+    ``backend`` will use where it does not depend on the character (the skinning methods';
+    an NR-MLS program depends on the rig and is started at bind), so that a caller can have
+    it compile while the character loads (:func:`nrpose.device.prefetch`; makes the OpenCL
+    context now)."""
+    if backend == "opencl" and method in skinning.PROGRAMS:
+        device.prefetch(skinning.PROGRAMS[method])
 
 
 # ---------------------------------------------------------------------- helpers
