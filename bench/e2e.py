@@ -1,7 +1,7 @@
 """e2e suite: the whole job, file to file, as a user runs it, against Blender 5 doing the same.
 
     .venv/bin/python -m bench --suite e2e [--repeat 5] [--quick] [--no-blender] [--json OUT.json]
-                                             [--characters fox,mannequin,ely] [--data DIR]
+                                             [--characters fox,mannequin,ely] [--outputs npz,glb] [--data DIR]
 
 (``.venv/bin/python bench/e2e.py`` takes the same options.)
 
@@ -424,8 +424,10 @@ def contestants(methods, outputs, blender: bool) -> list[tuple]:
     return out + ([("blender", None, "npz")] if blender else [])
 
 
-def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bool = True, log=None) -> dict:
-    """Run the suite; return the record (module docstring; bench/README.md)."""
+def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bool = True, log=None,
+        outputs=OUTPUTS) -> dict:
+    """Run the suite; return the record (module docstring; bench/README.md). outputs: the
+    output kinds timed (a subset of :data:`OUTPUTS`)."""
     data = pathlib.Path(data) if data is not None else DEFAULT_DATA
     names = tuple(names or ([CHARACTERS[0][0]] if quick else [c[0] for c in CHARACTERS]))
     methods = METHODS[:1] if quick else METHODS
@@ -435,7 +437,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
     py = script_python(script)
     doc = {"schema": SCHEMA, "timestamp": common.now(), "git_commit": common.git("rev-parse", "HEAD"),
            "options": {"repeat": rounds, "quick": quick, "data": str(data), "characters": list(names),
-                       "methods": list(methods), "outputs": list(OUTPUTS), "modes": list(MODES), "fps": FPS,
+                       "methods": list(methods), "outputs": list(outputs), "modes": list(MODES), "fps": FPS,
                        "weights": "authored", "nrpose": str(script), "python": py},
            "environment": common.environment(), "load_start": common.load(),
            "modes": {"cold": "each run: fresh empty NRPOSE_CACHE_DIR and POCL_CACHE_DIR, the input .glb dropped "
@@ -464,7 +466,8 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
             if log:
                 log(f"e2e: {s['character']} skipped: {s['reason']}")
         for ch in chars:
-            doc["rows"].extend(_character(ch, methods, rounds, script, py, bpy_python, tmp, warm, doc, quick, log))
+            doc["rows"].extend(_character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, warm, doc,
+                                          log))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     _ratios(doc["rows"])
@@ -475,7 +478,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
     return doc
 
 
-def _character(ch, methods, rounds, script, py, bpy_python, tmp, warm, doc, quick, log) -> list[dict]:
+def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, warm, doc, log) -> list[dict]:
     name, glb, clip = ch["character"], ch["path"], ch["clip"]
     work = tmp / name
     work.mkdir()
@@ -494,7 +497,7 @@ def _character(ch, methods, rounds, script, py, bpy_python, tmp, warm, doc, quic
             return [bpy_python, HERE / "blender_bake.py", glb, clip, FPS, frames, out]
         return [script, "pose", glb, "--clip", clip, "--method", method, "-o", out]
 
-    players = contestants(methods, OUTPUTS, bpy_python is not None)
+    players = contestants(methods, outputs, bpy_python is not None)
     for who, method, output in players:           # warm-up: fills the warm caches
         out = work / f"warmup-{who}-{method}.{output}"
         r = run_process(command(who, method, output, out), warm_env, work / "log")
@@ -646,17 +649,20 @@ def main(argv=None, prog: str | None = None) -> int:
     ap.add_argument("--no-blender", action="store_true", help="skip the Blender anchor")
     ap.add_argument("--characters", default=",".join(c[0] for c in CHARACTERS),
                     help="comma-separated subset of " + ", ".join(c[0] for c in CHARACTERS))
+    ap.add_argument("--outputs", default=",".join(OUTPUTS),
+                    help="comma-separated output kinds to time (default npz,glb; the targets are on npz)")
     ap.add_argument("--data", default=str(DEFAULT_DATA), help="shared data folder (default ../shared/data)")
     ap.add_argument("--json", default=str(DEFAULT_JSON), help="output JSON (default bench/results/e2e.json)")
     a = ap.parse_args(argv)
     names = [n.strip() for n in a.characters.split(",") if n.strip()]
-    bad = [n for n in names if n not in [c[0] for c in CHARACTERS]]
-    if bad or not names or a.repeat < 1:
-        print(f"e2e: unknown character {bad[0]!r}" if bad else "e2e: need a character and --repeat >= 1",
-              file=sys.stderr)
+    outputs = tuple(o.strip() for o in a.outputs.split(",") if o.strip())
+    bad = [n for n in names if n not in [c[0] for c in CHARACTERS]] + [o for o in outputs if o not in OUTPUTS]
+    if bad or not names or not outputs or a.repeat < 1:
+        print(f"e2e: unknown character or output {bad[0]!r}" if bad else
+              "e2e: need a character, an output and --repeat >= 1", file=sys.stderr)
         return 2
     doc = run(a.repeat, a.quick, a.data, None if a.quick else names, not a.no_blender,
-              log=lambda s: print(s, flush=True))
+              log=lambda s: print(s, flush=True), outputs=outputs)
     write_json(doc, a.json)
     for line in table(doc):
         print(line)
