@@ -16,7 +16,9 @@ def sample_arrays() -> dict:
     rng = np.random.default_rng(6)
     padded = np.zeros((5, 9, 3), np.float32)          # frames 9 rows apart, 7 used: a frames_array's layout
     padded[:, :7] = rng.normal(size=(5, 7, 3))
-    return {"positions": rng.normal(size=(5, 7, 3)).astype(np.float32), "faces": np.arange(12).reshape(4, 3),
+    big = np.zeros((3, 6100, 3), np.float32)           # frames large enough to go out from their own memory
+    big[:, :6000] = rng.normal(size=(3, 6000, 3))
+    return {"big_padded_frames": big[:, :6000], "positions": rng.normal(size=(5, 7, 3)).astype(np.float32), "faces": np.arange(12).reshape(4, 3),
             "times": np.linspace(0, 1, 5), "mesh_names": np.array(["body", "hat"]),
             "mesh_offsets": np.array([0, 4]), "empty": np.zeros((0, 3), np.float32),
             "strided": np.arange(20.0)[::2], "many_axes": np.zeros((1,) * 30, np.int8),

@@ -29,6 +29,10 @@ __all__ = ["Streamed", "write_npz", "read_npz"]
 #: a zip local file header: signature, then 22 bytes, then the name's and the extra field's lengths
 _LOCAL_HEADER = struct.Struct("<4s22sHH")
 _LOCAL_SIGNATURE = b"PK\x03\x04"
+#: sub-arrays at least this large are written from their own memory (smaller ones are copied in blocks)
+DIRECT_MIN_BYTES = 1 << 16
+#: bytes copied at a time from an array that is not C-contiguous (np.save's buffer size)
+COPY_BLOCK_BYTES = 1 << 24
 #: the largest ``.npy`` header read (numpy's own limit in ``np.load``)
 MAX_HEADER_SIZE = 10000
 
@@ -83,16 +87,19 @@ def write_streamed(member, value: Streamed) -> None:
 
 
 def write_blocks(member, arr: np.ndarray) -> None:
-    """``arr``'s elements in C order: each C-contiguous sub-array (the whole, else each
-    one along the first axis, recursively) written from its memory as one buffer."""
+    """``arr``'s elements in C order: the whole from its memory where it is C-contiguous,
+    else each sub-array along the first axis from its memory where those are C-contiguous
+    and large (frames with padding between them), else copied a block at a time."""
     if arr.flags.c_contiguous:
         if arr.size:
             member.write(memoryview(arr.reshape(-1)).cast("B"))
-    elif arr.ndim > 1:
+    elif arr.ndim > 1 and arr[0].flags.c_contiguous and arr[0].nbytes >= DIRECT_MIN_BYTES:
         for part in arr:
-            write_blocks(member, part)
+            member.write(memoryview(part.reshape(-1)).cast("B"))
     else:
-        member.write(np.ascontiguousarray(arr).data.cast("B"))
+        rows = max(1, COPY_BLOCK_BYTES // max(arr[0].nbytes, 1))
+        for a in range(0, len(arr), rows):
+            member.write(memoryview(np.ascontiguousarray(arr[a:a + rows]).reshape(-1)).cast("B"))
 
 
 def write_header(member, header: dict) -> None:
