@@ -44,13 +44,16 @@ def test_pose_imports_no_heavy_library(method, tmp_path):
     if not FOX.exists():
         pytest.skip(f"shared data not found at {FOX}")
     pytest.importorskip("pyopencl")
-    mods = modules_after(["pose", FOX, "--clip", "Run", "--time", "0", "0.4", "--method", method,
-                          "-o", tmp_path / "out.npz"], tmp_path)
+    args = ["pose", FOX, "--clip", "Run", "--time", "0", "0.4", "--method", method, "-o", tmp_path / "out.npz"]
+    mods = modules_after(args, tmp_path)
     assert "nrpose.pose.poser" in mods and "pyopencl" in mods          # the probe saw the real job
     heavy = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in HEAVY + NOT_FOR_NPZ))
     assert not heavy, heavy
     others = sorted(m for m in mods if m.startswith("nrpose.cli.") and m not in ("nrpose.cli.pose", "nrpose.cli.common"))
     assert not others, others                                           # no other command's module
+    # the same job again, its bind cached: not even numpy.ma (np.median's import) on the way
+    warm = modules_after(args, tmp_path)
+    assert "nrpose.pose.poser" in warm and not any(m == "numpy.ma" or m.startswith("numpy.ma.") for m in warm)
 
 
 def test_glb_output_imports_its_writer(tmp_path):
@@ -105,3 +108,11 @@ def test_quat_slerp_equals_scipy_composition():
     r0 = Rotation.from_quat(q0)
     ref = (r0 * Rotation.from_rotvec(s * (r0.inv() * Rotation.from_quat(q1)).as_rotvec())).as_quat()
     np.testing.assert_allclose(quat_slerp(q0, q1, s), ref, rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 10, 277])
+def test_median_equals_numpy(n):
+    from nrpose.cli.common import median
+    values = np.random.default_rng(n).normal(size=n)
+    assert median(values) == np.median(values)
+    assert median(list(values)) == np.median(values)

@@ -15,7 +15,8 @@ from ..bind.bone_weights import with_skin_weights
 from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser, prefetch
-from .common import add_budget_options, check_budget, check_outputs, frames_output_kind, progress, write_frames
+from .common import (add_budget_options, check_budget, check_outputs, frames_output_kind, median, progress,
+                     write_frames)
 
 #: library argument name -> the flag users type
 FLAGS = {"method": "--method", "weights": "--weights", "alpha": "--alpha", "blend": "--blend",
@@ -159,8 +160,8 @@ def run(args) -> None:
                            title=f"{Path(args.character).name}: {args.method}, {args.weights} weights")
     ms = frames.frame_ms
     print(f"{args.output}: {len(ms)} frame(s) × {poser.n} vertices, {args.method} ({args.weights} weights) on "
-          f"{args.backend}: bind {poser.bind_ms:.0f} ms; per frame median {np.median(ms):.3f} ms, "
-          f"min {ms.min():.3f}, max {ms.max():.3f}; {1e3 / np.median(ms):.0f} frames/s")
+          f"{args.backend}: bind {poser.bind_ms:.0f} ms; per frame median {median(ms):.3f} ms, "
+          f"min {ms.min():.3f}, max {ms.max():.3f}; {1e3 / median(ms):.0f} frames/s")
 
 
 def pose_input(character, *, clip: str | Clip | None = None, motion: str | None = None, pose: str | None = None,
