@@ -82,7 +82,8 @@ from ..model.skeleton import polar_rotation
 from .files import atomic_path
 from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 
-__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "BakeReport", "Blob",
+__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
+           "save_glb", "add_clip", "BakeReport", "Blob",
            "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
@@ -234,7 +235,7 @@ def _check_required(gltf: pygltflib.GLTF2, path) -> None:
                                   "into a posed copy faithfully; write .npz, or use a file without it")
 
 
-def _copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
+def copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
     """The document at ``path`` with every buffer and image copied into one binary chunk."""
     gltf, buffers = read_document(path)
     blob = Blob(gltf)
@@ -264,12 +265,14 @@ def _copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
     return gltf, blob, buffers
 
 
-def _save(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> None:
+def save_glb(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> int:
+    """Write the document with ``blob`` as its binary chunk to ``out`` (atomically); its size in bytes."""
     data = blob.bytes()
     gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
     gltf.set_binary_blob(data)
     with atomic_path(out) as tmp:
         gltf.save_binary(str(tmp))
+        return tmp.stat().st_size
 
 
 @dataclass
@@ -488,7 +491,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         if any(m[3] is None for m in meshes):
             raise InputError("write_animated_glb: with source=, every mesh needs its source indices "
                              "(a Mesh loaded from that file)")
-        gltf, blob, buffers = _copy_document(source)
+        gltf, blob, buffers = copy_document(source)
         _check_required(gltf, source)
         gltf.animations = []
     else:
@@ -571,7 +574,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
             if QUANTIZATION not in names:
                 setattr(gltf, field, names + [QUANTIZATION])
     gltf.animations = [animation]
-    _save(gltf, blob, Path(path))
+    save_glb(gltf, blob, Path(path))
     return report
 
 
@@ -586,7 +589,7 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
     keep_animations=False: the clip is the file's only animation.
     """
     path = Path(target_path)
-    gltf, blob, buffers = _copy_document(path)
+    gltf, blob, buffers = copy_document(path)
     skeleton, nodes = joint_nodes(path, gltf, buffers)
     if tuple(skeleton.names) != tuple(target.skeleton.names):
         raise NrposeError(f"{path}: its skeleton changed since it was loaded")
@@ -594,19 +597,27 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
         fit_skinned_nodes(path, gltf, bounds)
     if not keep_animations:
         gltf.animations = []
+    name = add_clip(gltf, blob, nodes, target.skeleton, clip)
+    save_glb(gltf, blob, Path(out_path))
+    return name
+
+
+def add_clip(gltf: pygltflib.GLTF2, blob: Blob, nodes, skeleton, clip) -> str:
+    """Append ``clip`` (a Clip of ``skeleton``, whose joint j is node ``nodes[j]``) to the document
+    as a new animation (data in ``blob``); its name (made unique among the document's)."""
     taken = {a.name for a in gltf.animations or []}
     name, k = clip.name, 2
     while name in taken:
         name, k = f"{clip.name} ({k})", k + 1
     animation = pygltflib.Animation(name=name, channels=[], samplers=[])
     inputs = {}
-    skel = target.skeleton
     for j in sorted({t.joint for t in clip.tracks}):
         node = gltf.nodes[int(nodes[j])]
         if node.matrix is not None:     # animated nodes must use TRS (glTF 2.0, 5.25)
             node.matrix = None
-            node.translation, node.rotation, node.scale = (skel.translation[j].tolist(),
-                                                           skel.rotation[j].tolist(), skel.scale[j].tolist())
+            node.translation, node.rotation, node.scale = (skeleton.translation[j].tolist(),
+                                                           skeleton.rotation[j].tolist(),
+                                                           skeleton.scale[j].tolist())
     for track in clip.tracks:
         if track.interpolation == "CUBICSPLINE":
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
@@ -622,7 +633,6 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
             sampler=len(animation.samplers) - 1,
             target=pygltflib.AnimationChannelTarget(node=int(nodes[track.joint]), path=track.path)))
     gltf.animations = list(gltf.animations or []) + [animation]
-    _save(gltf, blob, Path(out_path))
     return name
 
 
