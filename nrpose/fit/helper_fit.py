@@ -4,8 +4,8 @@
 
 1. **Where**: the vertex with the largest RMS residual over the training poses (not in an
    earlier helper's region) seeds a region: the vertices within ``REGION_RADIUS`` of the
-   character's height of it (rest positions) that have the seed's dominant joint p among
-   their candidates. The helper is a child of p; its drivers (:mod:`nrpose.fit.helper_joints`)
+   character's height of it (rest positions), with a residual at least ``REGION_RESIDUAL``
+   of the seed's, that have the seed's dominant joint p among their candidates. The helper is a child of p; its drivers (:mod:`nrpose.fit.helper_joints`)
    are p (unless p's parent is the root or carries no skin weight: its rotation then only
    turns the whole body) and p's children in the mesh's skin.
 2. **Start**: per training frame, the rigid transform (in p's frame) that best carries the
@@ -33,9 +33,10 @@ from .character_skin import FittedSkin, character_height, mesh_space, skin_matri
 from .helper_joints import HelperJoint, driver_features, evaluate_rule, fit_rule, rigid_fit
 from .skin_weights import candidate_joints, fit_weights, skin_positions
 
-__all__ = ["add_helpers", "REGION_RADIUS", "ROUNDS"]
+__all__ = ["add_helpers", "REGION_RADIUS", "REGION_RESIDUAL", "ROUNDS"]
 
 REGION_RADIUS = 0.25  # of the character's height
+REGION_RESIDUAL = 0.25   # region vertices: residual at least this fraction of the seed's
 ROUNDS = 3
 MIN_WEIGHT = 1e-3     # helper weights below this do not enter its transform fit
 
@@ -73,29 +74,35 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
         cands.append(None if joints[i] is None else
                      candidate_joints(skeleton.parents, m.joints, m.weights, None if allowed is None else allowed[i]))
     used = [np.zeros(len(m.vertices), bool) for m in character.meshes]
+    residual = []     # per mesh, per vertex RMS over the training poses (updated in each new region)
+    current = FittedSkin(tuple(joints), tuple(weights), 0.0, tuple(helpers))
+    for i, m in enumerate(character.meshes):
+        if joints[i] is None:
+            residual.append(None)
+            continue
+        source, _ = mesh_space(character, m)
+        pos = skin_positions(source, skin_matrices(character, m, current, G, pose), joints[i], weights[i])
+        residual.append(np.sqrt(((pos - targets[:, starts[i]:starts[i + 1]]) ** 2).sum(axis=2).mean(axis=0)))
     log = []
     while len(helpers) - len(fitted.helpers) < count:
-        current = FittedSkin(tuple(joints), tuple(weights), 0.0, tuple(helpers))
         best = None
-        for i, m in enumerate(character.meshes):
-            if joints[i] is None:
+        for i, r in enumerate(residual):
+            if r is None:
                 continue
-            source, _ = mesh_space(character, m)
-            pos = skin_positions(source, skin_matrices(character, m, current, G, pose), joints[i], weights[i])
-            r = np.sqrt(((pos - targets[:, starts[i]:starts[i + 1]]) ** 2).sum(axis=2).mean(axis=0))
-            r[used[i]] = -1
+            r = np.where(used[i], -1.0, r)
             n = int(np.argmax(r))
             if r[n] > 0 and (best is None or r[n] > best[2]):
-                best = (i, n, r[n], r)
+                best = (i, n, r[n])
         if best is None:
             break
-        i, seed, _, r = best
+        i, seed, _ = best
+        r = residual[i]
         m = character.meshes[i]
         source, ibm = mesh_space(character, m)
         p = int(joints[i][seed, 0])
         p = p if p < J else helpers[p - J].parent
         near = np.linalg.norm(m.vertices - m.vertices[seed], axis=1) <= REGION_RADIUS * height
-        region = np.flatnonzero(near & (cands[i] == p).any(axis=1))
+        region = np.flatnonzero(near & (cands[i] == p).any(axis=1) & (r >= REGION_RESIDUAL * r[seed]))
         region = region if len(region) else np.array([seed])
         used[i][region] = True
         y = targets[:, starts[i] + region]                                   # (F, n, 3)
@@ -142,5 +149,6 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
         if kept:
             helpers.append(helper)
             joints[i], weights[i] = trial_j, trial_w
+            residual[i][region] = np.sqrt(((after_pos - y) ** 2).sum(axis=2).mean(axis=0))
     return replace(fitted, joints=tuple(joints), weights=tuple(weights), helpers=tuple(helpers),
                    seconds=fitted.seconds + time.perf_counter() - t0), log

@@ -4,11 +4,13 @@ A helper h is a child of skeleton joint ``parent``. Its local transform in a pos
 parent's frame, rotation and translation: a glTF TRS node without scale) is a **fixed rule**
 of the local rotations of its ``drivers`` (joints):
 
-    A = phi @ coef      phi = [1, vec(R_rest_d^T R_d) - vec(I) for each driver d]   (1 + 9 D,)
+    A = phi @ coef      phi = [1, (x, y, z, w - 1) of q_d for each driver d]          (1 + 4 D,)
     L = [polar(A[:9] as 3x3) | A[9:12]]                                             (4, 4)
 
-(``R_d``: driver d's local rotation in the pose, ``R_rest_d`` its rest rotation; polar: the
-nearest rotation). ``coef`` (1 + 9 D, 12) is a ridge regression (:func:`fit_rule`) of
+(``q_d``: the unit quaternion, w >= 0, of driver d's local rotation relative to its rest
+rotation, ``q_rest_d^-1 q_d``: bounded, and linear in the angle for small turns, so single-axis
+sweeps of the range of motion excite each component; polar: the nearest rotation).
+``coef`` (1 + 4 D, 12) is a ridge regression (:func:`fit_rule`) of
 per-frame rigid transforms fitted on the training poses, so the helper follows any pose of
 the skeleton: it is evaluated for the clips written to the file as ordinary animation
 channels. The helper's skinning matrix in a mesh is ``G_parent @ L @ inv(C) @ ibm_parent``
@@ -22,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from ..model.rotation import quat_matrices
+from ..model.rotation import quat_multiply
 from ..model.skeleton import LocalPose, Skeleton, polar_rotation
 
 __all__ = ["HelperJoint", "driver_features", "fit_rule", "evaluate_rule", "rigid_fit", "helper_skin_matrices"]
@@ -33,7 +35,7 @@ RIDGE = 1e-3    # ridge of the rule regression, relative to the mean feature ene
 @dataclass(frozen=True)
 class HelperJoint:
     """parent: skeleton joint; drivers: joints whose local rotations drive it; centre (3,) float64
-    in the parent's bind frame (model units of that frame); coef (1 + 9 len(drivers), 12) float64."""
+    in the parent's bind frame (model units of that frame); coef (1 + 4 len(drivers), 12) float64."""
 
     parent: int
     drivers: tuple
@@ -52,15 +54,18 @@ class HelperJoint:
 
 
 def driver_features(skeleton: Skeleton, pose: LocalPose, drivers) -> np.ndarray:
-    """phi (F, 1 + 9 D) float64 of the module docstring for pose (F, J, ...) or a single pose."""
+    """phi (F, 1 + 4 D) float64 of the module docstring for pose (F, J, ...) or a single pose."""
     rotation = np.asarray(pose.rotation, np.float64)
     rotation = rotation[None] if rotation.ndim == 2 else rotation
     F = len(rotation)
     d = list(drivers)
-    rest = quat_matrices(skeleton.rotation[d])                                   # (D, 3, 3)
-    R = quat_matrices(rotation[:, d].reshape(-1, 4)).reshape(F, len(d), 3, 3)
-    delta = np.einsum("dji,fdjk->fdik", rest, R) - np.eye(3)
-    return np.concatenate([np.ones((F, 1)), delta.reshape(F, 9 * len(d))], axis=1)
+    rest = skeleton.rotation[d] * np.array([-1.0, -1.0, -1.0, 1.0])            # inverses (D, 4)
+    rest = rest / np.linalg.norm(rest, axis=1, keepdims=True)
+    q = quat_multiply(np.broadcast_to(rest, rotation[:, d].shape), rotation[:, d])
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    q = q * np.where(q[..., 3:] < 0, -1.0, 1.0)
+    q[..., 3] -= 1.0
+    return np.concatenate([np.ones((F, 1)), q.reshape(F, 4 * len(d))], axis=1)
 
 
 def fit_rule(phi: np.ndarray, L: np.ndarray, ridge: float = RIDGE) -> np.ndarray:
