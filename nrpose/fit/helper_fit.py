@@ -5,8 +5,9 @@
 1. **Where**: the vertex with the largest RMS residual over the training poses (not in an
    earlier helper's region) seeds a region: the vertices within ``REGION_RADIUS`` of the
    character's height of it (rest positions), with a residual at least ``REGION_RESIDUAL``
-   of the seed's, that have the seed's dominant joint p among their candidates. The helper is a child of p; its drivers (:mod:`nrpose.fit.helper_joints`)
-   are p (unless p's parent is the root or carries no skin weight: its rotation then only
+   of the seed's, that have the seed's dominant joint p among their candidates. The helper is
+   a child of p; its drivers (:mod:`nrpose.fit.helper_joints`)
+   are p (unless p is the root or its parent carries no skin weight: its rotation then only
    turns the whole body) and p's children in the mesh's skin.
 2. **Start**: per training frame, the rigid transform (in p's frame) that best carries the
    region's rest vertices to their NR-MLS positions; the rule is fitted to those transforms.
@@ -30,7 +31,7 @@ from ..errors import InputError
 from ..model.character import Character
 from ..model.skeleton import LocalPose
 from .character_skin import FittedSkin, character_height, mesh_space, skin_matrices
-from .helper_joints import HelperJoint, driver_features, evaluate_rule, fit_rule, rigid_fit
+from .helper_joints import HelperJoint, driver_features, fit_rule, rigid_fit
 from .skin_weights import candidate_joints, fit_weights, skin_positions
 
 __all__ = ["add_helpers", "REGION_RADIUS", "REGION_RESIDUAL", "ROUNDS"]
@@ -48,7 +49,7 @@ def drivers_of(character: Character, p: int, allowed: np.ndarray) -> tuple:
     for m in character.meshes:
         if m.joints is not None:
             weighted[m.joints[m.weights > 0]] = True
-    own = [p] if parents[p] >= 0 and parents[parents[p]] >= 0 and weighted[parents[p]] else []
+    own = [p] if parents[p] >= 0 and weighted[parents[p]] else []
     return tuple(own + [int(c) for c in np.flatnonzero(parents == p) if allowed[c]])
 
 

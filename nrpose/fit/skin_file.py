@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
+from ..checks import within_float32
 from ..errors import InputError
 from ..io.gltf_read import joint_nodes, node_globals, read_document
-from ..checks import within_float32
 from ..io.gltf_write import Blob, add_clip, check_copyable, copy_document, save_glb
 from ..model.character import Character
 from ..model.rotation import matrix_quats
