@@ -1,6 +1,7 @@
 """Helper joints of nrpose fit-skin: the rule, the rigid fit, placement, and the written file."""
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 from pathlib import Path
@@ -8,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from nrpose.cli import main
 from nrpose.errors import InputError
 from nrpose.fit.character_skin import error_table, fit_character, fitted_positions
 from nrpose.fit.helper_fit import add_helpers
@@ -169,3 +171,20 @@ def test_gltfpack_parses_the_file_with_helpers(helper_file, tmp_path):
     assert run.returncode == 0, run.stderr
     assert not [line for line in (run.stdout + run.stderr).splitlines() if line.lower().startswith("error")]
     assert (tmp_path / "packed.glb").stat().st_size > 0
+
+
+@needs_data
+def test_cli_with_helpers_reports_them_and_writes_them(tmp_path, capsys):
+    out, report = tmp_path / "fox.glb", tmp_path / "r.json"
+    code = main(["fit-skin", str(FOX), "--train", "Walk", "--holdout", "Run", "--rom-degrees", "30",
+                 "--helpers", "2", "-o", str(out), "--report", str(report)])
+    assert code == 0, capsys.readouterr().err
+    r = json.loads(report.read_text())
+    assert 1 <= r["helpers"] <= 2 and r["helpers_requested"] == 2
+    assert sum(p["kept"] for p in r["helper_placement"]) == r["helpers"]
+    assert r["helpers_seconds"] > 0 and r["size"]["file_bytes"] == out.stat().st_size
+    back = load_character(out)
+    assert back.skeleton.num_joints == load_character(FOX).skeleton.num_joints + r["helpers"]
+    # each of the file's animations drives the helpers
+    helper_joints = {j for j, n in enumerate(back.skeleton.names) if n.startswith("nrpose_helper_")}
+    assert all(helper_joints <= {t.joint for t in clip.tracks} for clip in back.clips)
