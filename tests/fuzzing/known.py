@@ -176,6 +176,10 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
         "heat weights on the STL seed": _case("heat-stl", ["deform", "in/m/body.stl", "-H", "in/h/handles.json",
                                                            "-o", "out/o.ply", "--weights", "heat"],
                                               {"in/m/body.stl": S["stl_binary"].data, "in/h/handles.json": handles}),
+        "handles with 20,000 segments (opencl)": _case("segments-20000", deform + ["--backend", "opencl"],
+                                                       {"in/m/body.obj": obj, "in/h/handles.json": json.dumps(
+                                                           dict(json.loads(handles), segments=json.loads(handles)[
+                                                               "segments"] * 10000)).encode()}),
         "info | head (broken pipe)": _case("broken-pipe", ["info", "in/c/body.glb"], {"in/c/body.glb": glb},
                                            broken_pipe=True),
     }
