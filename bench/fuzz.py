@@ -25,6 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.fuzzing.campaign import run  # noqa: E402
+from tests.fuzzing.runner import GOOD  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -39,7 +40,7 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
 
     def progress(collector, o):
-        if o.outcome not in ("accepted", "rejected") and collector.defects[o.key]["count"] == 1:
+        if o.outcome not in GOOD and collector.defects[o.key]["count"] == 1:
             print(f"[{collector.count}] {o.outcome:<18} {o.template:<18} {o.input_kind:<14} {o.where[:90]}",
                   flush=True)
         elif collector.count % 500 == 0:

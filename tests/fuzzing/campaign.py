@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 from .cases import make_case
-from .runner import Collector, Outcome, Runner
+from .runner import GOOD, Collector, Outcome, Runner
 from .seeds import make_seeds, shared_seeds
 
 __all__ = ["run"]
@@ -66,7 +66,7 @@ def run(seed: int = 0, count: int = 1000, workers: int = 1, minutes: float | Non
         if o is None:
             alive -= 1
             continue
-        case = make_case(seed, o.index, seeds, shared) if o.outcome not in ("accepted", "rejected") else None
+        case = make_case(seed, o.index, seeds, shared) if o.outcome not in GOOD else None
         collector.add(o, case)
         if progress:
             progress(collector, o)

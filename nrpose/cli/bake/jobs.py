@@ -32,7 +32,7 @@ from ...pose.blend import BLENDS, DEFAULT_BLEND
 from ...pose.mls import BACKENDS
 from ...pose.poser import METHODS, WEIGHTS
 from ...pose.retarget import ROOT_MODES
-from ..common import frames_output_kind
+from ..common import MAX_FRAMES, MAX_OUTPUT_VALUES, frames_output_kind
 from ..pose import parse_frames
 from ..retarget import SOURCE_SUFFIXES, TARGET_SUFFIXES
 
@@ -81,6 +81,9 @@ class Job:
     backend: str = "opencl"
     format: str = "ply"
     quantize: bool = False
+    #: the bake's --max-frames / --max-output-values (checked per job before posing; not in ``spec``)
+    max_frames: int = MAX_FRAMES
+    max_output_values: float = MAX_OUTPUT_VALUES
 
     @property
     def label(self) -> str:
@@ -99,13 +102,15 @@ class Job:
     @property
     def spec(self) -> str:
         """sha256 of the job's options (not its index): the manifest's record of what made an output."""
-        options = {k: v for k, v in asdict(self).items() if k != "index"}
+        options = {k: v for k, v in asdict(self).items() if k not in ("index", "max_frames", "max_output_values")}
         return hashlib.sha256(json.dumps(options, sort_keys=True).encode()).hexdigest()
 
 
 def load_jobs(path: str | Path) -> list[Job]:
     """The validated jobs of a JOBS file (module docstring); InputError naming the job otherwise."""
     path = Path(path)
+    if path.exists() and not path.is_file():     # a FIFO would block the read
+        raise InputError(f"{path}: not a regular file; give the JOBS.json file")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:
