@@ -25,6 +25,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tests.fuzzing.campaign import run  # noqa: E402
+from tests.fuzzing.cases import COMMANDS  # noqa: E402
 from tests.fuzzing.runner import GOOD  # noqa: E402
 
 
@@ -37,7 +38,16 @@ def main(argv=None) -> int:
     p.add_argument("--out", default="bench/results/fuzz.json")
     p.add_argument("--repro", default=None, help="folder for one reproducer per distinct defect")
     p.add_argument("--shared", action="store_true", help="also mutate the assets of ../shared/data")
+    p.add_argument("--commands", help="only these commands, comma-separated, in their usual shares "
+                                      f"(default: all, {', '.join(COMMANDS)})")
     args = p.parse_args(argv)
+    commands = None
+    if args.commands:
+        names = args.commands.split(",")
+        unknown = [c for c in names if c not in COMMANDS]
+        if unknown:
+            p.error(f"--commands: unknown {', '.join(unknown)}; choose from {', '.join(COMMANDS)}")
+        commands = {c: COMMANDS[c] for c in names}
 
     def progress(collector, o):
         if o.outcome not in GOOD and collector.defects[o.key]["count"] == 1:
@@ -47,7 +57,7 @@ def main(argv=None) -> int:
             print(f"[{collector.count}] {collector.violations} violations, {len(collector.defects)} distinct",
                   flush=True)
 
-    s = run(args.seed, args.cases, args.workers, args.minutes, args.repro, args.out, args.shared, progress)
+    s = run(args.seed, args.cases, args.workers, args.minutes, args.repro, args.out, args.shared, progress, commands)
     print(f"\n{s['cases']} cases in {s['elapsed_s']:.0f} s ({s['cases_per_s']:.1f}/s, {args.workers} workers): "
           f"{s['violations']} violations, {s['distinct']} distinct defects")
     for outcome, n in sorted(s["by_outcome"].items(), key=lambda kv: -kv[1]):

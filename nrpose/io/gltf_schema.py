@@ -296,7 +296,8 @@ def _skins(f: _Fields, root: dict) -> list:
     out = []
     for s, skin in enumerate(f.objects(root, "skins", "skins")):
         field = f"skins[{s}]"
-        for k, v in enumerate(skin.get("joints") or []):
+        joints = skin.get("joints")
+        for k, v in enumerate(joints if isinstance(joints, list) else []):   # f.indices names other types
             if type(v) is int and not 0 <= v < f.sizes["nodes"]:
                 raise FileFormatError(f"{f.where}: {field}.joints[{k}] = {v}: skin {s} lists node {v}, "
                                       f"which does not exist ({f.sizes['nodes']} nodes)")

@@ -180,10 +180,54 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
                                                        {"in/m/body.obj": obj, "in/h/handles.json": json.dumps(
                                                            dict(json.loads(handles), segments=json.loads(handles)[
                                                                "segments"] * 10000)).encode()}),
+        "exact weights, an edge in three faces": _case("exact-nonmanifold", deform + ["--weights", "exact"],
+                                                       {"in/m/body.obj": (obj.decode() + _fin(
+                                                            faces[0], obj.count(b"\nv ") + 1)).encode(),
+                                                        "in/h/handles.json": handles}),
+        "exact weights, a sliver triangle": _case("exact-sliver", deform + ["--weights", "exact"],
+                                                  {"in/m/body.obj": _sliver(obj), "in/h/handles.json": handles}),
+        "exact weights on a mesh x1e-30": _case("exact-tiny", deform + ["--weights", "exact"],
+                                                {"in/m/body.obj": scaled(obj, 1e-30), "in/h/handles.json": handles}),
+        "glTF skin joints a number": _case("skin-joints-number", retarget, {"in/s/rig.bvh": bvh,
+                                           **_gltf(_set(("skins", 0, "joints"), 1.5))}),
+        "bake JOBS file a FIFO": _case("bake-fifo", ["bake", "out/jobs.json", "-o", "out/bake", "--workers", "1"],
+                                       {}, specials={"out/jobs.json": "fifo"}),
+        "bake job of 100,001 frames": _case("bake-fps-1e5", ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers",
+                                                             "1"], _bake_files(S, {"fps": 100000})),
+        "bake with a full disk": _case("bake-full-disk", ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers", "1"],
+                                       _bake_files(S, {}), fsize=0),
+        "demo --repeat 100000": _case("demo-repeat", ["demo", "--out", "out/d", "--frames", "1", "--repeat",
+                                                      "100000"], {}),
+        "demo --frames 20000": _case("demo-frames", ["demo", "--out", "out/d", "--frames", "20000"], {}),
         "info | head (broken pipe)": _case("broken-pipe", ["info", "in/c/body.glb"], {"in/c/body.glb": glb},
                                            broken_pipe=True),
     }
     return c
+
+
+def _fin(face: str, vertices: int) -> str:
+    """An OBJ face line on the first edge of ``face`` and the last vertex (that edge then in three faces)."""
+    a, b, _ = face.split()[1:]
+    return f"f {a} {b} {vertices}\n"
+
+
+def _sliver(obj: bytes) -> bytes:
+    """The OBJ with the first vertex of its first face moved next to the middle of that face's other
+    two vertices (a sliver triangle, its height 1e-14 of its longest edge)."""
+    lines = obj.decode().splitlines()
+    verts = [i for i, ln in enumerate(lines) if ln.startswith("v ")]
+    a, b, c = (int(t) - 1 for t in next(ln for ln in lines if ln.startswith("f ")).split()[1:])
+    pb, pc = (np.array(lines[verts[k]].split()[1:], float) for k in (b, c))
+    mid = (pb + pc) / 2 + 1e-14 * np.linalg.norm(pc - pb) * np.array([0.6, 0.0, 0.8])
+    lines[verts[a]] = "v " + " ".join(repr(float(x)) for x in mid)
+    return ("\n".join(lines) + "\n").encode()
+
+
+def _bake_files(S, defaults: dict) -> dict:
+    """A JOBS file of two jobs (npz and glb outputs of the seed clip) over ``defaults``, and its inputs."""
+    jobs = {"defaults": dict({"character": "body.glb", "fps": 5, "backend": "numpy"}, **defaults),
+            "jobs": [{"clip": "bend", "output": "a.npz"}, {"clip": "bend", "output": "b.glb"}]}
+    return {"in/j/jobs.json": json.dumps(jobs).encode(), "in/j/body.glb": S["glb"].data}
 
 
 def _doc_with(path, value) -> dict:

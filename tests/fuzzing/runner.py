@@ -176,7 +176,9 @@ def _writable(p: Path) -> None:
 # --------------------------------------------------------------------------- output validation
 
 def _value(argv, flag):
-    return argv[argv.index(flag) + 1] if flag in argv and argv.index(flag) + 1 < len(argv) else None
+    """The value of ``flag``'s last occurrence (the one argparse keeps), None without one."""
+    at = [i for i, a in enumerate(argv[:-1]) if a == flag]
+    return argv[at[-1] + 1] if at else None
 
 
 def _check_glb(path: Path, problems: list) -> None:
