@@ -43,6 +43,7 @@ def run(args) -> None:
     if args.repeat > MAX_REPEAT:
         raise NrposeError(f"--repeat {args.repeat:,}: at most {MAX_REPEAT:,} timed poses per configuration")
     out = Path(args.out)
+    check_budget(args, args.frames, 0.0, str(out / "walk.glb"))     # the frames, before their numbers
     made = next((p for p in reversed([out, *out.parents]) if not p.exists()), None)
     out.mkdir(parents=True, exist_ok=True)
     try:

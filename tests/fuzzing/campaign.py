@@ -51,7 +51,8 @@ def run(seed: int = 0, count: int = 1000, workers: int = 1, minutes: float | Non
     collector = Collector(repro_dir)
     ctx = mp.get_context("fork")
     q = ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=(seed, w, workers, count, deadline, use_shared, commands, q), daemon=True)
+    # not daemons: a case's child (forked from a worker) may start processes of its own (bake's pool)
+    procs = [ctx.Process(target=_worker, args=(seed, w, workers, count, deadline, use_shared, commands, q))
              for w in range(workers)]
     t0 = time.time()
     for p in procs:

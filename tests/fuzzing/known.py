@@ -13,9 +13,9 @@ import sys
 import numpy as np
 
 from .cases import Case
-from .seeds import Seed, glb_bytes, gltf_document, make_seeds
+from .seeds import BAKE_INPUTS, Seed, glb_bytes, gltf_document, make_seeds
 
-__all__ = ["known_cases", "MUST_REJECT"]
+__all__ = ["known_cases", "bake_files", "MUST_REJECT"]
 
 #: cases whose exit 0 is itself the defect (the input is invalid)
 MUST_REJECT = {"pose --alpha nan (authored)", "pose --alpha -1 (authored)", "glTF index as a string",
@@ -193,9 +193,12 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
         "bake JOBS file a FIFO": _case("bake-fifo", ["bake", "out/jobs.json", "-o", "out/bake", "--workers", "1"],
                                        {}, specials={"out/jobs.json": "fifo"}),
         "bake job of 100,001 frames": _case("bake-fps-1e5", ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers",
-                                                             "1"], _bake_files(S, {"fps": 100000})),
+                                                             "1"], bake_files(S, {"fps": 100000})),
         "bake with a full disk": _case("bake-full-disk", ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers", "1"],
-                                       _bake_files(S, {}), fsize=0),
+                                       bake_files(S, {}), fsize=0),
+        "bake JOBS file nested 3000 deep": _case("bake-deep", ["bake", "in/j/jobs.json", "-o", "out/bake"],
+                                                 {"in/j/jobs.json": ('{"jobs": ' + deep(3000) + "}").encode()}),
+        "demo --frames of 400 digits": _case("demo-frames-400", ["demo", "--out", "out/d", "--frames", "9" * 400], {}),
         "demo --repeat 100000": _case("demo-repeat", ["demo", "--out", "out/d", "--frames", "1", "--repeat",
                                                       "100000"], {}),
         "demo --frames 20000": _case("demo-frames", ["demo", "--out", "out/d", "--frames", "20000"], {}),
@@ -223,11 +226,13 @@ def _sliver(obj: bytes) -> bytes:
     return ("\n".join(lines) + "\n").encode()
 
 
-def _bake_files(S, defaults: dict) -> dict:
-    """A JOBS file of two jobs (npz and glb outputs of the seed clip) over ``defaults``, and its inputs."""
-    jobs = {"defaults": dict({"character": "body.glb", "fps": 5, "backend": "numpy"}, **defaults),
-            "jobs": [{"clip": "bend", "output": "a.npz"}, {"clip": "bend", "output": "b.glb"}]}
-    return {"in/j/jobs.json": json.dumps(jobs).encode(), "in/j/body.glb": S["glb"].data}
+def bake_files(S, defaults: dict, jobs: list | None = None) -> dict:
+    """A JOBS file at ``in/j/jobs.json`` (``jobs``, default two jobs writing .npz and .glb of the
+    seed clip, over the seed defaults updated with ``defaults``) and the seed files jobs read."""
+    jobs = jobs or [{"clip": "bend", "output": "a.npz"}, {"clip": "bend", "output": "b.glb"}]
+    doc = {"defaults": dict({"character": "body.glb", "fps": 5, "backend": "numpy"}, **defaults), "jobs": jobs}
+    return {"in/j/jobs.json": json.dumps(doc).encode(),
+            **{f"in/j/{name}": S[kind].data for name, kind in BAKE_INPUTS.items()}}
 
 
 def _doc_with(path, value) -> dict:

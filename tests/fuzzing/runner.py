@@ -229,9 +229,14 @@ def _validate_bake(argv: list, code: int, stdout: str, stderr: str, problems: li
     """The outputs of a bake that exited 0 or 1 (module docstring)."""
     from nrpose.cli.bake.jobs import load_jobs
     from nrpose.cli.bake.manifest import digest
+    from nrpose.errors import NrposeError
 
     outdir = Path(_value(argv, "-o") or _value(argv, "--output"))
-    jobs = load_jobs(argv[1])
+    try:
+        jobs = load_jobs(argv[1])
+    except NrposeError as exc:
+        problems.append(f"the JOBS file of a run that exited {code} does not load ({exc})")
+        return
     failed = [ln for ln in stderr.splitlines() if ln.startswith("nrpose: bake: jobs[")]
     others = [ln for ln in stderr.splitlines() if ln.strip() and ln not in failed]
     if code == 0 and (failed or len(others) > 1):

@@ -28,6 +28,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 
 from ...errors import InputError, NrposeError
+from ...io.jsonfile import parse_json
 from ...pose.blend import BLENDS, DEFAULT_BLEND
 from ...pose.mls import BACKENDS
 from ...pose.poser import METHODS, WEIGHTS
@@ -117,10 +118,7 @@ def load_jobs(path: str | Path) -> list[Job]:
         raise InputError(f"{path}: cannot read the jobs file ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: the jobs file is not UTF-8 text") from None
-    try:
-        doc = json.loads(text)
-    except ValueError as exc:
-        raise InputError(f"{path}: the jobs file is not valid JSON ({exc})") from None
+    doc = parse_json(text, str(path), "the jobs file", InputError)
     if not isinstance(doc, dict) or set(doc) - {"defaults", "jobs"}:
         extra = sorted(set(doc) - {"defaults", "jobs"}) if isinstance(doc, dict) else []
         raise InputError(f"{path}: expected {{\"defaults\": {{...}}, \"jobs\": [...]}}"
