@@ -198,6 +198,12 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
                                        bake_files(S, {}), fsize=0),
         "bake JOBS file nested 3000 deep": _case("bake-deep", ["bake", "in/j/jobs.json", "-o", "out/bake"],
                                                  {"in/j/jobs.json": ('{"jobs": ' + deep(3000) + "}").encode()}),
+        "bake --resume, a manifest nested 100000 deep": _case(
+            "bake-deep-manifest", ["bake", "in/j/jobs.json", "-o", "in/j", "--workers", "1", "--resume"],
+            dict(bake_files(S, {}), **{"in/j/manifest.json": ('{"outputs": ' + deep(100000) + "}").encode()})),
+        "bake --resume, a manifest entry a number": _case(
+            "bake-manifest-entry", ["bake", "in/j/jobs.json", "-o", "in/j", "--workers", "1", "--resume"],
+            dict(bake_files(S, {}), **{"in/j/manifest.json": b'{"outputs": {"a.npz": 1}}'})),
         "demo --frames of 400 digits": _case("demo-frames-400", ["demo", "--out", "out/d", "--frames", "9" * 400], {}),
         "demo --repeat 100000": _case("demo-repeat", ["demo", "--out", "out/d", "--frames", "1", "--repeat",
                                                       "100000"], {}),
