@@ -186,7 +186,7 @@ TEXT_MUTATORS = [replace_number, replace_number, replace_number, replace_word, l
 def tamper_header(data: bytes, kind: str, rng: random.Random) -> tuple[bytes, str]:
     """A number of the file's header (its counts and sizes) becomes an extreme."""
     if kind == "stl_binary" and len(data) >= 84:
-        n = rng.choice([0, 1, 2 ** 31, 2 ** 32 - 1, 2 ** 28, struct.unpack_from("<I", data, 80)[0] + 1])
+        n = rng.choice([0, 1, 2 ** 31, 2 ** 32 - 1, 2 ** 28, (struct.unpack_from("<I", data, 80)[0] + 1) % 2 ** 32])
         return data[:80] + struct.pack("<I", n) + data[84:], f"STL triangle count {n}"
     if kind == "glb" and len(data) >= 20:
         field = rng.choice([8, 12])
