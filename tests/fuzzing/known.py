@@ -198,6 +198,8 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
                                        bake_files(S, {}), fsize=0),
         "bake JOBS file nested 3000 deep": _case("bake-deep", ["bake", "in/j/jobs.json", "-o", "out/bake"],
                                                  {"in/j/jobs.json": ('{"jobs": ' + deep(3000) + "}").encode()}),
+        "bake job time of 400 digits": _case("bake-time-400", ["bake", "in/j/jobs.json", "-o", "out/bake"],
+                                             bake_files(S, {"time": [0, int("9" * 400)]})),
         "bake --resume, a manifest nested 100000 deep": _case(
             "bake-deep-manifest", ["bake", "in/j/jobs.json", "-o", "in/j", "--workers", "1", "--resume"],
             dict(bake_files(S, {}), **{"in/j/manifest.json": ('{"outputs": ' + deep(100000) + "}").encode()})),

@@ -172,9 +172,19 @@ def _string(d: dict, key: str, required: bool = False) -> str | None:
 
 def _number(d: dict, key: str, default: float) -> float:
     value = d.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not _finite(value):
         raise InputError(f"{key!r} must be a finite number, got {value!r}")
     return float(value)
+
+
+def _finite(value) -> bool:
+    """A JSON number (not a boolean) that is a finite float (an integer of 400 digits is not)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def _choice(d: dict, key: str, choices: tuple[str, ...], default: str) -> str:
@@ -204,8 +214,7 @@ def _job(index: int, d: dict, base: Path) -> Job:
     time, frames = d.get("time"), _string(d, "frames")
     if time is not None:
         values = time if isinstance(time, list) else [time]
-        if not values or any(isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)
-                             for t in values):
+        if not values or not all(_finite(t) for t in values):
             raise InputError(f"'time' must be a number or a non-empty list of numbers, got {time!r}")
         time = tuple(float(t) for t in values)
     if time is not None and frames is not None:
