@@ -188,6 +188,10 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
                                                   {"in/m/body.obj": _sliver(obj), "in/h/handles.json": handles}),
         "exact weights on a mesh x1e-30": _case("exact-tiny", deform + ["--weights", "exact"],
                                                 {"in/m/body.obj": scaled(obj, 1e-30), "in/h/handles.json": handles}),
+        "glTF primitives repeated 10000 times": _case("primitives-x10000", ["pose", "in/c/body.glb", "--rest",
+                                                                             "--weights", "heat", "-o", "out/o.glb"],
+                                                      _gltf(lambda d: d["meshes"][0].update(
+                                                          primitives=d["meshes"][0]["primitives"] * 10000))),
         "glTF skin joints a number": _case("skin-joints-number", retarget, {"in/s/rig.bvh": bvh,
                                            **_gltf(_set(("skins", 0, "joints"), 1.5))}),
         "bake JOBS file a FIFO": _case("bake-fifo", ["bake", "out/jobs.json", "-o", "out/bake", "--workers", "1"],
