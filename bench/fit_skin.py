@@ -3,7 +3,7 @@
 Cases (issue 35's targets): Fox trained on Walk + Survey, Run held out; Mannequin and Ely
 trained on their own clip + the range of motion, CMU 131_03 retargeted onto them
 (``nrpose retarget``, in a temporary folder) held out. Each case is fitted with the given
-influences (default 4) and helper-joint counts (default 0, 4, 8, 16); the held-out motion is
+influences (default 4) and helper-joint counts (default 0, 8, 16); the held-out motion is
 also exported into the file (``--export``), so the file size includes it. Output: the reports
 of ``nrpose fit-skin --report`` in one JSON (``results/fit_skin.json``), a table on stdout
 (RMS / max as % of the height), and per character and helper count a map of the held-out
@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (gltf/, bvh/)")
     ap.add_argument("--json", default=str(pathlib.Path(__file__).with_name("results") / "fit_skin.json"))
     ap.add_argument("--influences", type=int, nargs="+", default=[4], choices=(4, 8))
-    ap.add_argument("--helpers", type=int, nargs="+", default=[0, 4, 8, 16])
+    ap.add_argument("--helpers", type=int, nargs="+", default=[0, 8, 16])
     ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES], help="characters to run (default all)")
     a = ap.parse_args(argv)
     data = pathlib.Path(a.data)
