@@ -11,6 +11,7 @@ from nrpose.cli import main
 from nrpose.errors import InputError
 from nrpose.fit.character_skin import (FittedSkin, error_table, fit_character, fitted_positions, mesh_space,
                                        nrmls_targets)
+from nrpose.fit.helper_fit import add_helpers
 from nrpose.fit.rom import range_of_motion
 from nrpose.fit.skin_file import write_fitted_glb
 from nrpose.fit.skin_weights import candidate_joints, fit_weights, skin_positions
@@ -186,7 +187,6 @@ def run(args, capsys):
     (["--train", "Walk", "--influences", "0"], "--influences 0"),
     (["--train", "Walk", "--influences", "5"], "--influences 5"),
     (["--train", "Walk", "--helpers", "-1"], "--helpers -1"),
-    (["--train", "Walk", "--helpers", "2"], "not implemented"),
     ([], "no training motion"),
     (["--train", "Jump"], "not a clip"),
     (["--train", "Walk", "--rom-degrees", "-5"], "--rom-degrees"),
@@ -216,16 +216,25 @@ def test_cli_writes_the_file_and_report(tmp_path, capsys):
     assert len(load_character(out).clips) == 3
 
 
-@pytest.fixture(scope="module", params=[4, 8])
+@pytest.fixture(scope="module", params=[(4, 0), (8, 0), (4, 3)], ids=["k4", "k8", "k4-helpers3"])
 def fitted_fox(tmp_path_factory, request):
-    """Fox fitted with 4 or 8 influences (JOINTS_0/1, WEIGHTS_0/1) from a few Walk poses."""
+    """Fox fitted with 4 or 8 influences (JOINTS_0/1, WEIGHTS_0/1), and with 3 helper joints, from
+    Walk poses and a small range of motion."""
     if not FOX.is_file():
         pytest.skip(f"shared assets not found at {DATA}")
+    k, helpers = request.param
     fox = load_character(FOX)
     local = fox.clip("Walk").sample(np.linspace(0, 0.6, 6))
+    if helpers:
+        rom = range_of_motion(fox.skeleton, 45.0, pairs=0)
+        local = LocalPose(*(np.concatenate([getattr(local, f), getattr(rom, f)])
+                            for f in ("translation", "rotation", "scale")))
     G, targets = nrmls_targets(CharacterPoser(fox, method="nrmls"), local)
-    out = tmp_path_factory.mktemp("fit") / f"fox{request.param}.glb"
-    write_fitted_glb(FOX, out, fox, fit_character(fox, G, targets, request.param))
+    fitted = fit_character(fox, G, targets, k)
+    fitted, _ = add_helpers(fox, fitted, G, local, targets, helpers, k)
+    assert len(fitted.helpers) == helpers
+    out = tmp_path_factory.mktemp("fit") / f"fox{k}_{helpers}.glb"
+    write_fitted_glb(FOX, out, fox, fitted)
     back = load_character(out)
     return out, back, back.clip("Survey")
 

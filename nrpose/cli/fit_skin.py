@@ -10,6 +10,7 @@ import numpy as np
 from ..errors import NrposeError
 from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
                                   nrmls_targets)
+from ..fit.helper_fit import add_helpers
 from ..fit.rom import ROM_DEGREES, range_of_motion
 from ..fit.skin_file import skinned_primitives, write_fitted_glb
 from ..io import load_character
@@ -47,7 +48,8 @@ def add_parser(sub) -> None:
                    help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}; 0: none)")
     p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation")
     p.add_argument("--influences", type=int, default=4, help="joints per vertex: 4 or 8 (default 4)")
-    p.add_argument("--helpers", type=int, default=0, help="helper joints (not available yet: 0)")
+    p.add_argument("--helpers", type=int, default=0,
+                   help="helper joints added where the residual is largest (default 0)")
     p.add_argument("-o", "--output", required=True, help="OUT.glb")
     p.add_argument("--report", help="R.json: errors vs NR-MLS, sizes, times")
     p.set_defaults(func=run, flags=FLAGS)
@@ -82,8 +84,6 @@ def run(args) -> None:
         raise NrposeError(f"--influences {args.influences}: expected 4 or 8")
     if args.helpers < 0:
         raise NrposeError(f"--helpers {args.helpers}: expected a count >= 0")
-    if args.helpers > 0:
-        raise NrposeError("--helpers: helper joints are not implemented yet; use --helpers 0")
     if not args.train:
         raise NrposeError("no training motion: give --train CLIP|BVH|POSE (the range of motion is added to it)")
     if not (np.isfinite(args.fps) and args.fps > 0):
@@ -117,10 +117,13 @@ def run(args) -> None:
     target_s = time.perf_counter() - t0
     allowed = [None if p is None else p[3] for p in places]
     fitted = fit_character(character, G, targets, args.influences, allowed)
+    base_seconds = fitted.seconds
+    fitted, helper_log = add_helpers(character, fitted, G, local, targets, args.helpers, args.influences, allowed)
     new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
-    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips)
-    print(f"{args.output}: {V} vertices, {args.influences} influences fitted to {len(G)} poses "
-          f"({rom_frames} range of motion) in {fitted.seconds:.1f} s (NR-MLS targets {target_s:.1f} s)")
+    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips, args.fps)
+    print(f"{args.output}: {V} vertices, {args.influences} influences, {len(fitted.helpers)} helper joints "
+          f"fitted to {len(G)} poses ({rom_frames} range of motion) in {fitted.seconds:.1f} s "
+          f"(NR-MLS targets {target_s:.1f} s)")
     if args.report:
         # the file's own weights, as a baseline: how far plain LBS of the source is from NR-MLS
         authored = FittedSkin(tuple(None if m.rigid_joint is not None else m.joints for m in character.meshes),
@@ -128,19 +131,24 @@ def run(args) -> None:
         errors, baseline = {}, {}
         for name, pose in [("training", None)] + [(h[0], h[1]) for h in holdout]:
             Gh, Th = (G, targets) if pose is None else nrmls_targets(poser, pose)
-            errors[name] = error_table(character, fitted_positions(character, fitted, Gh), Th)
+            errors[name] = error_table(character, fitted_positions(character, fitted, Gh, local if pose is None
+                                                                  else pose), Th)
             baseline[name] = {k: v for k, v in error_table(character, fitted_positions(character, authored, Gh),
                                                            Th).items() if k != "regions"}
-        frames = sum(len(m[1].rotation) for m in train + holdout)
+        # the file's animations: the source's clips and the --export ones, at --fps
+        frames = sum(len(sample_times(c.duration, args.fps)) for c in tuple(character.clips) + tuple(new_clips))
         report = {
             "character": str(args.character), "vertices": V, "height": character_height(character),
-            "influences": args.influences, "helpers": 0,
+            "influences": args.influences, "helpers": len(fitted.helpers), "helpers_requested": args.helpers,
+            "helper_placement": helper_log,
             "training": {"motions": list(args.train), "poses": int(len(G)), "range_of_motion_poses": rom_frames,
                          "range_of_motion_degrees": args.rom_degrees},
-            "fit_seconds": fitted.seconds, "targets_seconds": target_s, "errors": errors,
+            "fit_seconds": fitted.seconds, "weights_seconds": base_seconds,
+            "helpers_seconds": fitted.seconds - base_seconds, "targets_seconds": target_s, "errors": errors,
             "authored_lbs_errors": baseline,
             "size": {"file_bytes": size, "source_bytes": Path(args.character).stat().st_size,
-                     "morph_bake_bytes_of_clips": BAKE_BYTES * frames * V, "clip_frames": frames,
+                     "animations": len(character.clips) + len(new_clips), "animation_frames": frames,
+                     "morph_bake_bytes_of_animations": BAKE_BYTES * frames * V,
                      "morph_bake_bytes_10s": int(BAKE_BYTES * BAKE_SECONDS * BAKE_FPS * V)},
         }
         with atomic_path(args.report) as tmp:

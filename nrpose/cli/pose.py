@@ -15,7 +15,8 @@ from ..bind.bone_weights import with_skin_weights
 from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser, prefetch
-from .common import (add_budget_options, check_budget, check_outputs, frames_output_kind, median, progress,
+from .common import (add_budget_options, check_budget, check_outputs, frames_output_kind, median, output_values,
+                     progress,
                      write_frames)
 
 #: library argument name -> the flag users type
@@ -133,8 +134,7 @@ def run(args) -> None:
     local, times, name = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
                                     time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     vertices = sum(len(m.vertices) for m in character.meshes)
-    check_budget(args, len(times), 3.0 * len(times) * vertices + (len(times) ** 2 if kind == "glb" else 0),
-                 args.output)
+    check_budget(args, len(times), output_values(len(times), vertices, kind), args.output)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
     # an .npz or a directory takes the frames as they are posed, unless a contact sheet needs them all

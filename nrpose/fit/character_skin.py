@@ -17,20 +17,36 @@ from ..errors import InputError
 from ..model.character import Character, Mesh
 from ..model.skeleton import LocalPose
 from ..pose.poser import CharacterPoser
+from .helper_joints import helper_skin_matrices
 from .skin_weights import candidate_joints, fit_weights, skin_positions
 
 __all__ = ["FittedSkin", "nrmls_targets", "fit_character", "fitted_positions", "mesh_space",
-           "error_table", "character_height"]
+           "error_table", "character_height", "skin_matrices"]
 
 
 @dataclass(frozen=True)
 class FittedSkin:
-    """Per character mesh: joints (N, k) int64 skeleton joints and weights (N, k) float64,
-    or None for a rigidly attached mesh; seconds: the time the fit took."""
+    """Per character mesh: joints (N, k) int64 and weights (N, k) float64, or None for a rigidly
+    attached mesh; seconds: the time the fit took; helpers: HelperJoints
+    (:mod:`nrpose.fit.helper_joints`), joint index ``J + h`` in ``joints`` for J skeleton joints."""
 
     joints: tuple
     weights: tuple
     seconds: float
+    helpers: tuple = ()
+
+
+def skin_matrices(character: Character, mesh: Mesh, fitted: FittedSkin, G: np.ndarray,
+                  pose: LocalPose | None) -> np.ndarray:
+    """Skinning matrices (F, J + H, 4, 4) float64 of a skinned mesh: joints, then the helpers
+    (their rules evaluated on pose, the local pose G was computed from; needed with helpers)."""
+    _, ibm = mesh_space(character, mesh)
+    mats = G @ ibm
+    if not fitted.helpers:
+        return mats
+    if pose is None:
+        raise InputError("a fit with helper joints needs the local pose to evaluate their rules")
+    return np.concatenate([mats, helper_skin_matrices(fitted.helpers, character.skeleton, G, pose, ibm)], axis=1)
 
 
 def mesh_space(character: Character, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -80,8 +96,10 @@ def fit_character(character: Character, G: np.ndarray, targets: np.ndarray, infl
     return FittedSkin(tuple(joints), tuple(weights), time.perf_counter() - t0)
 
 
-def fitted_positions(character: Character, fitted: FittedSkin, G: np.ndarray) -> np.ndarray:
-    """LBS of the fitted weights: (F, V, 3) float64 for global joint matrices G (F, J, 4, 4)."""
+def fitted_positions(character: Character, fitted: FittedSkin, G: np.ndarray,
+                     pose: LocalPose | None = None) -> np.ndarray:
+    """LBS of the fitted weights: (F, V, 3) float64 for global joint matrices G (F, J, 4, 4) of
+    pose (the local pose, needed when the fit has helper joints)."""
     rest_inv = np.linalg.inv(character.skeleton.rest_globals())
     parts = []
     for mesh, j, w in zip(character.meshes, fitted.joints, fitted.weights):
@@ -89,8 +107,8 @@ def fitted_positions(character: Character, fitted: FittedSkin, G: np.ndarray) ->
             M = G[:, mesh.rigid_joint] @ rest_inv[mesh.rigid_joint]
             parts.append(np.einsum("fij,nj->fni", M[:, :3, :3], mesh.vertices) + M[:, None, :3, 3])
         else:
-            source, ibm = mesh_space(character, mesh)
-            parts.append(skin_positions(source, G @ ibm, j, w))
+            source, _ = mesh_space(character, mesh)
+            parts.append(skin_positions(source, skin_matrices(character, mesh, fitted, G, pose), j, w))
     return np.concatenate(parts, axis=1)
 
 

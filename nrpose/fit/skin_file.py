@@ -5,8 +5,8 @@ animations); all buffers are copied into the single GLB buffer and the new
 weights appended after them (uint16 joints and float32 weights, 4 per set, so
 8 influences use ``JOINTS_0/1`` and ``WEIGHTS_0/1``; each set's weights are
 stored as fitted, the file's rows summing to 1 within float32).
-Requested clips are then added as ordinary animations by
-:func:`nrpose.io.gltf_write.write_glb_with_clip`.
+Requested clips are added as ordinary animations (:func:`nrpose.io.gltf_write.add_clip`);
+helper joints as nodes with their rules written as animation channels (:func:`write_fitted_glb`).
 """
 from __future__ import annotations
 
@@ -15,14 +15,17 @@ from pathlib import Path
 import numpy as np
 import pygltflib
 
+from ..checks import within_float32
 from ..errors import InputError
-from ..io.files import atomic_path
 from ..io.gltf_read import joint_nodes, node_globals, read_document
-from ..io.gltf_write import Blob, check_copyable, write_glb_with_clip
+from ..io.gltf_write import Blob, add_clip, check_copyable, copy_document, save_glb
 from ..model.character import Character
-from .character_skin import FittedSkin
+from ..model.rotation import matrix_quats
+from ..model.timing import sample_times
+from .character_skin import FittedSkin, mesh_space
+from .helper_joints import HelperJoint
 
-__all__ = ["skinned_primitives", "write_fitted_glb"]
+__all__ = ["skinned_primitives", "write_fitted_glb", "add_helper_nodes", "add_helper_channels", "helper_trs"]
 
 
 def skinned_primitives(path, character: Character) -> list:
@@ -69,29 +72,33 @@ def skinned_primitives(path, character: Character) -> list:
     return found
 
 
-def write_fitted_glb(source_path, out_path, character: Character, fitted: FittedSkin, clips=()) -> int:
+def write_fitted_glb(source_path, out_path, character: Character, fitted: FittedSkin, clips=(),
+                     fps: float = 30.0) -> int:
     """Write source_path (.glb/.gltf of ``character``) to out_path (.glb) with the fitted weights
     on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations; returns
-    the file's size in bytes (the file itself is in place when the command's outputs commit)."""
+    the file's size in bytes (the file itself is in place when the command's outputs commit).
+
+    Helper joints (``fitted.helpers``) become nodes, children of their parent joint's node, in
+    every skin holding that joint (inverse bind appended); their rules are evaluated at ``fps``
+    over every animation of the file (the source's and ``clips``) and written as translation and
+    rotation channels of those animations; their rest TRS is the rule at the rest pose.
+    """
     path = Path(source_path)
     check_copyable(path)
     places = skinned_primitives(path, character)
-    gltf, buffers = read_document(path)
+    gltf, blob, buffers = copy_document(path)
     _, nodes = joint_nodes(path, gltf, buffers)
-    if any(im.uri is not None and not im.uri.startswith("data:") for im in gltf.images or []):
-        raise InputError(f"{path}: images in separate files are not copied; give the .glb of the character")
-    blob = Blob(gltf)
-    starts = [blob.append(bytes(b)) for b in buffers]
-    for view in gltf.bufferViews:
-        view.byteOffset = (view.byteOffset or 0) + starts[view.buffer]
-        view.buffer = 0
+    skeleton = character.skeleton
+    for clip in clips:
+        add_clip(gltf, blob, nodes, skeleton, clip)
+    node_of = [int(n) for n in nodes] + add_helper_nodes(gltf, blob, character, places, fitted.helpers, nodes)
     for place, j, w in zip(places, fitted.joints, fitted.weights):
         if place is None:
             continue
         mesh, p, skin, _ = place
         local = {int(n): k for k, n in enumerate(gltf.skins[skin].joints)}
         try:
-            skin_joints = np.vectorize(lambda x: local[int(nodes[x])], otypes=[np.int64])(j)
+            skin_joints = np.vectorize(lambda x: local[node_of[x]], otypes=[np.int64])(j)
         except KeyError:
             raise InputError(f"mesh {mesh}: a fitted joint is not in skin {skin}") from None
         sets = -(-j.shape[1] // 4)
@@ -109,11 +116,68 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
             setattr(attrs, f"JOINTS_{s}", None)
             setattr(attrs, f"WEIGHTS_{s}", None)
             s += 1
-    data = blob.bytes()
-    gltf.buffers = [pygltflib.Buffer(byteLength=len(data))]
-    gltf.set_binary_blob(data)
-    with atomic_path(Path(out_path)) as tmp:
-        gltf.save_binary(str(tmp))
-        for clip in clips:
-            write_glb_with_clip(tmp, tmp, character, clip)
-        return tmp.stat().st_size
+    if fitted.helpers:
+        helper_nodes = node_of[skeleton.num_joints:]
+        for animation, clip in zip(gltf.animations, tuple(character.clips) + tuple(clips)):
+            add_helper_channels(blob, animation, skeleton, fitted.helpers, helper_nodes, clip, fps)
+    return save_glb(gltf, blob, Path(out_path))
+
+
+def helper_trs(helper: HelperJoint, skeleton, pose) -> tuple[np.ndarray, np.ndarray]:
+    """Translations (F, 3) and unit quaternions (F, 4) (x, y, z, w; consecutive ones in the same
+    hemisphere, so that players' slerp takes the short way) of a helper's rule over pose."""
+    L = helper.local(skeleton, pose)
+    q = matrix_quats(L[:, :3, :3])
+    flip = np.cumprod(np.r_[1.0, np.sign(np.einsum("fi,fi->f", q[1:], q[:-1]) + 1e-300)])
+    return L[:, :3, 3], q * flip[:, None]
+
+
+def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, nodes) -> list:
+    """Add the helper nodes (see :func:`write_fitted_glb`) to the document; their node indices."""
+    skeleton = character.skeleton
+    added = []
+    names = {n.name for n in gltf.nodes}
+    for h, helper in enumerate(helpers):
+        t, q = helper_trs(helper, skeleton, skeleton.rest_pose)
+        name, k = f"nrpose_helper_{h}", 2
+        while name in names:
+            name, k = f"nrpose_helper_{h}_{k}", k + 1
+        names.add(name)
+        gltf.nodes.append(pygltflib.Node(name=name, translation=t[0].tolist(), rotation=q[0].tolist()))
+        parent = gltf.nodes[int(nodes[helper.parent])]
+        parent.children = list(parent.children or []) + [len(gltf.nodes) - 1]
+        added.append(len(gltf.nodes) - 1)
+    if not helpers:
+        return added
+    done = set()
+    for place, mesh in zip(places, character.meshes):
+        if place is None or place[2] in done:
+            continue
+        done.add(place[2])
+        skin = gltf.skins[place[2]]
+        _, ibm = mesh_space(character, mesh)
+        joint_of = {int(n): j for j, n in enumerate(nodes)}
+        mats = [ibm[joint_of[int(n)]] for n in skin.joints]
+        for helper, node in zip(helpers, added):
+            if int(nodes[helper.parent]) in skin.joints:
+                skin.joints.append(node)
+                mats.append(helper.inverse_bind(ibm[helper.parent]))
+        skin.inverseBindMatrices = blob.add(np.transpose(mats, (0, 2, 1)).astype(np.float32).reshape(-1, 16),
+                                            "MAT4")
+    return added
+
+
+def add_helper_channels(blob: Blob, animation, skeleton, helpers, helper_nodes, clip, fps: float) -> None:
+    """Append to ``animation`` (the document's animation of ``clip``) the helpers' translation and
+    rotation channels: their rules over the clip sampled at ``fps`` (LINEAR)."""
+    times = sample_times(clip.duration, fps)
+    pose = clip.sample(times)
+    key = blob.add(times.astype(np.float32), "SCALAR", minmax=True)
+    for helper, node in zip(helpers, helper_nodes):
+        t, q = helper_trs(helper, skeleton, pose)
+        for path, values, kind in (("translation", t, "VEC3"), ("rotation", q, "VEC4")):
+            within_float32(values, f"helper joint {path}")
+            animation.samplers.append(pygltflib.AnimationSampler(
+                input=key, output=blob.add(values.astype(np.float32), kind), interpolation="LINEAR"))
+            animation.channels.append(pygltflib.AnimationChannel(
+                sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path=path)))

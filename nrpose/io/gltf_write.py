@@ -83,7 +83,8 @@ from ..model.skeleton import polar_rotation
 from .files import atomic_path
 from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 
-__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "BakeReport", "Blob",
+__all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
+           "save_glb", "add_clip", "BakeReport", "Blob",
            "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
@@ -237,7 +238,7 @@ def _check_required(gltf: pygltflib.GLTF2, path) -> None:
                                   "into a posed copy faithfully; write .npz, or use a file without it")
 
 
-def _copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
+def copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
     """The document at ``path`` with every buffer and image copied into one binary chunk."""
     gltf, buffers = read_document(path)
     blob = Blob(gltf)
@@ -267,23 +268,25 @@ def _copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
     return gltf, blob, buffers
 
 
-def _save(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> None:
-    """The GLB of ``gltf`` with ``blob`` as its binary chunk, written chunk by chunk: the
-    blob's parts go to the file as they are, never joined into one copy (pygltflib's
-    ``save_binary`` would join them, then copy every view again)."""
+def save_glb(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> int:
+    """Write the document with ``blob`` as its binary chunk to ``out`` (atomically); its size in
+    bytes. Written chunk by chunk: the blob's parts go to the file as they are, never joined into
+    one copy (pygltflib's ``save_binary`` would join them, then copy every view again)."""
     align = max(blob.align, gltf.required_alignment())
     tail = -blob.size % align
     gltf.buffers = [pygltflib.Buffer(byteLength=blob.size + tail)]
     text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
     text += b" " * (-(12 + len(text)) % align)     # the binary chunk's data start aligned in the file
+    size = 12 + 8 + len(text) + 8 + blob.size + tail
     with atomic_path(out) as tmp, open(tmp, "wb") as f:
-        f.write(struct.pack("<4sII", b"glTF", 2, 12 + 8 + len(text) + 8 + blob.size + tail))
+        f.write(struct.pack("<4sII", b"glTF", 2, size))
         f.write(struct.pack("<I4s", len(text), b"JSON"))
         f.write(text)
         f.write(struct.pack("<I4s", blob.size + tail, b"BIN\0"))
         for part in blob.parts:
             f.write(part)
         f.write(b"\0" * tail)
+    return size
 
 
 @dataclass
@@ -502,7 +505,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         if any(m[3] is None for m in meshes):
             raise InputError("write_animated_glb: with source=, every mesh needs its source indices "
                              "(a Mesh loaded from that file)")
-        gltf, blob, buffers = _copy_document(source)
+        gltf, blob, buffers = copy_document(source)
         _check_required(gltf, source)
         gltf.animations = []
     else:
@@ -585,7 +588,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
             if QUANTIZATION not in names:
                 setattr(gltf, field, names + [QUANTIZATION])
     gltf.animations = [animation]
-    _save(gltf, blob, Path(path))
+    save_glb(gltf, blob, Path(path))
     return report
 
 
@@ -600,7 +603,7 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
     keep_animations=False: the clip is the file's only animation.
     """
     path = Path(target_path)
-    gltf, blob, buffers = _copy_document(path)
+    gltf, blob, buffers = copy_document(path)
     skeleton, nodes = joint_nodes(path, gltf, buffers)
     if tuple(skeleton.names) != tuple(target.skeleton.names):
         raise NrposeError(f"{path}: its skeleton changed since it was loaded")
@@ -608,19 +611,27 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
         fit_skinned_nodes(path, gltf, bounds)
     if not keep_animations:
         gltf.animations = []
+    name = add_clip(gltf, blob, nodes, target.skeleton, clip)
+    save_glb(gltf, blob, Path(out_path))
+    return name
+
+
+def add_clip(gltf: pygltflib.GLTF2, blob: Blob, nodes, skeleton, clip) -> str:
+    """Append ``clip`` (a Clip of ``skeleton``, whose joint j is node ``nodes[j]``) to the document
+    as a new animation (data in ``blob``); its name (made unique among the document's)."""
     taken = {a.name for a in gltf.animations or []}
     name, k = clip.name, 2
     while name in taken:
         name, k = f"{clip.name} ({k})", k + 1
     animation = pygltflib.Animation(name=name, channels=[], samplers=[])
     inputs = {}
-    skel = target.skeleton
     for j in sorted({t.joint for t in clip.tracks}):
         node = gltf.nodes[int(nodes[j])]
         if node.matrix is not None:     # animated nodes must use TRS (glTF 2.0, 5.25)
             node.matrix = None
-            node.translation, node.rotation, node.scale = (skel.translation[j].tolist(),
-                                                           skel.rotation[j].tolist(), skel.scale[j].tolist())
+            node.translation, node.rotation, node.scale = (skeleton.translation[j].tolist(),
+                                                           skeleton.rotation[j].tolist(),
+                                                           skeleton.scale[j].tolist())
     for track in clip.tracks:
         if track.interpolation == "CUBICSPLINE":
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
@@ -636,7 +647,6 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
             sampler=len(animation.samplers) - 1,
             target=pygltflib.AnimationChannelTarget(node=int(nodes[track.joint]), path=track.path)))
     gltf.animations = list(gltf.animations or []) + [animation]
-    _save(gltf, blob, Path(out_path))
     return name
 
 

@@ -1,0 +1,190 @@
+"""Helper joints of nrpose fit-skin: the rule, the rigid fit, placement, and the written file."""
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from nrpose.cli import main
+from nrpose.errors import InputError
+from nrpose.fit.character_skin import error_table, fit_character, fitted_positions
+from nrpose.fit.helper_fit import add_helpers
+from nrpose.fit.helper_joints import driver_features, evaluate_rule, fit_rule, rigid_fit
+from nrpose.fit.rom import range_of_motion
+from nrpose.fit.skin_file import write_fitted_glb
+from nrpose.fit.skin_weights import skin_positions
+from nrpose.io import load_character
+from nrpose.model.rotation import Rotation
+from nrpose.model.skeleton import LocalPose
+from nrpose.model.timing import sample_times
+from nrpose.pose.poser import CharacterPoser
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
+FOX = DATA / "gltf" / "Fox.glb"
+
+
+def rigid(rotations, translations):
+    L = np.tile(np.eye(4), (len(rotations), 1, 1))
+    L[:, :3, :3] = rotations
+    L[:, :3, 3] = translations
+    return L
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_rigid_fit_recovers_a_rigid_motion_and_weights_matter(seed):
+    rng = np.random.default_rng(seed)
+    z = rng.normal(size=(40, 3))
+    truth = rigid(Rotation.random(5, random_state=seed).as_matrix(), rng.normal(size=(5, 3)) * 3)
+    u = np.einsum("fij,nj->fni", truth[:, :3, :3], z) + truth[:, None, :3, 3]
+    assert np.abs(rigid_fit(z, u, rng.uniform(0.1, 1, 40)) - truth).max() < 1e-10
+    # points with weight 0 do not pull the fit: corrupt them, the transform stays
+    a = np.ones(40)
+    a[:5] = 0
+    u[:, :5] += 10
+    assert np.abs(rigid_fit(z, u, a) - truth).max() < 1e-10
+    assert np.abs(rigid_fit(z, u, np.ones(40)) - truth).max() > 1e-3
+    with pytest.raises(InputError):
+        rigid_fit(z, u, np.zeros(40))
+
+
+@needs_data
+def test_rule_reproduces_transforms_it_can_express_and_generalises():
+    fox = load_character(FOX)
+    skel = fox.skeleton
+    # training poses: the two drivers turned together at random (every feature excited)
+    F = 300
+    rest = skel.rest_pose
+    rotation = np.broadcast_to(rest.rotation, (F,) + rest.rotation.shape).copy()
+    for j in (16, 17):
+        rotation[:, j] = (Rotation.from_quat(skel.rotation[j])
+                          * Rotation.from_rotvec(Rotation.random(F, random_state=j).as_rotvec() / 3)).as_quat()
+    rom = LocalPose(np.broadcast_to(rest.translation, (F,) + rest.translation.shape).copy(), rotation,
+                    np.broadcast_to(rest.scale, (F,) + rest.scale.shape).copy())
+    drivers = (16, 17)
+    phi = driver_features(skel, rom, drivers)
+    assert phi.shape == (F, 1 + 4 * len(drivers))
+    assert np.allclose(driver_features(skel, skel.rest_pose, drivers), np.r_[1.0, np.zeros(8)])
+    # transforms a rule expresses exactly: a fixed rotation, a slide linear in the features
+    rng = np.random.default_rng(3)
+    coef = np.zeros(phi.shape[1:] + (12,))
+    coef[0, :9] = Rotation.random(random_state=5).as_matrix().ravel()
+    coef[:, 9:] = rng.normal(size=(phi.shape[1], 3))
+    truth = evaluate_rule(phi, coef)
+    assert np.abs(evaluate_rule(phi, fit_rule(phi, truth, ridge=0.0)) - truth).max() < 1e-9
+    fitted = fit_rule(phi, truth)           # the default ridge: a small bias
+    assert np.abs(evaluate_rule(phi, fitted) - truth).max() < 1e-2
+    # a turn the rule approximates: the second driver's own rotation from rest
+    delta = Rotation.from_quat(skel.rotation[17]).inv() * Rotation.from_quat(rom.rotation[:, 17])
+    turn = np.tile(np.eye(4), (F, 1, 1))
+    turn[:, :3, :3] = delta.as_matrix()
+    approx = evaluate_rule(phi, fit_rule(phi, turn))
+    assert np.abs(approx - turn).max() < 0.15        # turns up to 60 degrees, linear features
+    # held-out poses (a clip never fitted): the same rule
+    walk = fox.clip("Walk").sample(np.linspace(0, 0.7, 9))
+    phi_walk = driver_features(skel, walk, drivers)
+    assert np.abs(evaluate_rule(phi_walk, fitted) - evaluate_rule(phi_walk, coef)).max() < 3e-2
+
+
+@needs_data
+def test_helpers_fit_a_slide_driven_by_a_joint_that_lbs_cannot():
+    """Targets: the Fox's authored LBS, plus a rigid slide of one region in its joint's frame
+    driven by a child's rotation (no combination of the skeleton's transforms makes it)."""
+    fox = load_character(FOX)
+    skel, mesh = fox.skeleton, fox.meshes[0]
+    rom = range_of_motion(skel, 45.0, pairs=2)
+    G = skel.forward_kinematics(rom)
+    p, child = 16, 17                         # b_LeftLeg01_015 and its child
+    assert skel.parents[child] == p
+    dominant = mesh.joints[np.arange(len(mesh.joints)), np.argmax(mesh.weights, axis=1)]
+    region = dominant == p
+    truth = skin_positions(mesh.bind_vertices, G @ mesh.inverse_bind, mesh.joints, mesh.weights)
+    R_child = Rotation.from_quat(rom.rotation[:, child]).as_matrix()
+    R_rest = Rotation.from_quat(skel.rotation[child]).as_matrix()
+    slide_local = 0.5 * np.linalg.norm(skel.translation[child]) * (R_rest.T @ R_child)[:, :, 1]   # (F, 3)
+    slide = np.einsum("fij,fj->fi", G[:, p, :3, :3], slide_local)
+    targets = truth.copy()
+    targets[:, region] += slide[:, None]
+    plain = fit_character(fox, G, targets, 4)
+    before = error_table(fox, fitted_positions(fox, plain, G), targets)
+    with_helpers, log = add_helpers(fox, plain, G, rom, targets, 2, 4)
+    after = error_table(fox, fitted_positions(fox, with_helpers, G, rom), targets)
+    assert after["rms"] < 0.5 * before["rms"], (before["rms"], after["rms"], log)
+    assert any(child in h.drivers for h in with_helpers.helpers), log
+    with pytest.raises(InputError, match="local pose"):
+        fitted_positions(fox, with_helpers, G)
+    # the weights stay a partition of unity over the joints and helpers
+    w = with_helpers.weights[0]
+    assert (w >= 0).all() and np.allclose(w.sum(axis=1), 1)
+    assert with_helpers.joints[0].max() == skel.num_joints + len(with_helpers.helpers) - 1
+    # zero helpers asked: the fit unchanged
+    same, _ = add_helpers(fox, plain, G, rom, targets, 0, 4)
+    assert same.helpers == () and same.joints[0] is plain.joints[0]
+
+
+@pytest.fixture(scope="module")
+def helper_file(tmp_path_factory):
+    """The Fox fitted with 3 helper joints on Walk + a small range of motion, written with Run."""
+    if not FOX.is_file():
+        pytest.skip(f"shared assets not found at {DATA}")
+    fox = load_character(FOX)
+    rom = range_of_motion(fox.skeleton, 45.0, pairs=1)
+    G = fox.skeleton.forward_kinematics(rom)
+    poser = CharacterPoser(fox, method="nrmls")
+    targets = poser.pose(rom).positions
+    fitted, _ = add_helpers(fox, fit_character(fox, G, targets, 4), G, rom, targets, 3, 4)
+    out = tmp_path_factory.mktemp("helpers") / "fox_helpers.glb"
+    size = write_fitted_glb(FOX, out, fox, fitted, clips=[fox.clip("Run")], fps=30.0)
+    return fox, fitted, out, size
+
+
+def test_file_with_helpers_plays_the_rule_at_its_keys(helper_file):
+    fox, fitted, out, size = helper_file
+    assert size == out.stat().st_size
+    back = load_character(out)
+    J, H = fox.skeleton.num_joints, len(fitted.helpers)
+    assert back.skeleton.num_joints == J + H
+    names = list(back.skeleton.names)
+    for h, helper in enumerate(fitted.helpers):
+        parent = back.skeleton.parents[names.index(f"nrpose_helper_{h}")]
+        assert back.skeleton.names[parent] == fox.skeleton.names[helper.parent]
+    assert [c.name for c in back.clips] == [c.name for c in fox.clips] + ["Run (2)"]
+    for clip, back_clip in zip(fox.clips, back.clips):
+        times = sample_times(clip.duration, 30.0)[::5]
+        pose = clip.sample(times)
+        G = fox.skeleton.forward_kinematics(pose)
+        ours = fitted_positions(fox, fitted, G, pose)
+        lbs = CharacterPoser(back, method="lbs", backend="numpy").pose(back_clip.sample(times)).positions
+        bbox = np.ptp(ours.reshape(-1, 3), axis=0).max()
+        assert np.abs(lbs - ours).max() <= 1e-5 * bbox, clip.name
+
+
+@pytest.mark.skipif(shutil.which("gltfpack") is None, reason="gltfpack not installed (Debian package gltfpack)")
+def test_gltfpack_parses_the_file_with_helpers(helper_file, tmp_path):
+    _, _, out, _ = helper_file
+    run = subprocess.run(["gltfpack", "-i", str(out), "-o", str(tmp_path / "packed.glb")],
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    assert not [line for line in (run.stdout + run.stderr).splitlines() if line.lower().startswith("error")]
+    assert (tmp_path / "packed.glb").stat().st_size > 0
+
+
+@needs_data
+def test_cli_with_helpers_reports_them_and_writes_them(tmp_path, capsys):
+    out, report = tmp_path / "fox.glb", tmp_path / "r.json"
+    code = main(["fit-skin", str(FOX), "--train", "Walk", "--holdout", "Run", "--rom-degrees", "30",
+                 "--helpers", "2", "-o", str(out), "--report", str(report)])
+    assert code == 0, capsys.readouterr().err
+    r = json.loads(report.read_text())
+    assert 1 <= r["helpers"] <= 2 and r["helpers_requested"] == 2
+    assert sum(p["kept"] for p in r["helper_placement"]) == r["helpers"]
+    assert r["helpers_seconds"] > 0 and r["size"]["file_bytes"] == out.stat().st_size
+    back = load_character(out)
+    assert back.skeleton.num_joints == load_character(FOX).skeleton.num_joints + r["helpers"]
+    # each of the file's animations drives the helpers
+    helper_joints = {j for j, n in enumerate(back.skeleton.names) if n.startswith("nrpose_helper_")}
+    assert all(helper_joints <= {t.joint for t in clip.tracks} for clip in back.clips)
