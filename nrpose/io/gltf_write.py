@@ -167,8 +167,8 @@ class Blob:
     """The binary chunk of a GLB being written: aligned buffer views (4 bytes; 8 where the document
     needs it) and accessors.
 
-    Appends to ``gltf.bufferViews`` / ``gltf.accessors`` (all views in buffer 0);
-    :meth:`bytes` is the chunk's content.
+    Appends to ``gltf.bufferViews`` / ``gltf.accessors`` (all views in buffer 0); ``parts``
+    (bytes each) make the chunk's content, ``size`` bytes (:func:`save_glb` writes them).
     """
 
     def __init__(self, gltf: pygltflib.GLTF2):
@@ -220,9 +220,6 @@ class Blob:
             acc.max = [int(x) for x in values.max(axis=0)]
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
-
-    def bytes(self) -> bytes:
-        return b"".join(self.parts)
 
 
 def check_copyable(source) -> None:
