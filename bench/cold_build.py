@@ -1,7 +1,7 @@
 """Cold build of each program `nrpose pose` compiles: every round a fresh process with an
 empty PoCL cache per program, the programs in turn.
 
-    python bench/cold_build.py [--rounds 5] [--json bench/results/cold_build.json]
+    python bench/cold_build.py [--rounds 5] [--methods nrmls,lbs,dqs,cor] [--json bench/results/cold_build.json]
 
 Why: a process whose PoCL cache does not hold a program pays its whole compile (the first
 run after an install or a kernel change, a fresh container); that compile, not the pose,
@@ -71,12 +71,13 @@ def child(method: str) -> dict:
             "program": name, "options": list(options)}
 
 
-def run(rounds: int) -> dict:
-    """``rounds`` rounds of a fresh process per method (:func:`child`), the methods in turn."""
-    samples = {m: [] for m in METHODS}
+def run(rounds: int, methods=METHODS) -> dict:
+    """``rounds`` rounds of a fresh process per method of ``methods`` (:func:`child`), the
+    methods in turn."""
+    samples = {m: [] for m in methods}
     load0, cpu0 = common.load(), common.cpu_times()
     for r in range(rounds):
-        for m in (METHODS if r % 2 == 0 else METHODS[::-1]):
+        for m in (methods if r % 2 == 0 else methods[::-1]):
             with tempfile.TemporaryDirectory() as cache:
                 env = dict(os.environ, POCL_CACHE_DIR=cache)
                 got = subprocess.run([sys.executable, __file__, "--child", m], env=env, capture_output=True,
@@ -100,15 +101,19 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--rounds", type=int, default=5, help="processes per program (default 5)")
     ap.add_argument("--json", default=str(common.HERE / "results" / "cold_build.json"), help="write the record here")
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated (default: all four)")
     ap.add_argument("--child", choices=METHODS, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     if a.child:
         print(json.dumps(child(a.child)))
         return 0
-    if a.rounds < 1:
-        print("cold_build: --rounds must be at least 1", file=sys.stderr)
+    methods = tuple(m.strip() for m in a.methods.split(",") if m.strip())
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods or a.rounds < 1:
+        print(f"cold_build: unknown method {bad[0] if bad else '(none)'!r}; choose from {', '.join(METHODS)}"
+              if bad or not methods else "cold_build: --rounds must be at least 1", file=sys.stderr)
         return 2
-    doc = run(a.rounds)
+    doc = run(a.rounds, methods)
     for m, row in doc["programs"].items():
         print(f"{m:6s} " + "  ".join(f"{p} {row[f'{p}_wall_ms']['median']:.0f} ms (cpu {row[f'{p}_cpu_ms']['median']:.0f})"
                                      for p in PHASES) + f"  rss {row['rss_mb_after']['median']:.0f} MB")
