@@ -1,5 +1,7 @@
 """OpenCL programs: kernel sources as shipped (headers pasted) and their builds, once per
-(context, kernel file, build options) for the life of the process."""
+(context, kernel file, build options) for the life of the process, started ahead in a
+background thread (:func:`prefetch`) with their kernels' compile for each device
+(:func:`warm_up`; docs/device.md, "Cold start")."""
 from __future__ import annotations
 
 import concurrent.futures
