@@ -48,6 +48,8 @@ def program_options(options=()) -> tuple[str, ...]:
 
 #: builds started by :func:`prefetch`, by (context, name, options), until :func:`program` takes them
 _PENDING: dict = {}
+#: the (context, name, options) of the programs built
+_BUILT: set = set()
 _PENDING_LOCK = threading.Lock()
 _BUILDER = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="nrpose-build")
 
@@ -67,10 +69,11 @@ def prefetch(name: str, options: tuple[str, ...] = ()) -> None:
     """Start building the program :func:`program` will be asked for in a background thread,
     then compiling its kernels for each device there (:func:`warm_up`), so that both
     overlap the host work of a bind; pyopencl releases the GIL while PoCL compiles. For
-    programs of kernels in share.h's protocol (:func:`warm_up` launches them)."""
+    programs of kernels in share.h's protocol (:func:`warm_up` launches them). Nothing to do
+    for a program built already (its kernels compiled at their first launch)."""
     key = (context()[0], name, program_options(options))
     with _PENDING_LOCK:
-        if key not in _PENDING:
+        if key not in _PENDING and key not in _BUILT:     # built: its kernels compiled at their first launch
             _PENDING[key] = _BUILDER.submit(_built_and_warm, *key)
 
 
@@ -126,9 +129,11 @@ def warm_up(prg, source: str) -> None:
 def _program(ctx, name: str, options: tuple[str, ...]):
     cl = pyopencl()
     try:
-        return cl.Program(ctx, kernel_source(name)).build(options=list(options))
+        prg = cl.Program(ctx, kernel_source(name)).build(options=list(options))
     except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
         raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+    _BUILT.add((ctx, name, options))
+    return prg
 
 
 def build_source(source: str, options: tuple[str, ...] = ()):
