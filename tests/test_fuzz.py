@@ -1,6 +1,7 @@
 """The CLI keeps its contract under a bounded mutation fuzz (tests/fuzzing).
 
-1,200 deterministic cases (seed 0) over every command and input kind, 2 worker processes,
+1,200 deterministic cases (seed 0) over every command and input kind (24 more of bake,
+fit-skin and demo, whose cases take seconds), 2 worker processes,
 each case in a forked child with a 20 s time and 3 GiB memory limit: every case must end
 in exit 0 with a valid output or exit 2 with one stderr line and nothing left behind. The
 long run is ``python bench/fuzz.py``. The harness's own parts (seeds valid, mutations
@@ -16,10 +17,10 @@ import sys
 import pytest
 
 from fuzzing.campaign import run
-from fuzzing.cases import Case, make_case
-from fuzzing.known import MUST_REJECT, known_cases
-from fuzzing.runner import Runner
-from fuzzing.seeds import make_seeds
+from fuzzing.cases import COMMANDS, Case, make_case
+from fuzzing.known import MUST_REJECT, bake_files, known_cases
+from fuzzing.runner import GOOD, Runner
+from fuzzing.seeds import BAKE_JOBS, make_seeds
 
 #: the known cases of issue 32 keep the contract (its fixes have landed)
 FUZZ_ENABLED = True
@@ -28,6 +29,10 @@ FUZZ_ENABLED = True
 GLTF_READER_CHECKED = True
 CASES = 1200
 WORKERS = 2
+#: the commands whose cases take seconds (a worker pool, a fit, the demo's two rigs): a run of
+#: their own, of NEW_CASES cases, beside the CASES cases of the others
+SLOW = ("bake", "fit-skin", "demo")
+NEW_CASES = 24
 
 
 def _warm_kernel_cache(seeds, folder) -> None:
@@ -67,6 +72,11 @@ SEED_RUNS = {
     "weights": ["weights", "in/c/body.gltf", "--method", "euclidean", "-o", "out/w.npz"],
     "retarget": ["retarget", "in/s/rig.bvh", "in/c/body.glb", "--fps", "5", "-o", "out/r.glb"],
     "info": ["info", "in/c/body.glb"],
+    "fit-skin": ["fit-skin", "in/c/body.glb", "--train", "bend", "in/t/rig.bvh", "in/p/pose.json", "--holdout",
+                 "bend", "--export", "in/t/rig.bvh", "--rom-degrees", "10", "--fps", "5", "-o", "out/f.glb",
+                 "--report", "out/r.json"],
+    "demo": ["demo", "--out", "out/d", "--frames", "2", "--repeat", "1"],
+    "bake": ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers", "1", "--summary", "out/s.json"],
 }
 
 
@@ -77,7 +87,9 @@ def test_seeds_are_accepted_with_valid_outputs(runner, seeds, name):
                                                                    "gltf_external")}
     files = {}
     for a in argv:
-        if a.startswith("in/"):
+        if a.startswith("in/j/"):          # every job of the bake seeds, in one JOBS file
+            files.update(bake_files(seeds, {}, BAKE_JOBS))
+        elif a.startswith("in/"):
             files[a] = by_name[a.rsplit("/", 1)[1]].data
     outcome, _ = runner.run(_case(argv, files))
     assert outcome.outcome == "accepted", outcome
@@ -99,10 +111,26 @@ def test_contract_checks_can_fail(runner, seeds):
 
 
 def test_cases_are_deterministic(seeds):
-    a = [make_case(7, i, seeds) for i in range(50)]
-    b = [make_case(7, i, seeds) for i in range(50)]
+    a = [make_case(7, i, seeds) for i in range(400)]
+    b = [make_case(7, i, seeds) for i in range(400)]
     assert [(c.argv, c.files, c.mutation) for c in a] == [(c.argv, c.files, c.mutation) for c in b]
-    assert {c.command for c in a} == {"deform", "pose", "weights", "retarget", "info"}
+    assert {c.command for c in a} == set(COMMANDS)
+
+
+def test_bake_exit_1_is_checked_against_its_manifest(runner, seeds):
+    """A bake with one failing job among good ones keeps the contract (exit 1, its line, the
+    manifest listing the good one); the same run whose manifest lists the failed job does not."""
+    jobs = [{"clip": "bend", "output": "a.npz"}, {"clip": "nope", "output": "b.npz"}]
+    argv = ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers", "1", "--summary", "out/s.json"]
+    o, _ = runner.run(_case(argv, bake_files(seeds, {}, jobs)))
+    assert (o.outcome, o.exit) == ("partial", 1), o
+    assert "jobs[1] (b.npz)" in o.stderr and len(o.stderr.strip().splitlines()) == 1
+    case = _case(argv + ["--max-frames", "0"], bake_files(seeds, {}, jobs))
+    o, _ = runner.run(case)
+    assert (o.outcome, o.exit) == ("rejected", 2), o     # a bad budget: nothing run
+    from fuzzing.runner import validate
+    problems = validate(["bake", "missing.json", "-o", "nodir"], 1, "", "nrpose: bake: jobs[0] (a.npz): x")
+    assert problems     # no JOBS file, no manifest, no final line: the checks can fail
 
 
 needs_fixes = pytest.mark.skipif(not FUZZ_ENABLED, reason="enabled after the fuzz fixes land (issue 32); "
@@ -133,15 +161,19 @@ def test_issue_32_cases_keep_the_contract(runner, fork_safe, name):
     if _reads_gltf_fields(name) and not GLTF_READER_CHECKED:
         pytest.skip("waits for the type-checked glTF reader (helper fuzzgltf); flip GLTF_READER_CHECKED")
     outcome, _ = runner.run(known_cases()[name])
-    allowed = ("rejected",) if name in MUST_REJECT else ("accepted", "rejected")
+    allowed = ("rejected",) if name in MUST_REJECT else GOOD
     assert outcome.outcome in allowed, (outcome.outcome, outcome.stderr[-2000:], outcome.problems)
 
 
 @needs_fixes
 @needs_gltf_reader
-def test_bounded_fuzz_run_breaks_no_contract(tmp_path):
-    summary = run(seed=0, count=CASES, workers=min(WORKERS, os.cpu_count() or 1), repro_dir=tmp_path / "repro")
-    assert summary["cases"] == CASES
+@pytest.mark.parametrize("commands, count", [("fast", CASES), ("slow", NEW_CASES)])
+def test_bounded_fuzz_run_breaks_no_contract(tmp_path, commands, count):
+    shares = {c: p for c, p in COMMANDS.items() if (c in SLOW) == (commands == "slow")}
+    summary = run(seed=0, count=count, workers=min(WORKERS, os.cpu_count() or 1), repro_dir=tmp_path / "repro",
+                  commands=shares)
+    assert summary["cases"] == count
+    assert {c for c in summary["totals"]} == set(shares)
     defects = [{k: d[k] for k in ("class", "count", "where", "argv", "stderr_tail", "repro")}
                for d in summary["defects"]]
     assert summary["violations"] == 0, json.dumps(defects[:20], indent=1)

@@ -454,14 +454,41 @@ def exact_component(Vc, Fc, jobs):
     (n, len(jobs)) float64, each column offset by its sources' smallest offset."""
     import igl
 
+    # at unit size: libigl's tolerances are absolute (a mesh of 1e-30 units never finishes)
+    scale = float(np.linalg.norm(np.ptp(Vc, axis=0))) or 1.0
+    Vn = np.ascontiguousarray(Vc / scale)
+    check_exact_ready(Vn, Fc)
     res = np.empty((len(Vc), len(jobs)))
     empty = np.zeros(0, np.int64)
     targets = np.arange(len(Vc), dtype=np.int64)
     for col, (_, idx, off) in enumerate(jobs):
         with quiet_native():
-            d = igl.exact_geodesic(Vc, Fc, np.ascontiguousarray(idx), empty, targets, empty)
-        res[:, col] = np.asarray(d, np.float64) + off.min()
+            d = igl.exact_geodesic(Vn, Fc, np.ascontiguousarray(idx), empty, targets, empty)
+        res[:, col] = scale * np.asarray(d, np.float64) + off.min()
     return res
+
+
+#: the thinnest triangle (twice its area over its longest edge squared) given to libigl's
+#: exact geodesics
+MIN_EXACT_QUALITY = 1e-10
+
+
+def check_exact_ready(Vc, Fc) -> None:
+    """InputError unless the component (Vc (n, 3), Fc (m, 3) int64) is what libigl's exact
+    geodesics survive: every edge in at most two faces, consistently oriented, no sliver
+    triangle (:data:`MIN_EXACT_QUALITY`); it crashes, hangs or exhausts memory otherwise."""
+    directed = np.vstack([Fc[:, [0, 1]], Fc[:, [1, 2]], Fc[:, [2, 0]]])
+    _, uses = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    _, same_way = np.unique(directed, axis=0, return_counts=True)
+    P = Vc[Fc]
+    e2 = np.max(np.sum((P - np.roll(P, 1, axis=1)) ** 2, axis=2), axis=1)
+    quality = np.linalg.norm(np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]), axis=1) / np.where(e2 > 0, e2, 1)
+    problems = [f"{n} {what}" for n, what in (((uses > 2).sum(), "edges in more than two faces"),
+                                              ((same_way > 1).sum(), "edges with faces of opposite orientation"),
+                                              ((quality < MIN_EXACT_QUALITY).sum(), "sliver triangles")) if n]
+    if problems:
+        raise InputError(f"method 'exact' needs a manifold, consistently oriented mesh without slivers; this one "
+                         f"has {', '.join(problems)}: fix the mesh or use method 'heat' or 'graph'")
 
 
 def clean_faces(F: np.ndarray) -> np.ndarray:

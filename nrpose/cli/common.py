@@ -15,7 +15,7 @@ from ..io.gltf_write import write_animated_glb
 from ..io.meshes import write_geometry
 from ..io.npz import write_npz
 
-__all__ = ["add_budget_options", "check_budget", "median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
+__all__ = ["add_budget_options", "check_budget", "output_values", "median_ms", "progress", "frames_output_kind", "check_outputs", "write_frames", "device_text"]
 
 
 #: defaults of --max-frames and --max-output-values: a long clip of a large character fits
@@ -32,6 +32,12 @@ def add_budget_options(p) -> None:
     p.add_argument("--max-output-values", type=float, default=MAX_OUTPUT_VALUES,
                    help=f"refuse runs whose output holds more numbers (default {MAX_OUTPUT_VALUES:.0e}: "
                         "frames x vertices x 3, plus frames^2 morph weights in a .glb)")
+
+
+def output_values(frames: int, vertices: int, kind: str) -> float:
+    """The numbers a posed output holds (the estimate --max-output-values bounds): frames x
+    vertices x 3, plus frames^2 morph weights in a .glb (``kind``: :func:`frames_output_kind`)."""
+    return 3.0 * frames * vertices + (float(frames) ** 2 if kind == "glb" else 0.0)
 
 
 def check_budget(args, frames: int, values: float, what: str) -> None:

@@ -1,6 +1,7 @@
 """``nrpose demo``: the embedded default, a walking capsule humanoid and the paper's Figure 3 box."""
 from __future__ import annotations
 
+import shutil
 import time
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from ..render.preview import save_preview
 from ..render.sheet import save_contact_sheet
 from ..rigs import box
 from ..rigs.humanoid import humanoid
-from .common import device_text, median_ms, progress, write_frames
+from .common import add_budget_options, check_budget, device_text, median_ms, output_values, progress, write_frames
 
 #: library argument name -> the flag users type
 FLAGS: dict[str, str] = {}
@@ -24,8 +25,14 @@ def add_parser(sub) -> None:
     p = sub.add_parser("demo", help="embedded default: a walking capsule humanoid and the paper's Figure 3 box")
     p.add_argument("--out", default="out", help="output directory (default: out)")
     p.add_argument("--frames", type=int, default=60, help="walk frames (default 60)")
-    p.add_argument("--repeat", type=int, default=50, help="box poses timed per configuration (default 50)")
+    p.add_argument("--repeat", type=int, default=50,
+                   help=f"box poses timed per configuration (default 50, at most {MAX_REPEAT:,})")
+    add_budget_options(p)
     p.set_defaults(func=run, flags=FLAGS)
+
+
+#: most timed box poses per configuration (a run of the default takes well under a second)
+MAX_REPEAT = 10_000
 
 
 def run(args) -> None:
@@ -33,18 +40,30 @@ def run(args) -> None:
     before/after PNGs."""
     if args.frames < 1 or args.repeat < 1:
         raise NrposeError("--frames and --repeat must be at least 1")
+    if args.repeat > MAX_REPEAT:
+        raise NrposeError(f"--repeat {args.repeat:,}: at most {MAX_REPEAT:,} timed poses per configuration")
     out = Path(args.out)
+    check_budget(args, args.frames, 0.0, str(out / "walk.glb"))     # the frames, before their numbers
+    made = next((p for p in reversed([out, *out.parents]) if not p.exists()), None)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"device: {device_text()}")
-    walk(out, args.frames)
-    figure3_box(out, args.repeat)
+    try:
+        print(f"device: {device_text()}")
+        walk(out, args.frames, args)
+        figure3_box(out, args.repeat)
+    except BaseException:
+        if made is not None:       # a failed run leaves no folder it made
+            shutil.rmtree(made, ignore_errors=True)
+        raise
 
 
-def walk(out: Path, n_frames: int) -> None:
-    """The capsule humanoid's walk clip posed with NR-MLS and authored weights."""
+def walk(out: Path, n_frames: int, budget) -> None:
+    """The capsule humanoid's walk clip posed with NR-MLS and authored weights (``budget``: the
+    run's --max-frames / --max-output-values, checked before posing)."""
     t0 = time.perf_counter()
     character = humanoid()
     build_ms = 1e3 * (time.perf_counter() - t0)
+    vertices = sum(len(m.vertices) for m in character.meshes)
+    check_budget(budget, n_frames, output_values(n_frames, vertices, "glb"), str(out / "walk.glb"))
     clip = character.clip("walk")
     times = np.linspace(0.0, clip.duration, n_frames)
     poser = CharacterPoser(character, method="nrmls", weights="authored")

@@ -17,7 +17,8 @@ from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..pose.poser import METHODS, WEIGHTS, CharacterPoser
 from ..render.sheet import save_contact_sheet
-from .common import add_budget_options, check_budget, check_outputs, frames_output_kind, progress, write_frames
+from .common import (add_budget_options, check_budget, check_outputs, frames_output_kind, output_values, progress,
+                     write_frames)
 
 #: library argument name -> the flag users type
 FLAGS = {"method": "--method", "weights": "--weights", "alpha": "--alpha", "blend": "--blend",
@@ -132,8 +133,7 @@ def run(args) -> None:
     local, times, name = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
                                     time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     vertices = sum(len(m.vertices) for m in character.meshes)
-    check_budget(args, len(times), 3.0 * len(times) * vertices + (len(times) ** 2 if kind == "glb" else 0),
-                 args.output)
+    check_budget(args, len(times), output_values(len(times), vertices, kind), args.output)
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
     frames = posed_frames(poser, local, progress)

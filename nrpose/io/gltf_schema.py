@@ -276,7 +276,7 @@ def _node(f: _Fields, n: dict, field: str):
 def _meshes(f: _Fields, root: dict) -> list:
     out = []
     for m, mesh in enumerate(f.objects(root, "meshes", "meshes")):
-        prims = []
+        prims, seen = [], {}
         for p, prim in enumerate(f.objects(mesh, "primitives", f"meshes[{m}].primitives", required=True)):
             field = f"meshes[{m}].primitives[{p}]"
             attrs = f.obj(prim, "attributes", f"{field}.attributes", required=True)
@@ -288,6 +288,13 @@ def _meshes(f: _Fields, root: dict) -> list:
             prims.append(SimpleNamespace(attributes=attributes,
                                          indices=f.index(prim, "indices", f"{field}.indices", "accessors"),
                                          mode=f.enum(prim, "mode", f"{field}.mode", MODES, default=4)))
+            # the same geometry twice draws nothing new; 10,000 copies of it made a character
+            # of 10,000 meshes from a few kilobytes
+            key = (tuple(sorted(vars(attributes).items())), prims[-1].indices, prims[-1].mode)
+            if key in seen:
+                raise FileFormatError(f"{f.where}: {field} repeats meshes[{m}].primitives[{seen[key]}] (the "
+                                      "same attributes, indices and mode)")
+            seen[key] = p
         out.append(SimpleNamespace(name=f.string(mesh, "name", f"meshes[{m}].name"), primitives=prims))
     return out
 
@@ -296,7 +303,8 @@ def _skins(f: _Fields, root: dict) -> list:
     out = []
     for s, skin in enumerate(f.objects(root, "skins", "skins")):
         field = f"skins[{s}]"
-        for k, v in enumerate(skin.get("joints") or []):
+        joints = skin.get("joints")
+        for k, v in enumerate(joints if isinstance(joints, list) else []):   # f.indices names other types
             if type(v) is int and not 0 <= v < f.sizes["nodes"]:
                 raise FileFormatError(f"{f.where}: {field}.joints[{k}] = {v}: skin {s} lists node {v}, "
                                       f"which does not exist ({f.sizes['nodes']} nodes)")

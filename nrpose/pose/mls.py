@@ -43,6 +43,9 @@ MAX_BLOCK_POINTS = 4096
 BOUND_CONSTANTS = ("np", "nsegs", "block", "pose_stride", "frame_stride", "paper", "npairs")
 BOUND_ARRAYS = ("frec", "irec", "len2", "pairs", "fit", "tree")
 BOUND_ALIGN = 128       # bytes: each array's offset a multiple (float8 rows are read 32-byte aligned)
+#: most segment handles a deformer binds: the quaternion blend's sign tree and the OpenCL
+#: kernel's per-frame rotation tables grow as segments² (2,048: 67 MB a frame)
+MAX_SEGMENTS = 2048
 #: index of ``nrmls_pose``'s ``handed`` argument (Deformer._pose_args)
 ARG_HANDED = 3
 
@@ -110,6 +113,9 @@ class Deformer(device.BoundKernel):
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
                  backend: str = "opencl", t=None, layout: dict | None = None):
         self.lever = lever
+        if len(rest.segments) > MAX_SEGMENTS:
+            raise InputError(f"{len(rest.segments):,} segment handles: at most {MAX_SEGMENTS:,} (the per-frame "
+                             "rotation tables grow as segments squared)")
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         blend = default_blend(rest) if blend is None else blend

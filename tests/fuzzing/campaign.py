@@ -17,20 +17,20 @@ import time
 from pathlib import Path
 
 from .cases import make_case
-from .runner import Collector, Outcome, Runner
+from .runner import GOOD, Collector, Outcome, Runner
 from .seeds import make_seeds, shared_seeds
 
 __all__ = ["run"]
 
 
-def _worker(seed: int, start: int, step: int, count: int, deadline: float, use_shared: bool, q) -> None:
+def _worker(seed: int, start: int, step: int, count: int, deadline: float, use_shared: bool, commands, q) -> None:
     seeds, shared = make_seeds(), (shared_seeds() if use_shared else {})
     runner = Runner()
     try:
         for i in range(start, count, step):
             if time.time() > deadline:
                 break
-            case = make_case(seed, i, seeds, shared)
+            case = make_case(seed, i, seeds, shared, commands)
             outcome, casedir = runner.run(case)
             q.put(outcome)
             if casedir.exists():
@@ -43,14 +43,16 @@ def _worker(seed: int, start: int, step: int, count: int, deadline: float, use_s
 
 def run(seed: int = 0, count: int = 1000, workers: int = 1, minutes: float | None = None,
         repro_dir: str | Path | None = None, out: str | Path | None = None, use_shared: bool = False,
-        progress=None) -> dict:
-    """Run up to ``count`` cases (or until ``minutes`` pass); the summary dict."""
+        progress=None, commands: dict[str, float] | None = None) -> dict:
+    """Run up to ``count`` cases (or until ``minutes`` pass); the summary dict. ``commands``:
+    the share of each command (default :data:`tests.fuzzing.cases.COMMANDS`)."""
     deadline = time.time() + 60 * minutes if minutes else float("inf")
     seeds, shared = make_seeds(), (shared_seeds() if use_shared else {})
     collector = Collector(repro_dir)
     ctx = mp.get_context("fork")
     q = ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=(seed, w, workers, count, deadline, use_shared, q), daemon=True)
+    # not daemons: a case's child (forked from a worker) may start processes of its own (bake's pool)
+    procs = [ctx.Process(target=_worker, args=(seed, w, workers, count, deadline, use_shared, commands, q))
              for w in range(workers)]
     t0 = time.time()
     for p in procs:
@@ -66,7 +68,7 @@ def run(seed: int = 0, count: int = 1000, workers: int = 1, minutes: float | Non
         if o is None:
             alive -= 1
             continue
-        case = make_case(seed, o.index, seeds, shared) if o.outcome not in ("accepted", "rejected") else None
+        case = make_case(seed, o.index, seeds, shared, commands) if o.outcome not in GOOD else None
         collector.add(o, case)
         if progress:
             progress(collector, o)

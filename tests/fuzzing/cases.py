@@ -9,11 +9,12 @@ template, input kind mutated and the mutation. :func:`make_case` is deterministi
 """
 from __future__ import annotations
 
+import json
 import random
 from dataclasses import dataclass, field
 
 from .mutators import BAD_VALUES, PATH_KINDS, mutate_file
-from .seeds import CLIP, Seed
+from .seeds import BAKE_INPUTS, CLIP, Seed, jobs_document, manifest_document
 
 __all__ = ["Case", "make_case", "COMMANDS"]
 
@@ -21,8 +22,19 @@ GLTF = ["glb", "gltf_embedded", "gltf_external"]
 MESHES = ["obj", "off", "ply_ascii", "ply_binary", "stl_ascii", "stl_binary"]
 MESH_OUT = [".obj", ".ply", ".off", ".stl", ".xyz"]
 #: options whose value is a path (an input or an output)
-PATH_FLAGS = {"-H", "-o", "--png", "--skeleton", "--motion", "--pose", "--map"}
-COMMANDS = {"deform": 0.25, "pose": 0.3, "weights": 0.15, "retarget": 0.2, "info": 0.1}
+PATH_FLAGS = {"-H", "-o", "--png", "--skeleton", "--motion", "--pose", "--map", "--summary", "--report", "--out"}
+#: the share of cases of each command (bake, fit-skin and demo take seconds a case, the others well under one)
+COMMANDS = {"deform": 0.23, "pose": 0.27, "weights": 0.13, "retarget": 0.18, "info": 0.09, "bake": 0.05,
+            "fit-skin": 0.04, "demo": 0.01}
+#: options a case may get added with a bad value, by command (and for every command)
+ADDED_FLAGS = {"*": ["--fps", "--alpha", "--time", "--frames", "--k", "--bone", "--clip", "--source-clip", "--png",
+                     "--method", "--weights", "--format"],
+               "bake": ["--workers", "--summary", "--ray"],
+               "fit-skin": ["--rom-degrees", "--influences", "--helpers", "--train", "--holdout", "--export",
+                            "--report"],
+               "demo": ["--frames", "--repeat", "--out"]}
+#: the kind of a file a seed refers to (mutated as that kind), by name
+EXTRA_KINDS = dict(BAKE_INPUTS, **{"body.bin": "bin"})
 
 
 @dataclass
@@ -46,8 +58,9 @@ class _Builder:
         self.rng, self.seeds, self.shared = rng, seeds, shared
         self.slots: dict[str, tuple[str, Seed]] = {}   # slot -> (relative path, seed)
 
-    def file(self, slot: str, kind: str) -> str:
-        seed = self.seeds[kind]
+    def file(self, slot: str, kind: str, seed: Seed | None = None) -> str:
+        """The path of a seed of ``kind`` (or ``seed`` itself) in the folder of ``slot``."""
+        seed = seed or self.seeds[kind]
         if kind in self.shared and self.rng.random() < 0.1:
             seed = self.shared[kind]
         path = f"in/{slot}/{seed.name}"
@@ -139,7 +152,50 @@ def _info(b: _Builder) -> tuple[str, list]:
     return f"info-mesh-{sk}", ["info", b.file("character", r.choice(MESHES)), "--skeleton", b.file("skeleton", sk)]
 
 
-TEMPLATES = {"deform": _deform, "pose": _pose, "weights": _weights, "retarget": _retarget, "info": _info}
+def _bake(b: _Builder) -> tuple[str, list]:
+    """A JOBS file of 1-4 seed jobs next to the files they read, one local worker; sometimes an
+    OUTDIR with the manifest of an earlier run (``--resume``)."""
+    r = b.rng
+    doc = jobs_document(r)
+    extra = {name: b.seeds[kind].data for name, kind in BAKE_INPUTS.items()}
+    jobs = b.file("jobs", "jobs_json", Seed("jobs.json", "jobs_json", json.dumps(doc, indent=1).encode(), extra))
+    out, name = "out/bake", "bake"
+    if r.random() < 0.25:
+        outputs = [j["output"] for j in doc["jobs"] if r.random() < 0.5] + ["gone.npz"]
+        out = b.file("prev", "manifest", Seed("manifest.json", "manifest",
+                                              json.dumps(manifest_document(outputs), indent=1).encode()))
+        out, name = out.rsplit("/", 1)[0], "bake-resume"
+    argv = ["bake", jobs, "-o", out, "--workers", "1", *b.maybe(0.4, "--summary", "out/summary.json"),
+            *b.maybe(0.5 if name == "bake-resume" else 0.1, "--resume")]
+    return name, argv
+
+
+def _fit_skin(b: _Builder) -> tuple[str, list]:
+    """The seed glTF (74 vertices, 7 joints) fitted to a few training motions at a low --fps."""
+    r = b.rng
+    train = r.choice([[CLIP], [CLIP], ["bvh"], ["pose_json"], ["glb"], [CLIP, "bvh", "pose_json"]])
+    specs = [t if t == CLIP else b.file(f"train{i}", t) for i, t in enumerate(train)]
+    argv = ["fit-skin", b.file("character", r.choice(GLTF)), "--train", *specs, "-o", "out/f.glb",
+            "--fps", r.choice(["5", "3"]), *b.maybe(0.7, "--rom-degrees", r.choice(["0", "10", "30", "90"])),
+            *b.maybe(0.3, "--report", "out/r.json")]
+    if r.random() < 0.2:
+        argv += ["--holdout", CLIP if r.random() < 0.5 else b.file("holdout", "bvh")]
+    if r.random() < 0.15:
+        argv += ["--export", b.file("export", "bvh")]
+    argv += [*b.maybe(0.2, "--influences", "8"),
+             *b.maybe(0.2, "--weights", r.choice(["euclidean", "graph"])), *b.maybe(0.1, "--alpha", "2")]
+    return f"fit-skin-{'+'.join(train)}", argv
+
+
+def _demo(b: _Builder) -> tuple[str, list]:
+    """Two walk frames and one timed pose of each box configuration (options only)."""
+    r = b.rng
+    return "demo", ["demo", "--out", r.choice(["out/d", "out/d/e"]), "--frames", r.choice(["1", "2", "3"]),
+                    "--repeat", "1"]
+
+
+TEMPLATES = {"deform": _deform, "pose": _pose, "weights": _weights, "retarget": _retarget, "info": _info,
+             "bake": _bake, "fit-skin": _fit_skin, "demo": _demo}
 
 
 def _mutate_option(case: Case, rng: random.Random) -> None:
@@ -149,8 +205,7 @@ def _mutate_option(case: Case, rng: random.Random) -> None:
     positional = [i for i, a in enumerate(argv[1:], 1) if a.startswith("in/") and not argv[i - 1].startswith("-")]
     choice = rng.random()
     if choice < 0.15:   # an option added with a bad value
-        flag = rng.choice(["--fps", "--alpha", "--time", "--frames", "--k", "--bone", "--clip", "--source-clip",
-                           "--png", "--method", "--weights", "--format"])
+        flag = rng.choice(ADDED_FLAGS["*"] + ADDED_FLAGS.get(case.command, []))
         value = rng.choice(BAD_VALUES)
         argv += [flag, value]
         case.mutation = f"add {flag} {value[:20]!r}"
@@ -179,10 +234,13 @@ def _mutate_option(case: Case, rng: random.Random) -> None:
         case.mutation = f"{argv[i]} {value[:20]!r}"
 
 
-def make_case(seed: int, index: int, seeds: dict[str, Seed], shared: dict[str, Seed] | None = None) -> Case:
-    """Case ``index`` of the run ``seed`` (deterministic)."""
+def make_case(seed: int, index: int, seeds: dict[str, Seed], shared: dict[str, Seed] | None = None,
+              commands: dict[str, float] | None = None) -> Case:
+    """Case ``index`` of the run ``seed`` (deterministic); ``commands``: the share of each
+    command (default :data:`COMMANDS`)."""
     rng = random.Random(f"{seed}:{index}")
-    command = rng.choices(list(COMMANDS), weights=list(COMMANDS.values()))[0]
+    commands = commands or COMMANDS
+    command = rng.choices(list(commands), weights=list(commands.values()))[0]
     b = _Builder(rng, seeds, shared or {})
     template, argv = TEMPLATES[command](b)
     case = Case(index, command, template, argv)
@@ -193,7 +251,7 @@ def make_case(seed: int, index: int, seeds: dict[str, Seed], shared: dict[str, S
     r = rng.random()
     if r < 0.04:
         case.input_kind, case.mutation = "seed", "none"
-    elif r < 0.26:
+    elif r < 0.26 or not b.slots:
         case.input_kind = "option"
         _mutate_option(case, rng)
     elif r < 0.28:
@@ -201,7 +259,8 @@ def make_case(seed: int, index: int, seeds: dict[str, Seed], shared: dict[str, S
     else:
         slot = rng.choice(sorted(b.slots))
         path, seed_ = b.slots[slot]
-        targets = [(path, seed_.kind)] + [(path.rsplit("/", 1)[0] + "/" + n, "bin") for n in seed_.extra]
+        targets = [(path, seed_.kind)] + [(path.rsplit("/", 1)[0] + "/" + n, EXTRA_KINDS.get(n, "bin"))
+                                          for n in seed_.extra]
         target, kind = rng.choice(targets) if rng.random() < 0.3 else targets[0]
         data, what = mutate_file(case.files[target], kind, rng)
         if rng.random() < 0.15:

@@ -13,9 +13,9 @@ import sys
 import numpy as np
 
 from .cases import Case
-from .seeds import Seed, glb_bytes, gltf_document, make_seeds
+from .seeds import BAKE_INPUTS, Seed, glb_bytes, gltf_document, make_seeds
 
-__all__ = ["known_cases", "MUST_REJECT"]
+__all__ = ["known_cases", "bake_files", "MUST_REJECT"]
 
 #: cases whose exit 0 is itself the defect (the input is invalid)
 MUST_REJECT = {"pose --alpha nan (authored)", "pose --alpha -1 (authored)", "glTF index as a string",
@@ -176,10 +176,75 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
         "heat weights on the STL seed": _case("heat-stl", ["deform", "in/m/body.stl", "-H", "in/h/handles.json",
                                                            "-o", "out/o.ply", "--weights", "heat"],
                                               {"in/m/body.stl": S["stl_binary"].data, "in/h/handles.json": handles}),
+        "handles with 20,000 segments (opencl)": _case("segments-20000", deform + ["--backend", "opencl"],
+                                                       {"in/m/body.obj": obj, "in/h/handles.json": json.dumps(
+                                                           dict(json.loads(handles), segments=json.loads(handles)[
+                                                               "segments"] * 10000)).encode()}),
+        "exact weights, an edge in three faces": _case("exact-nonmanifold", deform + ["--weights", "exact"],
+                                                       {"in/m/body.obj": (obj.decode() + _fin(
+                                                            faces[0], obj.count(b"\nv ") + 1)).encode(),
+                                                        "in/h/handles.json": handles}),
+        "exact weights, a sliver triangle": _case("exact-sliver", deform + ["--weights", "exact"],
+                                                  {"in/m/body.obj": _sliver(obj), "in/h/handles.json": handles}),
+        "exact weights on a mesh x1e-30": _case("exact-tiny", deform + ["--weights", "exact"],
+                                                {"in/m/body.obj": scaled(obj, 1e-30), "in/h/handles.json": handles}),
+        "glTF primitives repeated 10000 times": _case("primitives-x10000", ["pose", "in/c/body.glb", "--rest",
+                                                                             "--weights", "heat", "-o", "out/o.glb"],
+                                                      _gltf(lambda d: d["meshes"][0].update(
+                                                          primitives=d["meshes"][0]["primitives"] * 10000))),
+        "glTF skin joints a number": _case("skin-joints-number", retarget, {"in/s/rig.bvh": bvh,
+                                           **_gltf(_set(("skins", 0, "joints"), 1.5))}),
+        "bake JOBS file a FIFO": _case("bake-fifo", ["bake", "out/jobs.json", "-o", "out/bake", "--workers", "1"],
+                                       {}, specials={"out/jobs.json": "fifo"}),
+        "bake job of 100,001 frames": _case("bake-fps-1e5", ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers",
+                                                             "1"], bake_files(S, {"fps": 100000})),
+        "bake with a full disk": _case("bake-full-disk", ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers", "1"],
+                                       bake_files(S, {}), fsize=0),
+        "bake JOBS file nested 3000 deep": _case("bake-deep", ["bake", "in/j/jobs.json", "-o", "out/bake"],
+                                                 {"in/j/jobs.json": ('{"jobs": ' + deep(3000) + "}").encode()}),
+        "bake job time of 400 digits": _case("bake-time-400", ["bake", "in/j/jobs.json", "-o", "out/bake"],
+                                             bake_files(S, {"time": [0, int("9" * 400)]})),
+        "bake --resume, a manifest nested 100000 deep": _case(
+            "bake-deep-manifest", ["bake", "in/j/jobs.json", "-o", "in/j", "--workers", "1", "--resume"],
+            dict(bake_files(S, {}), **{"in/j/manifest.json": ('{"outputs": ' + deep(100000) + "}").encode()})),
+        "bake --resume, a manifest entry a number": _case(
+            "bake-manifest-entry", ["bake", "in/j/jobs.json", "-o", "in/j", "--workers", "1", "--resume"],
+            dict(bake_files(S, {}), **{"in/j/manifest.json": b'{"outputs": {"a.npz": 1}}'})),
+        "demo --frames of 400 digits": _case("demo-frames-400", ["demo", "--out", "out/d", "--frames", "9" * 400], {}),
+        "demo --repeat 100000": _case("demo-repeat", ["demo", "--out", "out/d", "--frames", "1", "--repeat",
+                                                      "100000"], {}),
+        "demo --frames 20000": _case("demo-frames", ["demo", "--out", "out/d", "--frames", "20000"], {}),
         "info | head (broken pipe)": _case("broken-pipe", ["info", "in/c/body.glb"], {"in/c/body.glb": glb},
                                            broken_pipe=True),
     }
     return c
+
+
+def _fin(face: str, vertices: int) -> str:
+    """An OBJ face line on the first edge of ``face`` and the last vertex (that edge then in three faces)."""
+    a, b, _ = face.split()[1:]
+    return f"f {a} {b} {vertices}\n"
+
+
+def _sliver(obj: bytes) -> bytes:
+    """The OBJ with the first vertex of its first face moved next to the middle of that face's other
+    two vertices (a sliver triangle, its height 1e-14 of its longest edge)."""
+    lines = obj.decode().splitlines()
+    verts = [i for i, ln in enumerate(lines) if ln.startswith("v ")]
+    a, b, c = (int(t) - 1 for t in next(ln for ln in lines if ln.startswith("f ")).split()[1:])
+    pb, pc = (np.array(lines[verts[k]].split()[1:], float) for k in (b, c))
+    mid = (pb + pc) / 2 + 1e-14 * np.linalg.norm(pc - pb) * np.array([0.6, 0.0, 0.8])
+    lines[verts[a]] = "v " + " ".join(repr(float(x)) for x in mid)
+    return ("\n".join(lines) + "\n").encode()
+
+
+def bake_files(S, defaults: dict, jobs: list | None = None) -> dict:
+    """A JOBS file at ``in/j/jobs.json`` (``jobs``, default two jobs writing .npz and .glb of the
+    seed clip, over the seed defaults updated with ``defaults``) and the seed files jobs read."""
+    jobs = jobs or [{"clip": "bend", "output": "a.npz"}, {"clip": "bend", "output": "b.glb"}]
+    doc = {"defaults": dict({"character": "body.glb", "fps": 5, "backend": "numpy"}, **defaults), "jobs": jobs}
+    return {"in/j/jobs.json": json.dumps(doc).encode(),
+            **{f"in/j/{name}": S[kind].data for name, kind in BAKE_INPUTS.items()}}
 
 
 def _doc_with(path, value) -> dict:

@@ -15,7 +15,10 @@ description (e.g. ``"number->1e308 @line 3"``) goes into reproducers.
   with correct chunk lengths): values of the wrong type, null, extreme numbers,
   ``Infinity``, missing and extra keys, lists emptied or repeated, nesting 100 to
   100,000 levels deep; for glTF also node cycles and odd buffer URIs;
-* BVH structure: a hierarchy nested thousands of joints deep.
+* BVH structure: a hierarchy nested thousands of joints deep;
+* bake JOBS files (:func:`mutate_jobs`): a job key set to a value chosen for that key (paths
+  outside the folder or of the wrong kind, outputs that collide or leave OUTDIR, huge frame
+  counts and numbers, two motion keys or none), jobs repeated.
 
 Option mutations: :data:`BAD_VALUES` for numbers and names, :data:`PATH_KINDS` for paths
 (a directory, a FIFO, a read-only folder, a missing folder, an empty string, a name of
@@ -47,7 +50,7 @@ BAD_VALUES = ["", " ", "nan", "NaN", "inf", "-inf", "-1", "0", "-0", "1e308", "1
 PATH_KINDS = ["dir", "fifo", "readonly", "missing_dir", "empty", "long", "newline", "under_file",
               "existing_input", "dotdot"]
 
-JSON_KINDS = {"handles", "pose_json", "map_json", "gltf_embedded", "gltf_external"}
+JSON_KINDS = {"handles", "pose_json", "map_json", "gltf_embedded", "gltf_external", "jobs_json", "manifest"}
 TEXT_KINDS = {"obj", "off", "ply_ascii", "stl_ascii", "xyz", "tgf", "dmat_ascii", "bvh"} | JSON_KINDS
 NUMBER = re.compile(rb"-?\d+(?:\.\d*)?(?:[eE][-+]?\d+)?")
 SPECIAL_BYTES = [b"\0", b"\xff", b"\n", b"\r", b"\xef\xbb\xbf", b"\xc3\x28", b"#", b"{", b"}", b"[", b"\"",
@@ -183,7 +186,7 @@ TEXT_MUTATORS = [replace_number, replace_number, replace_number, replace_word, l
 def tamper_header(data: bytes, kind: str, rng: random.Random) -> tuple[bytes, str]:
     """A number of the file's header (its counts and sizes) becomes an extreme."""
     if kind == "stl_binary" and len(data) >= 84:
-        n = rng.choice([0, 1, 2 ** 31, 2 ** 32 - 1, 2 ** 28, struct.unpack_from("<I", data, 80)[0] + 1])
+        n = rng.choice([0, 1, 2 ** 31, 2 ** 32 - 1, 2 ** 28, (struct.unpack_from("<I", data, 80)[0] + 1) % 2 ** 32])
         return data[:80] + struct.pack("<I", n) + data[84:], f"STL triangle count {n}"
     if kind == "glb" and len(data) >= 20:
         field = rng.choice([8, 12])
@@ -325,6 +328,9 @@ def mutate_json(data: bytes, kind: str, rng: random.Random) -> tuple[bytes, str]
         doc = json.loads(data)
     except (ValueError, RecursionError):
         return rng.choice(TEXT_MUTATORS)(data, rng)
+    if kind == "jobs_json" and rng.random() < 0.6:
+        new, what = mutate_jobs(doc, rng)
+        return json.dumps(new, allow_nan=True).encode(), "jobs: " + what
     new, what, depth = mutate_json_doc(doc, kind, rng)
     return json_text(new, depth).encode(), "json: " + what
 
@@ -358,6 +364,65 @@ def deep_bvh(rng: random.Random) -> tuple[bytes, str]:
     tail = ["End Site", "{", "OFFSET 0 0.01 0", "}"] + ["}"] * (depth + 1)
     motion = ["MOTION", "Frames: 1", "Frame Time: 0.1", " ".join(["0"] * (6 + 3 * depth))]
     return "\n".join(head + body + tail + motion).encode(), f"BVH nested {depth} joints deep"
+
+
+# --------------------------------------------------------------------------- bake JOBS files
+
+#: values a job key may get, by key (the other keys of :data:`JOB_VALUES` and WRONG_VALUES too)
+JOB_VALUES = {
+    "output": ["../x.npz", "/tmp/nrpose-fuzz-abs.npz", "manifest.json", ".bake-tmp/x.npz", "A/BEND.NPZ", "a",
+               "a/bend.npz/x.npz", "b.glb/x", "", ".", "x.txt", "x.NPZ", "a\nb.npz", "a" * 300 + ".npz",
+               "dir/", "c/frames/frame_0000.ply", "./rest.npz", "a//bend.npz", "é.npz", "nul\u0000.npz"],
+    "character": ["missing.glb", "/dev/null", ".", "rig.bvh", "pose.json", "jobs.json", "body.obj", "../jobs/body.glb",
+                  "/", "map.json"],
+    "skeleton": ["rig.bvh", "rig.tgf", "body.glb", "missing.tgf", "pose.json"],
+    "clip": ["nope", "", "bend ", "BEND", "a" * 5000],
+    "motion": ["rig.bvh", "pose.dmat", "pose.json", "body.glb", "missing.bvh", "jobs.json"],
+    "pose": ["pose.json", "pose.dmat", "rig.bvh", "map.json", "missing.json"],
+    "rest": [True, False, 1, "true"],
+    "retarget": [{"source": "rig.bvh"}, {"source": "body.glb"}, {"source": "rig.bvh", "in_place": True, "root": "keep"},
+                 {"source": "rig.bvh", "map": "pose.json"}, {"source": "rig.bvh", "source_clip": "nope"},
+                 {"source": "rig.tgf"}, {"source": "rig.bvh", "root": "in-place", "force": True}, {}, "rig.bvh"],
+    "time": [1e308, -1, [0, 1e308], [], [0.5, 0.1], list(range(0, 20000)), [float("nan")], 1e6, 1e-300],
+    "frames": ["0:100000000", "0:3:0", "5:1", "0:2:1:1", "-1:2", "0:999999", "0:20000", "a:b", "0:" + "9" * 400],
+    "fps": [1e5, 1e6, 1e308, 0, -5, 1e-300, 2000, 10 ** 400, True],
+    "method": ["cor", "nrmls", "x", None],
+    "weights": ["heat", "exact", "authored", "x"],
+    "alpha": [0, -1, 1e308, 50, float("nan")],
+    "blend": ["paper", "relative", "x"],
+    "backend": ["opencl", "cuda"],
+    "format": ["obj", "stl", None],
+    "quantize": [True, 1],
+}
+
+
+def mutate_jobs(doc, rng: random.Random) -> tuple[object, str]:
+    """A bake JOBS document with one job (or the defaults) changed as a bake user might get it
+    wrong (:data:`JOB_VALUES`), or its jobs repeated / made to collide."""
+    doc = json.loads(json.dumps(doc))
+    jobs = doc.get("jobs") if isinstance(doc, dict) else None
+    if not isinstance(jobs, list) or not jobs:
+        return doc, "jobs: unchanged (no jobs)"
+    op = rng.random()
+    if op < 0.1:
+        times = rng.choice([2, 50, 5000])
+        doc["jobs"] = jobs * times
+        return doc, f"jobs repeated x{times}"
+    if op < 0.2:
+        i = rng.randrange(len(jobs))
+        job = dict(jobs[i]) if isinstance(jobs[i], dict) else {}
+        first = str(jobs[0].get("output", "x")) if isinstance(jobs[0], dict) else "x"
+        job["output"] = rng.choice([first, first.upper(), first + "/inner.npz"])
+        jobs.append(job)
+        return doc, f"jobs[{len(jobs) - 1}]: a copy of jobs[{i}] writing {str(job['output'])[:40]!r}"
+    target = doc.setdefault("defaults", {}) if op < 0.3 else rng.choice(jobs)
+    where = "defaults" if op < 0.3 else f"jobs[{jobs.index(target)}]"
+    if not isinstance(target, dict):
+        return doc, f"{where}: unchanged (not an object)"
+    key = rng.choice(list(JOB_VALUES))
+    value = rng.choice(JOB_VALUES[key] + [rng.choice(WRONG_VALUES)])
+    target[key] = value
+    return doc, f"{where}/{key} = {str(value)[:40]}"
 
 
 # --------------------------------------------------------------------------- dispatch

@@ -1,4 +1,5 @@
-"""Markdown list of the distinct defects of a fuzz summary, grouped by root cause.
+"""Markdown report of a fuzz summary: the totals by command and input kind
+(:func:`totals_table`) and the distinct defects, grouped by root cause.
 
     python -m tests.fuzzing.report SUMMARY.json > DEFECTS.md
 
@@ -14,7 +15,7 @@ import json
 import re
 import sys
 
-__all__ = ["root_cause", "markdown", "normalise", "NEW_HOME"]
+__all__ = ["root_cause", "markdown", "normalise", "totals_table", "NEW_HOME"]
 
 ROOTS = {
     "nesting": "Nesting / recursion (one bounded, iterative reader for nested structures)",
@@ -94,6 +95,37 @@ def _home(frame: str) -> str:
     return NEW_HOME.get(path, path) + (":" + frame.split(":")[-1] if ":" in frame else "")
 
 
+def totals_table(summary: dict) -> str:
+    """Markdown table of the cases by command and input kind: cases, accepted, rejected,
+    partial (a bake's accounted exit 1), then one column per contract violation class that
+    occurred, a total row per command and one for the run."""
+    from .runner import CLASSES, GOOD
+
+    totals = summary["totals"]
+    seen = {k for kinds in totals.values() for outcomes in kinds.values() for k in outcomes}
+    columns = [c for c in GOOD if c in seen or c != "partial"] + [c for c in CLASSES if c in seen]
+    out = ["| command | input kind | cases | " + " | ".join(columns) + " |",
+           "|---|---|---:|" + "---:|" * len(columns)]
+
+    def row(cmd, kind, counts, bold=False):
+        cells = [f"{sum(counts.values()):,}"] + [f"{counts.get(c, 0):,}" for c in columns]
+        if bold:
+            cells = [f"**{c}**" for c in cells]
+        out.append(f"| {cmd} | {kind} | " + " | ".join(cells) + " |")
+
+    grand: dict = {}
+    for cmd in sorted(totals):
+        sub: dict = {}
+        for kind in sorted(totals[cmd]):
+            row(cmd, kind, totals[cmd][kind])
+            for k, n in totals[cmd][kind].items():
+                sub[k] = sub.get(k, 0) + n
+                grand[k] = grand.get(k, 0) + n
+        row(cmd, "all", sub, bold=True)
+    row("all", "all", grand, bold=True)
+    return "\n".join(out)
+
+
 def markdown(summary: dict) -> str:
     out = [f"Fuzz run: {summary['cases']:,} cases, seed {summary.get('seed')}, "
            f"{summary.get('elapsed_s', 0):.0f} s, {summary.get('cases_per_s', 0)} cases/s; "
@@ -102,7 +134,7 @@ def markdown(summary: dict) -> str:
     out.append("|---|---:|")
     for k, v in sorted(summary.get("by_outcome", {}).items(), key=lambda kv: -kv[1]):
         out.append(f"| {k} | {v:,} |")
-    out.append("")
+    out += ["", totals_table(summary), ""]
     groups: dict = {}
     for d in summary["defects"]:
         groups.setdefault(root_cause(d), []).append(d)

@@ -15,7 +15,12 @@ The contract (``CLASSES`` are the ways to break it):
   no temporary file left. An option given as nan/inf is never valid: exit 0 with one is
   ``bad-option-accepted``;
 * or exit 2 with exactly one line on stderr and the case's directory exactly as before
-  (no new, removed or changed file or folder).
+  (no new, removed or changed file or folder);
+* ``bake`` also may exit 1 (some jobs failed, the others done): then its stderr is one
+  ``nrpose: bake: jobs[I] (OUTPUT): ...`` line per failed job, and the manifest, the
+  ``--summary`` and the final stdout line agree with them (done outputs listed and valid,
+  failed ones not listed). A job that fails with the worker's "internal error" is a
+  ``traceback``, one whose error says "please report" is ``nonfinite``.
 
 :func:`run_case` returns an :class:`Outcome`; :class:`Collector` counts outcomes,
 de-duplicates violations by (command, class, where) and saves one reproducer per
@@ -53,8 +58,8 @@ CAPTURE_LIMIT = 1 << 20
 #: contract violations, in the order a case's primary class is chosen
 CLASSES = ("crash", "hang", "memory", "traceback", "invalid-output", "bad-option-accepted", "leftover",
            "broken-pipe", "nonfinite", "multiline-stderr", "bad-exit")
-#: outcomes that keep the contract
-GOOD = ("accepted", "rejected")
+#: outcomes that keep the contract (``partial``: a bake's exit 1, some jobs failed, accounted for)
+GOOD = ("accepted", "rejected", "partial")
 
 
 @dataclass
@@ -171,7 +176,9 @@ def _writable(p: Path) -> None:
 # --------------------------------------------------------------------------- output validation
 
 def _value(argv, flag):
-    return argv[argv.index(flag) + 1] if flag in argv and argv.index(flag) + 1 < len(argv) else None
+    """The value of ``flag``'s last occurrence (the one argparse keeps), None without one."""
+    at = [i for i, a in enumerate(argv[:-1]) if a == flag]
+    return argv[at[-1] + 1] if at else None
 
 
 def _check_glb(path: Path, problems: list) -> None:
@@ -208,8 +215,81 @@ def _check_glb(path: Path, problems: list) -> None:
             problems.append(f"{path.name}: accessor {i} runs past its bufferView")
 
 
-def validate(argv: list) -> list[str]:
-    """Problems with the outputs of a run that exited 0 (empty when all are valid)."""
+def _report_json(path, problems: list) -> None:
+    """A JSON report (fit-skin --report, bake --summary): parses with finite numbers only."""
+    def constant(name):
+        raise ValueError(f"non-finite number {name}")
+    try:
+        json.loads(Path(path).read_text(), parse_constant=constant)
+    except (OSError, ValueError) as exc:
+        problems.append(f"{path}: not a valid report ({type(exc).__name__}: {str(exc)[:200]})")
+
+
+def _validate_bake(argv: list, code: int, stdout: str, stderr: str, problems: list, read_output) -> None:
+    """The outputs of a bake that exited 0 or 1 (module docstring)."""
+    from nrpose.cli.bake.jobs import load_jobs
+    from nrpose.cli.bake.manifest import digest
+    from nrpose.errors import NrposeError
+
+    outdir = Path(_value(argv, "-o") or _value(argv, "--output"))
+    try:
+        jobs = load_jobs(argv[1])
+    except NrposeError as exc:
+        problems.append(f"the JOBS file of a run that exited {code} does not load ({exc})")
+        return
+    failed = [ln for ln in stderr.splitlines() if ln.startswith("nrpose: bake: jobs[")]
+    others = [ln for ln in stderr.splitlines() if ln.strip() and ln not in failed]
+    if code == 0 and (failed or len(others) > 1):
+        problems.append(f"exit 0 with {len(failed)} failed-job line(s) and {len(others)} other line(s) on stderr")
+    if code == 1 and (not failed or others):
+        problems.append(f"exit 1 with {len(failed)} failed-job line(s) and other stderr lines {others[:2]}")
+    failed_names = {ln.split("(", 1)[1].split("):", 1)[0] for ln in failed if "(" in ln}
+    m = re.search(r"^bake: (\d+) jobs \((\d+) done, (\d+) failed, (\d+) already done\)", stdout, re.M)
+    if not m:
+        problems.append("no final 'bake: N jobs (...)' line on stdout")
+    elif (int(m[1]), int(m[3])) != (len(jobs), len(failed)):
+        problems.append(f"final line {m[0]!r}: {len(jobs)} jobs and {len(failed)} failed-job lines expected")
+    try:
+        listed = json.loads((outdir / "manifest.json").read_text())["outputs"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        problems.append(f"{outdir}/manifest.json unreadable ({type(exc).__name__})")
+        return
+    for leftover in (".bake-tmp",):
+        if (outdir / leftover).exists():
+            problems.append(f"{outdir}/{leftover} left behind")
+    for job in jobs:
+        entry, out = listed.get(job.output), outdir / job.output
+        if job.output in failed_names:
+            if entry is not None and entry.get("spec") == job.spec:
+                problems.append(f"{job.output}: failed but in the manifest for these options")
+            continue
+        if not isinstance(entry, dict) or entry.get("spec") != job.spec:
+            problems.append(f"{job.output}: done but not in the manifest for these options")
+        elif not out.exists() or digest(out) != (entry["size"], entry["sha256"]):
+            problems.append(f"{job.output}: the file does not match its manifest entry")
+        else:
+            read_output(str(out), frames_output_kind(job.output))
+    summary = _value(argv, "--summary")
+    if summary:
+        try:
+            doc = json.loads(Path(summary).read_text())
+            statuses = {r["output"]: r["status"] for r in doc["records"]}
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            problems.append(f"{summary}: unreadable summary ({type(exc).__name__})")
+            return
+        bad = [o for o, st in statuses.items() if (st == "failed") != (o in failed_names)]
+        if bad or doc.get("failed") != len(failed):
+            problems.append(f"{summary}: statuses disagree with stderr on {bad[:3]} (failed {doc.get('failed')})")
+
+
+def frames_output_kind(name: str) -> str:
+    suffix = Path(name).suffix.lower()
+    return suffix[1:] if suffix in (".npz", ".glb") else "dir"
+
+
+def validate(argv: list, code: int = 0, stdout: str = "", stderr: str = "") -> list[str]:
+    """Problems with the outputs of a run that exited 0 (or a bake that exited 1; its
+    ``stdout`` and ``stderr`` so far are checked against its manifest); empty when all are valid."""
     import numpy as np
 
     problems: list[str] = []
@@ -243,7 +323,7 @@ def validate(argv: list) -> list[str]:
 
     def read_glb(p):
         _check_glb(Path(p), problems)
-        if command == "retarget":
+        if command in ("retarget", "fit-skin"):
             load_character(p)
 
     def read_png(p):
@@ -259,6 +339,18 @@ def validate(argv: list) -> list[str]:
 
     if command == "info":   # its stdout is checked by the parent
         return problems
+    if command == "bake":
+        readers = {"npz": read_npz, "glb": read_glb, "dir": read_dir}
+        _validate_bake(argv, code, stdout, stderr, problems, lambda p, kind: read(readers[kind], p))
+        return problems
+    if command == "demo":
+        d = Path(_value(argv, "--out") or "out")
+        for name, fn in (("walk.npz", read_npz), ("walk.glb", read_glb), ("walk.png", read_png),
+                         ("box_before.png", read_png), ("box_after.png", read_png), ("box_twist.ply", read_mesh)):
+            read(fn, str(d / name))
+        return problems
+    if command == "fit-skin" and _value(argv, "--report"):
+        _report_json(_value(argv, "--report"), problems)
     if out is not None:
         suffix = Path(out).suffix.lower()
         if command == "deform":
@@ -282,6 +374,26 @@ def validate(argv: list) -> list[str]:
 
 # --------------------------------------------------------------------------- one case
 
+class _Recorder:
+    """A text stream that keeps what is written to it (the first :data:`CAPTURE_LIMIT`
+    characters) and passes it on to ``stream``."""
+
+    def __init__(self, stream):
+        self.stream, self.parts, self.size = stream, [], 0
+
+    def write(self, text):
+        if self.size < CAPTURE_LIMIT:
+            self.parts.append(text)
+            self.size += len(text)
+        return self.stream.write(text)
+
+    def text(self) -> str:
+        return "".join(self.parts)
+
+    def __getattr__(self, name):
+        return getattr(self.stream, name)
+
+
 def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w_res: int) -> None:
     code = 1
     try:
@@ -295,8 +407,9 @@ def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w
             os.dup2(w_out, 1)
         os.dup2(w_err, 2)
         # the parent's sys.stdout/stderr may be a test runner's capture objects
-        sys.stdout = open(1, "w", encoding="utf-8", errors="backslashreplace", closefd=False)
-        sys.stderr = open(2, "w", encoding="utf-8", errors="backslashreplace", buffering=1, closefd=False)
+        sys.stdout = _Recorder(open(1, "w", encoding="utf-8", errors="backslashreplace", closefd=False))
+        sys.stderr = _Recorder(open(2, "w", encoding="utf-8", errors="backslashreplace", buffering=1,
+                                    closefd=False))
         os.environ.update(env)
         resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
@@ -313,8 +426,8 @@ def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w
             print("Exception ignored while flushing sys.stdout:\nBrokenPipeError: [Errno 32] Broken pipe",
                   file=sys.stderr)
             code = 120
-        if code == 0:
-            problems = validate(list(case.argv))
+        if code == 0 or (case.command == "bake" and code == 1):
+            problems = validate(list(case.argv), code, sys.stdout.text(), sys.stderr.text())
             os.write(w_res, json.dumps(problems).encode())
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else 1
@@ -429,6 +542,18 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
     elif "Broken pipe" in err:
         classes.append("broken-pipe")
         o.where = o.where or _message_head(err)
+    elif code == 1 and case.command == "bake" and "Traceback" not in err:
+        # some jobs failed: each a line of its own, the manifest and summary saying so
+        o.problems = json.loads(res) if res else ["no validation result"]
+        if "internal error" in err:
+            classes.append("traceback")
+        elif "please report" in err:
+            classes.append("nonfinite")
+        if o.problems:
+            classes.append("invalid-output")
+        line = next((ln for ln in lines if "internal error" in ln or "please report" in ln),
+                    o.problems[0] if o.problems else "")
+        o.where = _message_head(re.sub(r"^nrpose: bake: jobs\[\d+\] \(.*?\): ", "bake job: ", line))
     elif code == 1 and "Traceback" in err:
         exc_line = lines[-1] if lines else ""
         classes.append("memory" if "MemoryError" in exc_line.split(":")[0] else "traceback")
@@ -466,11 +591,12 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
     if code in (0, 2) and "Traceback" not in err and (len(lines) > 1 or (code == 2 and not lines)):
         classes.append("multiline-stderr")
         o.where = (o.where if code == 0 else "") or _message_head(err) or "empty stderr"
-    if code not in (0, 2) and changed and "leftover" not in classes:
+    if code not in (0, 2) and changed and "leftover" not in classes and case.command != "bake":
         o.problems.append(f"left behind / changed: {changed[:5]}")
     classes = sorted(set(classes), key=CLASSES.index)
     o.classes = classes
-    o.outcome = classes[0] if classes else ("accepted" if code in (0, EXIT_PIPE) else "rejected")
+    o.outcome = classes[0] if classes else ("accepted" if code in (0, EXIT_PIPE) else
+                                            "partial" if code == 1 and case.command == "bake" else "rejected")
     if o.outcome in ("leftover", "invalid-output", "bad-option-accepted", "broken-pipe", "nonfinite"):
         o.where = f"{case.template}: {o.where or _message_head(err)}"
     return o

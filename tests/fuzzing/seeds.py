@@ -20,6 +20,8 @@ bytes, kind); a kind names the reader it feeds:
 ``glb``            skinned glTF (binary) with the clip
 ``gltf_embedded``  the same as .gltf, buffer as a data: URI
 ``gltf_external``  the same as .gltf with an external ``.bin`` (a second file)
+``jobs_json``      ``nrpose bake`` JOBS file (made per case: :func:`jobs_document`)
+``manifest``       a bake OUTDIR's ``manifest.json`` from an earlier run (``--resume``)
 =================  ===========================================================
 
 The files are written by this module (no nrpose writer), so the seeds do not move when
@@ -37,7 +39,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["Seed", "make_seeds", "shared_seeds", "JOINTS", "CLIP", "BONE_COUNT", "SHARED"]
+__all__ = ["Seed", "make_seeds", "shared_seeds", "jobs_document", "JOINTS", "CLIP", "BONE_COUNT", "SHARED",
+           "BAKE_INPUTS", "BAKE_JOBS"]
 
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
 
@@ -348,6 +351,38 @@ def make_seeds() -> dict[str, Seed]:
         Seed("body.gltf", "gltf_external", json.dumps(ext, indent=1).encode(), {"body.bin": blob}),
     ]
     return {s.kind: s for s in seeds}
+
+
+#: the files a JOBS seed refers to (name -> seed kind), next to it in its folder
+BAKE_INPUTS = {"body.glb": "glb", "rig.bvh": "bvh", "body.obj": "obj", "rig.tgf": "tgf", "pose.json": "pose_json",
+               "map.json": "map_json", "pose.dmat": "dmat_ascii"}
+#: the jobs a JOBS seed draws from: every motion key, output kind and character kind, each a
+#: few frames of the 74-vertex rig (a case stays well under its time limit)
+BAKE_JOBS = [
+    {"clip": CLIP, "output": "a/bend.npz"},
+    {"clip": CLIP, "method": "lbs", "frames": "0:2", "output": "b.glb"},
+    {"clip": CLIP, "method": "dqs", "time": [0, 0.5], "format": "obj", "output": "c/frames"},
+    {"rest": True, "output": "rest.npz", "backend": "opencl"},
+    {"pose": "pose.json", "output": "posed"},
+    {"character": "body.obj", "skeleton": "rig.tgf", "weights": "euclidean", "pose": "pose.dmat",
+     "output": "mesh.npz"},
+    {"character": "body.obj", "skeleton": "rig.bvh", "motion": "rig.bvh", "weights": "graph", "output": "m/bvh.npz"},
+    {"retarget": {"source": "rig.bvh", "map": "map.json"}, "time": 0.5, "output": "rt.npz"},
+    {"clip": CLIP, "quantize": True, "output": "q.glb"},
+]
+
+
+def jobs_document(rng) -> dict:
+    """A valid JOBS document: 1 to 4 of :data:`BAKE_JOBS` over defaults (the seed glTF at 5 fps
+    on the numpy backend), drawn with ``rng`` (a random.Random)."""
+    jobs = rng.sample(BAKE_JOBS, rng.choice([1, 2, 3, 4]))
+    return {"defaults": {"character": "body.glb", "fps": 5, "backend": "numpy"}, "jobs": jobs}
+
+
+def manifest_document(outputs) -> dict:
+    """A manifest of an earlier bake listing ``outputs`` (names) with made-up options and sums."""
+    return {"format": "nrpose-bake-manifest", "version": 1,
+            "outputs": {o: {"spec": "0" * 64, "size": 4, "sha256": "0" * 64, "frames": 1} for o in outputs}}
 
 
 def shared_seeds() -> dict[str, Seed]:

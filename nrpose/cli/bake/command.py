@@ -1,4 +1,5 @@
-"""``nrpose bake JOBS.json -o OUTDIR [--workers N] [--ray [ADDRESS]] [--resume] [--summary S.json]``.
+"""``nrpose bake JOBS.json -o OUTDIR [--workers N] [--ray [ADDRESS]] [--resume] [--summary S.json]
+[--max-frames F] [--max-output-values V]`` (the budget of ``nrpose pose``, per job).
 
 Exit status: 0 when every job is done, 1 when a job failed (each failure is
 one line on stderr; the other jobs still run), 2 for a bad JOBS file or bad
@@ -12,8 +13,10 @@ import argparse
 import fcntl
 import json
 import os
+import shutil
 import signal
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from .jobs import load_jobs
@@ -21,7 +24,8 @@ from .manifest import Manifest, clear_scratch
 from .progress import Progress, summary
 from ...device import usable_cpus
 from ...errors import InputError
-from ...io.files import atomic_path
+from ...io.files import atomic_path, check_writable
+from ..common import add_budget_options, check_budget
 
 
 def add_parser(subparsers) -> argparse.ArgumentParser:
@@ -36,6 +40,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--resume", action="store_true",
                    help="skip jobs whose output is in the manifest and unchanged; redo the rest")
     p.add_argument("--summary", help="write every job's status, frames, seconds, worker and node as JSON")
+    add_budget_options(p)
     p.set_defaults(func=run)
     return p
 
@@ -48,19 +53,28 @@ def run(args) -> int:
         raise InputError("--workers sets the local pool; on Ray the cluster's CPUs decide: drop one")
     if args.summary and Path(args.summary).suffix.lower() != ".json":
         raise InputError(f"--summary {args.summary}: the summary must end in .json")
-    jobs = load_jobs(args.jobs)
+    check_budget(args, 0, 0.0, args.jobs)
+    budget = {"max_frames": args.max_frames, "max_output_values": args.max_output_values}
+    jobs = [replace(job, **budget) for job in load_jobs(args.jobs)]
     outdir = Path(args.output)
     if outdir.exists() and not outdir.is_dir():
         raise InputError(f"{outdir}: is a file; OUTDIR must be a directory")
     if args.summary:
-        parent = Path(args.summary).resolve().parent
-        if not parent.is_dir():
-            raise InputError(f"--summary {args.summary}: directory {parent} does not exist")
+        check_writable(args.summary)
     if args.ray is not None:
         from .ray_runner import check_ray
         check_ray()
+    made = next((p for p in reversed([outdir, *outdir.parents]) if not p.exists()), None)
     outdir.mkdir(parents=True, exist_ok=True)
-    outdir = outdir.resolve()
+    try:
+        return _locked(args, jobs, outdir.resolve())
+    except BaseException:
+        if made is not None:       # a failed run leaves no OUTDIR it made (its manifest could not be written...)
+            shutil.rmtree(made, ignore_errors=True)
+        raise
+
+
+def _locked(args, jobs, outdir: Path) -> int:
     lock = os.open(outdir, os.O_RDONLY)
     try:
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)

@@ -28,11 +28,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 
 from ...errors import InputError, NrposeError
+from ...io.jsonfile import parse_json
 from ...pose.blend import BLENDS, DEFAULT_BLEND
 from ...pose.mls import BACKENDS
 from ...pose.poser import METHODS, WEIGHTS
 from ...pose.retarget import ROOT_MODES
-from ..common import frames_output_kind
+from ..common import MAX_FRAMES, MAX_OUTPUT_VALUES, frames_output_kind
 from ..pose import parse_frames
 from ..retarget import SOURCE_SUFFIXES, TARGET_SUFFIXES
 
@@ -81,6 +82,9 @@ class Job:
     backend: str = "opencl"
     format: str = "ply"
     quantize: bool = False
+    #: the bake's --max-frames / --max-output-values (checked per job before posing; not in ``spec``)
+    max_frames: int = MAX_FRAMES
+    max_output_values: float = MAX_OUTPUT_VALUES
 
     @property
     def label(self) -> str:
@@ -99,23 +103,22 @@ class Job:
     @property
     def spec(self) -> str:
         """sha256 of the job's options (not its index): the manifest's record of what made an output."""
-        options = {k: v for k, v in asdict(self).items() if k != "index"}
+        options = {k: v for k, v in asdict(self).items() if k not in ("index", "max_frames", "max_output_values")}
         return hashlib.sha256(json.dumps(options, sort_keys=True).encode()).hexdigest()
 
 
 def load_jobs(path: str | Path) -> list[Job]:
     """The validated jobs of a JOBS file (module docstring); InputError naming the job otherwise."""
     path = Path(path)
+    if path.exists() and not path.is_file():     # a FIFO would block the read
+        raise InputError(f"{path}: not a regular file; give the JOBS.json file")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise InputError(f"{path}: cannot read the jobs file ({exc.strerror})") from None
     except UnicodeDecodeError:
         raise InputError(f"{path}: the jobs file is not UTF-8 text") from None
-    try:
-        doc = json.loads(text)
-    except ValueError as exc:
-        raise InputError(f"{path}: the jobs file is not valid JSON ({exc})") from None
+    doc = parse_json(text, str(path), "the jobs file", InputError)
     if not isinstance(doc, dict) or set(doc) - {"defaults", "jobs"}:
         extra = sorted(set(doc) - {"defaults", "jobs"}) if isinstance(doc, dict) else []
         raise InputError(f"{path}: expected {{\"defaults\": {{...}}, \"jobs\": [...]}}"
@@ -169,9 +172,19 @@ def _string(d: dict, key: str, required: bool = False) -> str | None:
 
 def _number(d: dict, key: str, default: float) -> float:
     value = d.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not _finite(value):
         raise InputError(f"{key!r} must be a finite number, got {value!r}")
     return float(value)
+
+
+def _finite(value) -> bool:
+    """A JSON number (not a boolean) that is a finite float (an integer of 400 digits is not)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def _choice(d: dict, key: str, choices: tuple[str, ...], default: str) -> str:
@@ -201,8 +214,7 @@ def _job(index: int, d: dict, base: Path) -> Job:
     time, frames = d.get("time"), _string(d, "frames")
     if time is not None:
         values = time if isinstance(time, list) else [time]
-        if not values or any(isinstance(t, bool) or not isinstance(t, (int, float)) or not math.isfinite(t)
-                             for t in values):
+        if not values or not all(_finite(t) for t in values):
             raise InputError(f"'time' must be a number or a non-empty list of numbers, got {time!r}")
         time = tuple(float(t) for t in values)
     if time is not None and frames is not None:

@@ -26,6 +26,7 @@ import time
 import uuid
 from pathlib import Path
 
+from ...io.jsonfile import parse_json
 from .jobs import Job
 
 NAME = "manifest.json"
@@ -85,15 +86,15 @@ class Manifest:
         self.saved = -math.inf
         if self.path.exists():
             try:
-                doc = json.loads(self.path.read_text())
+                doc = parse_json(self.path.read_text(), str(self.path), "the manifest")
                 self.outputs = dict(doc["outputs"])
-            except (OSError, ValueError, KeyError, TypeError):
+            except (OSError, ValueError, KeyError, TypeError):     # NrposeError is a ValueError
                 self.outputs = {}       # unreadable: nothing counts as finished
 
     def finished(self, job: Job, outdir: Path) -> bool:
         """True when the job's output is recorded for these options and the file still matches."""
         entry = self.outputs.get(job.output)
-        if not entry or entry.get("spec") != job.spec:
+        if not isinstance(entry, dict) or entry.get("spec") != job.spec:
             return False
         out = outdir / job.output
         if not out.exists():

@@ -24,7 +24,7 @@ from ...io.gltf_write import write_glb_with_clip
 from ...io.poses import load_map
 from ...pose.poser import CharacterPoser
 from ...pose.retarget import joint_map, skinned_bounds
-from ..common import frames_output_kind, write_frames
+from ..common import check_budget, frames_output_kind, output_values, write_frames
 from ..pose import pose_input, posed_frames
 from ..retarget import retarget_clip
 from .jobs import Job
@@ -129,6 +129,8 @@ def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None)
             local, times, name = pose_input(character, clip=clip, motion=job.motion, pose=job.pose,
                                             rest=job.rest, time=list(job.time) if job.time else None,
                                             frames=job.frames, fps=job.fps, kind=kind)
+            vertices = sum(len(m.vertices) for m in character.meshes)
+            check_budget(job, len(times), output_values(len(times), vertices, kind), job.output)
             poser, record["bind_seconds"] = cache.poser(job, character)
             frames = posed_frames(poser, local)
             tmp_dir = scratch(outdir)
