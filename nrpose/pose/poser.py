@@ -129,7 +129,7 @@ class CharacterPoser:
                 self._device_args = (V, rest, W, kk, blend, t, layout)
             else:
                 if backend == "opencl":
-                    device.prefetch("skinning.cl")
+                    skinning.prefetch_program(method)
                 offset = np.zeros(len(V), np.int64)
                 if weights == "authored":
                     joint_w = authored_joint_weights(deform_meshes, skel.num_joints)
