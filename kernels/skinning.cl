@@ -42,7 +42,14 @@
  *
  * Per the PoCL notes: no fma()/mad() builtins, explicit float8 lanes; no
  * out-of-line builtins in loops (kernels/lanes.h).
+ *
+ * A program holds the one kernel its deformer launches: built with -DLBS_KERNEL or
+ * -DDQS_KERNEL (nrpose/pose/skinning.py PROGRAMS), since PoCL compiles every kernel of a
+ * program for each device at its build.
  */
+#if !defined(LBS_KERNEL) && !defined(DQS_KERNEL)
+#error "build with -DLBS_KERNEL or -DDQS_KERNEL"
+#endif
 
 #include "lanes.h"
 #include "share.h"
@@ -65,6 +72,7 @@
  * them live across the join, spilled to the stack at every influence. */
 #define WITH_JOINT8(j, USE) do { if (SAMEV(j)) { USE(JOINT_BCAST8) } else { USE(JOINT_GATHER8) } } while (0)
 
+#ifdef LBS_KERNEL
 __kernel void lbs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
@@ -105,7 +113,9 @@ __kernel void lbs(__global const float *restrict rest,
     }   /* f */
     }   /* g */
 }
+#endif
 
+#ifdef DQS_KERNEL
 __kernel void dqs(__global const float *restrict rest,
                   __global const int *restrict joints,
                   __global const float *restrict weights,
@@ -171,3 +181,4 @@ __kernel void dqs(__global const float *restrict rest,
     }   /* f */
     }   /* g */
 }
+#endif

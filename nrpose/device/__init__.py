@@ -21,7 +21,8 @@ from .mailbox import (ENDS_MAX_BOUND_BYTES, JOB_CLOSED, JOB_DESC, JOB_DESCS, JOB
 from .memory import HANDOFF_SLOTS, Handoff, HostArray, check_out_writable, frame_array, frame_count, frames_in
 from .policy import (SHARE_MIN_S, STANDBY_MAX_S, STANDBY_S, set_standby_s, standby_s, standing_mailbox,
                      standing_workers_possible, stop_standing, time_alone, worth_sharing)
-from .programs import build_source, kernel_source, prefetch, program, program_options, with_headers
+from .programs import (WARM_UP_BYTES, build_source, kernel_arguments, kernel_source, prefetch, program,
+                       program_options, warm_up, with_headers)
 from .timing import (EVENT_CLOCK, event_clock_ns, events_span_s, profiling_queues, published_span_s,
                      timing_queue)
 

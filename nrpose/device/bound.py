@@ -120,7 +120,8 @@ class BoundKernel:
 
     def _warm_up(self, first_launch) -> None:
         """At bind: ``first_launch()`` poses once (PoCL compiles a kernel's work-group
-        function at its first launch on each device, ~0.5 s: paid at bind, not in the first
+        function at its first launch on each device, 0.1-0.35 s each, unless
+        :func:`nrpose.device.prefetch` compiled it: paid at bind, not in the first
         frame; shared, as launches are until the kernel is timed), then one frame of the
         kernel is timed on the calling thread alone (``alone_s``: small launches are not
         shared) and the standby calibrated once per process, so that no pose pays either."""

@@ -1,5 +1,7 @@
 """OpenCL programs: kernel sources as shipped (headers pasted) and their builds, once per
-(context, kernel file, build options) for the life of the process."""
+(context, kernel file, build options) for the life of the process, started ahead in a
+background thread (:func:`prefetch`) with their kernels' compile for each device
+(:func:`warm_up`; docs/device.md, "Cold start")."""
 from __future__ import annotations
 
 import concurrent.futures
@@ -8,10 +10,18 @@ import re
 import threading
 from importlib import resources
 
+import numpy as np
+
 from ..errors import DeviceError
-from .env import context, plain_opencl, pyopencl
+from .env import context, plain_opencl, pyopencl, worker_device
+from .policy import LAUNCH_LOCK, stop_standing
 
 _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
+_KERNEL = re.compile(r"__kernel\s+void\s+(\w+)\s*\(([^)]*)\)")
+_COMMENT = re.compile(r"/\*.*?\*/|//[^\n]*", re.S)
+#: bytes of the zeroed buffer every pointer argument of a warm-up launch gets
+#: (:func:`warm_up`): more than any kernel reads of a header or mailbox
+WARM_UP_BYTES = 4096
 
 
 def kernel_source(name: str) -> str:
@@ -38,6 +48,8 @@ def program_options(options=()) -> tuple[str, ...]:
 
 #: builds started by :func:`prefetch`, by (context, name, options), until :func:`program` takes them
 _PENDING: dict = {}
+#: the (context, name, options) of the programs built
+_BUILT: set = set()
 _PENDING_LOCK = threading.Lock()
 _BUILDER = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="nrpose-build")
 
@@ -54,22 +66,74 @@ def program(name: str, options: tuple[str, ...] = ()):
 
 
 def prefetch(name: str, options: tuple[str, ...] = ()) -> None:
-    """Start building the program :func:`program` will be asked for, in a background thread,
-    so that its compile (~1 s on PoCL without a cached binary: mostly a fixed cost per
-    build) overlaps the host work of a bind; pyopencl releases the GIL while it builds."""
+    """Start building the program :func:`program` will be asked for in a background thread,
+    then compiling its kernels for each device there (:func:`warm_up`), so that both
+    overlap the host work of a bind; pyopencl releases the GIL while PoCL compiles. For
+    programs of kernels in share.h's protocol (:func:`warm_up` launches them). Nothing to do
+    for a program built already (its kernels compiled at their first launch)."""
     key = (context()[0], name, program_options(options))
     with _PENDING_LOCK:
-        if key not in _PENDING:
-            _PENDING[key] = _BUILDER.submit(_program, *key)
+        if key not in _PENDING and key not in _BUILT:     # built: its kernels compiled at their first launch
+            _PENDING[key] = _BUILDER.submit(_built_and_warm, *key)
+
+
+def _built_and_warm(ctx, name: str, options: tuple[str, ...]):
+    prg = _program(ctx, name, options)
+    if not plain_opencl():      # plain launches take the implementation's local size: not known here
+        warm_up(prg, kernel_source(name))
+    return prg
+
+
+def kernel_arguments(source: str) -> dict[str, tuple[bool, ...]]:
+    """{kernel name: per argument, whether it is a pointer} of the ``__kernel void``
+    functions declared in OpenCL ``source`` (#if-ed out ones too)."""
+    return {m.group(1): tuple("*" in a for a in m.group(2).split(","))
+            for m in _KERNEL.finditer(_COMMENT.sub(" ", source))}
+
+
+def warm_up(prg, source: str) -> None:
+    """Launch each kernel of the built program ``prg`` (built from ``source``) once on each
+    device of the context, as :func:`nrpose.device.launch_shared` launches (local size 1),
+    with an empty job: PoCL compiles a kernel's work-group function for each device at its
+    first launch there (0.1-0.4 s each for nrpose's kernels), and this moves that compile
+    from a deformer's first pose to the caller's thread. Only for kernels of share.h's
+    protocol: every pointer argument is one zeroed buffer (a mailbox of zeros is a job with
+    no blocks, whose header of zeros the kernel reads before it returns), every other
+    argument an int 0. A standing worker is ended first (nothing else is enqueued on its
+    device while it stands)."""
+    cl = pyopencl()
+    ctx = context()[0]
+    zeros = cl.Buffer(ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR,
+                      hostbuf=np.zeros(WARM_UP_BYTES, np.uint8))
+    pointers = kernel_arguments(source)
+    kernels = []
+    for kernel in prg.all_kernels():
+        for i, pointer in enumerate(pointers[kernel.function_name]):
+            kernel.set_arg(i, zeros if pointer else np.int32(0))
+        kernels.append(kernel)
+    events = []
+    for dev in sorted(ctx.devices, key=lambda d: d != worker_device()):
+        q = cl.CommandQueue(ctx, dev)
+        if dev == worker_device():
+            with LAUNCH_LOCK:   # PoCL compiles for its worker device later, on the worker's thread
+                stop_standing()
+                events += [cl.enqueue_nd_range_kernel(q, k, (1,), (1,)) for k in kernels]
+            q.flush()
+        else:                   # the calling thread's device compiles inside the enqueue
+            events += [cl.enqueue_nd_range_kernel(q, k, (1,), (1,)) for k in kernels]
+    for e in events:
+        e.wait()
 
 
 @functools.lru_cache(maxsize=None)
 def _program(ctx, name: str, options: tuple[str, ...]):
     cl = pyopencl()
     try:
-        return cl.Program(ctx, kernel_source(name)).build(options=list(options))
+        prg = cl.Program(ctx, kernel_source(name)).build(options=list(options))
     except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
         raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+    _BUILT.add((ctx, name, options))
+    return prg
 
 
 def build_source(source: str, options: tuple[str, ...] = ()):

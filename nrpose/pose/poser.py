@@ -44,7 +44,6 @@ from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bon
 from ..bind.cache import cache_dir, cached_status, code_version
 from .blend import BLENDS, DEFAULT_BLEND
 from .mls import Deformer, bind_layout, kept_terms, prefetch_program
-from .. import device
 from ..checks import check_magnitude
 from ..errors import InputError
 from ..model.character import Character
@@ -376,10 +375,10 @@ def prefetch(method: str, backend: str = "opencl") -> None:
     """Start building, in the background, the device program a poser of ``method`` on
     ``backend`` will use where it does not depend on the character (the skinning methods';
     an NR-MLS program depends on the rig and is started at bind), so that a caller can have
-    it compile while the character loads (:func:`nrpose.device.prefetch`; makes the OpenCL
+    it compile while the character loads (:func:`nrpose.pose.skinning.prefetch_program`; makes the OpenCL
     context now)."""
     if backend == "opencl" and method in skinning.PROGRAMS:
-        device.prefetch(skinning.PROGRAMS[method])
+        skinning.prefetch_program(method)
 
 
 # ---------------------------------------------------------------------- helpers

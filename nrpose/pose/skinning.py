@@ -62,7 +62,7 @@ from ..model.rotation import matrix_quats
 from ..model.skeleton import det_components, polar_components
 
 __all__ = ["LbsSkinner", "DqsSkinner", "Skinner", "lbs_reference", "dqs_reference",
-           "dqs_reference_dq", "dual_quaternions", "prepare_influences"]
+           "dqs_reference_dq", "dual_quaternions", "prepare_influences", "prefetch_program"]
 
 LANES = 8          # vertices per group (float8 lanes)
 # the kernels' arguments (kernels/skinning.cl lbs, dqs): bound data, per-pose parameters
@@ -70,9 +70,19 @@ LANES = 8          # vertices per group (float8 lanes)
 # (kernels/cor.cl cor: the same, its `rest` rows the offsets v - c, then the centers c)
 (ARG_REST, ARG_JOINTS, ARG_WEIGHTS, ARG_ROWS, ARG_PARAMS, ARG_OUT, ARG_K, ARG_J, ARG_G, ARG_BLOCK,
  ARG_JOBS, ARG_ROLE) = range(12)
-#: methods and their kernels' programs
-PROGRAMS = {"lbs": "skinning.cl", "dqs": "skinning.cl", "cor": "cor.cl"}
+#: methods and their kernels' programs: (kernel file, build options), one kernel each
+PROGRAMS = {"lbs": ("skinning.cl", ("-DLBS_KERNEL",)), "dqs": ("skinning.cl", ("-DDQS_KERNEL",)),
+            "cor": ("cor.cl", ())}
 BLOCK = 32         # groups (of 8 vertices) per block of work taken from the job mailbox (share.h)
+
+
+def prefetch_program(method: str) -> None:
+    """Start compiling the program a :class:`Skinner` of ``method`` ("lbs", "dqs" or "cor")
+    launches (:func:`nrpose.device.prefetch`), to overlap the host work before it is bound.
+    InputError for another method."""
+    if method not in PROGRAMS:
+        raise InputError(f"skinning method must be one of {tuple(PROGRAMS)}, got {method!r}")
+    device.prefetch(*PROGRAMS[method])
 
 
 # --------------------------------------------------------------------------- validation
@@ -305,7 +315,7 @@ class Skinner(device.BoundKernel):
         self._weights = cl.Buffer(ctx, ro, hostbuf=soa(ww))
         self._rows = cl.Buffer(ctx, ro, hostbuf=device.run_coded_rows(rows, LANES))
         self._bound_bytes = sum(b.size for b in (self._rest, self._joints, self._weights, self._rows))
-        self._kernel = cl.Kernel(device.program(PROGRAMS[method]), method)
+        self._kernel = cl.Kernel(device.program(*PROGRAMS[method]), method)
         for arg, value in ((ARG_REST, self._rest), (ARG_JOINTS, self._joints), (ARG_WEIGHTS, self._weights),
                            (ARG_ROWS, self._rows), (ARG_K, np.int32(k)), (ARG_G, np.int32(g)),
                            (ARG_BLOCK, np.int32(BLOCK)), (ARG_ROLE, np.int32(device.ROLE_CALLER))):
