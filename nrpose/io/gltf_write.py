@@ -77,7 +77,7 @@ import pygltflib
 
 from ..checks import real_rows, triangles, within_float32
 from ..errors import FileFormatError, InputError, NrposeError
-from ..model.normals import local_rotations, smooth_normals, weld
+from ..model.normals import Surface, weld
 from ..model.rotation import Rotation
 from ..model.skeleton import polar_rotation
 from .files import atomic_path
@@ -328,7 +328,7 @@ class _Node:
         self.cuts = np.cumsum([0] + sizes)
         faces = np.concatenate([p.faces + c for p, c in zip(prims, self.cuts)])
         bind = np.concatenate([p.bind for p in prims])
-        self.faces, self.groups, self.bind = faces, weld(bind), bind
+        self.surface = Surface(bind, faces, weld(bind))
         self.authored = np.concatenate([np.full(len(p.rest), p.normals is not None) for p in prims])
         self.source_normals = np.concatenate([p.normals if p.normals is not None else np.zeros((len(p.rest), 3))
                                               for p in prims])
@@ -339,13 +339,16 @@ class _Node:
         """Positions (N, 3), normals (N, 3) and tangent directions (N, 3) or None of the node's
         vertices, given ``positions`` (N, 3) of one frame: the source's own normals and tangents
         turned with their neighbourhood, smooth normals where the source has none."""
-        normals = smooth_normals(positions, self.faces, self.groups)
         tangents = None
+        if self.authored.all():     # every normal is the source's, turned
+            normals = np.empty_like(self.source_normals)
+        else:
+            normals = self.surface.smooth_normals(positions)
         if self.authored.any() or self.has_tangents:
-            R = local_rotations(self.bind, positions, self.faces, self.groups)
-            normals[self.authored] = np.einsum("nab,nb->na", R[self.authored], self.source_normals[self.authored])
+            R = self.surface.rotations(positions)
+            normals[self.authored] = np.matmul(R[self.authored], self.source_normals[self.authored, :, None])[..., 0]
             if self.has_tangents:
-                tangents = np.einsum("nab,nb->na", R, self.source_tangents[:, :3])
+                tangents = np.matmul(R, self.source_tangents[:, :3, None])[..., 0]
         return positions, normals, tangents
 
 
