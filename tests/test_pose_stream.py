@@ -16,18 +16,7 @@ DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 FOX = DATA / "gltf" / "Fox.glb"
 
 
-@pytest.fixture
-def fox():
-    if not FOX.exists():
-        pytest.skip(f"shared assets not found at {FOX}")
-    pytest.importorskip("pyopencl")
-    from nrpose.io import load_character
-    return load_character(FOX)
-
-
-@pytest.fixture(autouse=True)
-def own_cache(tmp_path, monkeypatch):
-    monkeypatch.setenv("NRPOSE_CACHE_DIR", str(tmp_path / "cache"))
+pytestmark = pytest.mark.usefixtures("own_cache")   # fixtures fox and own_cache: tests/conftest.py
 
 
 def clip_poses(ch, frames: int):

@@ -200,18 +200,10 @@ class CharacterPoser:
         from the binding cache (:mod:`nrpose.bind.cache`, its folder :data:`BIND_CACHE_FOLDER`)
         when the same character, options and code were bound before (``self.bind_cache``:
         "hit", "miss" or "rebuilt")."""
-        skel = character.skeleton
         deform = [m for m in character.meshes if m.rigid_joint is None]
         skinned = weights == "authored" and all(m.joints is not None and m.weights is not None for m in deform)
         parts = {"kind": "nrmls-character-bind", "code": code_version(BIND_MODULES),
-                 "vertices": np.ascontiguousarray(V, np.float64), "faces": np.ascontiguousarray(self.faces, np.int64),
-                 "deform": self._deform_idx, "bones": np.ascontiguousarray(rest.segments, np.float64),
-                 "bone_joints": np.asarray(self.bones.joints, np.int64),
-                 "parents": np.asarray(skel.parents, np.int64),
-                 "skin_joints": np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in deform])
-                 if skinned else np.zeros(0, np.int64),
-                 "skin_weights": np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in deform])
-                 if skinned else np.zeros(0),
+                 **self._bind_key(character, V, rest.segments, skinned),
                  "options": {"weights": weights, "k": k, "alpha": float(alpha), "blend": blend,
                              "skin_shapes": [list(np.shape(m.joints)) for m in deform] if skinned else []}}
 
@@ -229,6 +221,20 @@ class CharacterPoser:
         np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
         return W, got.get("t"), {n[7:]: a for n, a in got.items() if n.startswith("layout_")}
 
+    def _bind_key(self, character, V, segments, with_skin: bool) -> dict:
+        """The arrays a character bind depends on (binding-cache key parts): deforming
+        vertices V (world rest), faces, bone segments and joints, parents, and the authored
+        skin's joints and weights when ``with_skin``."""
+        deform = [m for m in character.meshes if m.rigid_joint is None]
+        return {"vertices": np.ascontiguousarray(V, np.float64), "faces": np.ascontiguousarray(self.faces, np.int64),
+                "deform": self._deform_idx, "bones": np.ascontiguousarray(segments, np.float64),
+                "bone_joints": np.asarray(self.bones.joints, np.int64),
+                "parents": np.asarray(character.skeleton.parents, np.int64),
+                "skin_joints": np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in deform])
+                if with_skin else np.zeros(0, np.int64),
+                "skin_weights": np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in deform])
+                if with_skin else np.zeros(0)}
+
     def _skin_bind(self, character, V, src, offset, faces, weights, alpha) -> tuple:
         """(joints (V, K) int64, their weights (V, K) float64, centers of rotation (V, 3) or
         None without ``faces``) of the deforming vertices V (world rest) for lbs/dqs/cor:
@@ -240,15 +246,8 @@ class CharacterPoser:
         deform = [m for m in character.meshes if m.rigid_joint is None]
         authored = weights == "authored"
         parts = {"kind": "skin-character-bind", "code": code_version(SKIN_BIND_MODULES),
-                 "vertices": np.ascontiguousarray(V, np.float64), "source": np.ascontiguousarray(src, np.float64),
-                 "offset": offset, "faces": np.ascontiguousarray(self.faces, np.int64),
-                 "deform": self._deform_idx, "bones": np.ascontiguousarray(self.bones.segments, np.float64),
-                 "bone_joints": np.asarray(self.bones.joints, np.int64),
-                 "parents": np.asarray(skel.parents, np.int64),
-                 "skin_joints": np.concatenate([np.asarray(m.joints, np.int64).ravel() for m in deform])
-                 if authored else np.zeros(0, np.int64),
-                 "skin_weights": np.concatenate([np.asarray(m.weights, np.float64).ravel() for m in deform])
-                 if authored else np.zeros(0),
+                 **self._bind_key(character, V, self.bones.segments, authored),
+                 "source": np.ascontiguousarray(src, np.float64), "offset": offset,
                  "options": {"weights": weights, "alpha": float(alpha), "influences": SKIN_INFLUENCES,
                              "centers": faces is not None,
                              "skin_shapes": [list(np.shape(m.joints)) for m in deform] if authored else []}}
