@@ -132,7 +132,7 @@ def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None)
             vertices = sum(len(m.vertices) for m in character.meshes)
             check_budget(job, len(times), output_values(len(times), vertices, kind), job.output)
             poser, record["bind_seconds"] = cache.poser(job, character)
-            frames = posed_frames(poser, local)
+            frames = posed_frames(poser, local, stream=kind != "glb")   # as `nrpose pose`: no whole-clip array
             tmp_dir = scratch(outdir)
             tmp = tmp_dir / Path(job.output).name
             source = job.character if Path(job.character).suffix.lower() in (".glb", ".gltf") else None
