@@ -11,7 +11,7 @@ import pytest
 from nrpose import device
 
 LINUX_ONLY = pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="os.sched_getaffinity is Linux-only")
-VARS = ("POCL_DEVICES", "POCL_MAX_PTHREAD_COUNT", "POCL_AFFINITY")
+VARS = ("POCL_DEVICES", "POCL_MAX_PTHREAD_COUNT", "POCL_AFFINITY", "NRPOSE_WHOLE_JOB")
 
 
 @pytest.fixture
@@ -62,6 +62,33 @@ def test_user_device_list_keeps_pocl_worker_count_and_pins(env):
     env.delenv("POCL_DEVICES")
     env.setenv("POCL_MAX_PTHREAD_COUNT", "7")
     assert device.pocl_settings() == {"POCL_DEVICES": "pthread basic"}
+
+
+@LINUX_ONLY
+def test_whole_job_process_has_the_worker_device_alone_on_every_cpu(env):
+    env.setenv("NRPOSE_WHOLE_JOB", "1")
+    cpus(env, range(4), 4)
+    assert device.pocl_settings() == {"POCL_DEVICES": "pthread", "POCL_MAX_PTHREAD_COUNT": "4", "POCL_AFFINITY": "1"}
+    cpus(env, {2, 3}, 4)                 # not pinned: PoCL pins worker i to CPU i
+    assert device.pocl_settings() == {"POCL_DEVICES": "pthread", "POCL_MAX_PTHREAD_COUNT": "2"}
+    assert device.pocl_settings(cpus=1) == {"POCL_AFFINITY": "0", "POCL_DEVICES": "basic"}
+    assert device.pocl_settings(cpus=2) == {"POCL_AFFINITY": "0", "POCL_DEVICES": "pthread",
+                                            "POCL_MAX_PTHREAD_COUNT": "2"}
+    env.setenv("POCL_DEVICES", "pthread basic")     # the user's list wins
+    cpus(env, range(4), 4)
+    assert device.pocl_settings() == {"POCL_AFFINITY": "1"}
+    env.setenv("NRPOSE_WHOLE_JOB", "0")
+    env.delenv("POCL_DEVICES")
+    assert device.pocl_settings() == {"POCL_DEVICES": "pthread basic", "POCL_MAX_PTHREAD_COUNT": "3"}
+
+
+def test_the_nrpose_program_runs_whole_jobs_unless_told_otherwise(env):
+    import nrpose.cli as cli
+    seen = []
+    env.setattr(cli, "main", lambda: seen.append(os.environ.get("NRPOSE_WHOLE_JOB")) or 0)
+    assert cli.command() == 0 and seen == ["1"]
+    env.setenv("NRPOSE_WHOLE_JOB", "0")
+    assert cli.command() == 0 and seen == ["1", "0"]
 
 
 @pytest.mark.parametrize("value", ["0", "1"])

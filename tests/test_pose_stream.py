@@ -4,6 +4,8 @@ them equals one written from all the frames; a run that fails half-way leaves no
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -72,10 +74,19 @@ def test_stream_checks_the_pose_before_any_frame(fox):
         CharacterPoser(fox, method="lbs").stream(bad)
 
 
+@pytest.mark.parametrize("process", ["in-process", "nrpose program"])
 @pytest.mark.parametrize("method", ["nrmls", "lbs"])
-def test_cli_npz_equals_the_posed_frames(fox, method, tmp_path):
+def test_cli_npz_equals_the_posed_frames(fox, method, tmp_path, process):
+    """The command's frames are the library's bitwise, also from the ``nrpose`` program, whose
+    context is PoCL's worker device alone (whole-job launches) where this process shares launches."""
     out = tmp_path / "o.npz"
-    assert main(["pose", str(FOX), "--clip", "Survey", "--method", method, "-o", str(out)]) == 0
+    argv = ["pose", str(FOX), "--clip", "Survey", "--method", method, "-o", str(out)]
+    if process == "in-process":
+        assert main(argv) == 0
+    else:
+        env = {k: v for k, v in os.environ.items() if k not in ("NRPOSE_WHOLE_JOB", "POCL_DEVICES")}
+        done = subprocess.run([sys.executable, "-m", "nrpose", *argv], env=env, capture_output=True, text=True)
+        assert done.returncode == 0, done.stderr
     clip = fox.clip("Survey")
     from nrpose.model.timing import sample_times
     times = sample_times(clip.duration, 30.0)

@@ -74,6 +74,15 @@ def flag_text(message: str, flags: dict[str, str]) -> str:
     return _ARGUMENT.sub(replace, message)
 
 
+def command() -> int:
+    """The ``nrpose`` program (console script, ``python -m nrpose``): :func:`main` in a process
+    that runs one whole job, so its PoCL context is the worker device alone
+    (``NRPOSE_WHOLE_JOB=1`` unless set: :func:`nrpose.device.env.whole_job`; its bake
+    workers inherit it)."""
+    os.environ.setdefault("NRPOSE_WHOLE_JOB", "1")
+    return main()
+
+
 def main(argv=None) -> int:
     args, status = None, 0
     notes: list[str] = []

@@ -48,6 +48,22 @@ def may_pin_workers() -> bool:
     return allowed == set(range(os.cpu_count() or 0))
 
 
+#: environment variable: "1" makes the context PoCL's worker-thread device alone (see
+#: :func:`pocl_settings`); the ``nrpose`` command sets it for itself and its workers
+WHOLE_JOB_VARIABLE = "NRPOSE_WHOLE_JOB"
+
+
+def whole_job() -> bool:
+    """True when this process runs whole jobs (``NRPOSE_WHOLE_JOB=1``; the ``nrpose`` command
+    sets it unless the user has): its context is then PoCL's worker-thread device alone, a
+    worker per CPU, instead of the worker device plus the calling thread's ``basic`` device.
+    PoCL builds every program once per device, so a cold start compiles half as much
+    (Mannequin's cold LBS job ~0.95 s of CPU instead of ~1.7 s), while a clip's 16-frame
+    launches lose nothing measurable to waking the workers. A process that poses frame by
+    frame (the library's default) keeps the shared launch (:func:`nrpose.device.launch_shared`)."""
+    return os.environ.get(WHOLE_JOB_VARIABLE) == "1"
+
+
 def pocl_settings(cpus: int | None = None) -> dict[str, str]:
     """The PoCL variables nrpose sets while PoCL starts; a variable the user has set
     (to anything but the empty string) is left alone.
@@ -63,20 +79,30 @@ def pocl_settings(cpus: int | None = None) -> dict[str, str]:
       thread is the last worker. The workers are left unpinned: pinned, the calling thread
       sometimes shared a worker's CPU for a whole process (woken on it by the worker it
       waited for) while another CPU idled.
-    * ``POCL_AFFINITY=1`` only with a device list of the user's (PoCL's own workers on
-      every CPU) and where :func:`may_pin_workers`: unpinned, PoCL's broadcast may wake
-      two workers onto one CPU, and a sub-millisecond kernel then runs on one thread.
+    * Where :func:`whole_job`: ``POCL_DEVICES="pthread"`` (``"basic"`` on a single
+      CPU) with ``POCL_MAX_PTHREAD_COUNT`` = the CPUs.
+    * ``POCL_AFFINITY=1`` only where PoCL's own workers run on every CPU (a device list of
+      the user's, or whole-job launches) and where :func:`may_pin_workers`: unpinned,
+      PoCL's broadcast may wake two workers onto one CPU, and a sub-millisecond kernel
+      then runs on one thread.
     """
     out = {}
     share = cpus is not None
     cpus = max(1, cpus) if share else usable_cpus()
     if share and not os.environ.get("POCL_AFFINITY"):
         out["POCL_AFFINITY"] = "0"
-    if not os.environ.get("POCL_DEVICES"):
-        out["POCL_DEVICES"] = "pthread basic" if cpus >= 2 else "basic"
+    workers_everywhere, whole = bool(os.environ.get("POCL_DEVICES")), whole_job()
+    if not workers_everywhere:
+        if cpus < 2:
+            out["POCL_DEVICES"] = "basic"
+        elif whole:
+            out["POCL_DEVICES"] = "pthread"
+            workers_everywhere = True
+        else:
+            out["POCL_DEVICES"] = "pthread basic"
         if cpus >= 2 and not os.environ.get("POCL_MAX_PTHREAD_COUNT"):
-            out["POCL_MAX_PTHREAD_COUNT"] = str(cpus - 1)
-    elif not share and may_pin_workers():
+            out["POCL_MAX_PTHREAD_COUNT"] = str(cpus if whole else cpus - 1)
+    if workers_everywhere and not share and may_pin_workers():
         out["POCL_AFFINITY"] = "1"
     return out
 
