@@ -159,8 +159,9 @@ def suites_block(doc: dict) -> str:
     return "\n".join(out)
 
 
-def manual_block(doc: dict) -> str:
-    """Markdown for the user manual: one table of the suites document's Table-1 rows."""
+def manual_block(doc: dict, e2e: dict | None = None) -> str:
+    """Markdown for the user manual: one table of the suites document's Table-1 rows, its
+    characters' per-frame times and, given the e2e document, whole jobs against Blender."""
     s = doc["suites"]
     env = doc.get("environment", {})
     roof = {f"{r['model']}/{r['kind']}": r for r in s.get("roofline", {}).get("rows", [])}
@@ -192,7 +193,36 @@ def manual_block(doc: dict) -> str:
         out += ["", "Characters, ms per frame NR-MLS / LBS / DQS: " + "; ".join(
             f"{name} {' / '.join(_ms(m[k]) for k in ('nrmls', 'lbs', 'dqs') if k in m)}" for name, m in per.items())
             + "."]
+    if e2e:
+        out += ["", whole_jobs_line(e2e)]
     return "\n".join(out)
+
+
+def whole_jobs_line(e2e: dict) -> str:
+    """One sentence of the e2e document: warm and cold whole-process medians to .npz per character
+    and method, with Blender's of the same run."""
+    rows = [r for r in e2e["rows"] if r.get("output", "npz") == "npz"]
+    parts = []
+    for name in dict.fromkeys(r["character"] for r in rows):
+        def med(who, mode, method=None):
+            for r in rows:
+                if r["character"] == name and r["who"] == who and r["mode"] == mode and \
+                        (method is None or r.get("method") == method):
+                    return r["wall_ms"]["median"]
+        cells = []
+        for mode in ("warm", "cold"):
+            blender = med("blender", mode)
+            ours = [(m, med("nrpose", mode, m)) for m in ("nrmls", "lbs", "dqs")]
+            ours = [(m, v) for m, v in ours if v is not None]
+            if blender is None or not ours:
+                continue
+            cells.append(f"{mode} Blender {blender:.0f}, " + ", ".join(
+                f"{ {'nrmls': 'NR-MLS', 'lbs': 'LBS', 'dqs': 'DQS'}[m]} {v:.0f} ({blender / v:.2f}×)" for m, v in ours))
+        if cells:
+            parts.append(f"{name}: " + "; ".join(cells))
+    return (f"Whole jobs, `nrpose pose CHARACTER --clip CLIP -o OUT.npz` as processes against Blender 5 "
+            f"importing, playing and saving the same clip (`bench/results/e2e.json` of "
+            f"{e2e.get('timestamp', '?')[:10]}, ms, medians): " + "; ".join(parts) + ".")
 
 
 def bounds_block(doc: dict) -> str:
@@ -231,6 +261,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--table1", default=str(HERE / "results" / "table1.json"))
     ap.add_argument("--suites", default=str(HERE / "results" / "suites.json"))
+    ap.add_argument("--e2e", default=str(HERE / "results" / "e2e.json"))
     ap.add_argument("--readme", action="append",
                     help="a file to render into (repeatable; default: bench/README.md, README.md, "
                          "docs/performance.md)")
@@ -239,9 +270,10 @@ def main(argv=None) -> int:
                          str(HERE.parent / "docs" / "performance.md")]
     try:
         suites = json.loads(pathlib.Path(a.suites).read_text())
+        e2e = json.loads(pathlib.Path(a.e2e).read_text()) if pathlib.Path(a.e2e).exists() else None
         blocks = {"results": lambda: table1_block(json.loads(pathlib.Path(a.table1).read_text())),
                   "suites-results": lambda: suites_block(suites),
-                  "readme-results": lambda: manual_block(suites),
+                  "readme-results": lambda: manual_block(suites, e2e),
                   "bounds": lambda: bounds_block(suites)}
         rendered = []
         for path in paths:
