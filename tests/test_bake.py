@@ -207,6 +207,8 @@ BAD_JOBS = [
     ({"jobs": []}, "non-empty list"),
     ({"jobs": [{"output": "manifest.json", "clip": "walk"}]}, "is the bake's own"),
     ({"job": []}, "unknown key 'job'"),
+    ({"jobs": [{"output": "nul\0.npz", "clip": "walk"}]}, "holds a NUL character"),
+    ({"jobs": [{"output": "a.npz", "clip": "wa\0lk"}]}, "holds a NUL character"),
 ]
 
 
@@ -230,6 +232,28 @@ def test_unreadable_jobs_file_and_bad_options_exit_2(rig, tmp_path, capsys):
     (tmp_path / "file").write_text("")
     code, err = bake([jobs, "-o", tmp_path / "file"], capsys)
     assert code == 2 and "is a file" in err and not (tmp_path / "o").exists()
+    # a summary over the JOBS file (or a job's input) is refused
+    jobs = write_jobs(rig / "two.json", {"defaults": {"character": "human.obj", "skeleton": "walk.bvh"},
+                                         "jobs": [{"output": "a.npz", "rest": True},
+                                                  {"output": "b.npz", "pose": "bend.json"}]})
+    before = jobs.read_bytes(), (rig / "bend.json").read_bytes()
+    for target in (jobs, rig / "bend.json"):
+        code, err = bake([jobs, "-o", tmp_path / "o", "--summary", target], capsys)
+        assert code == 2 and "an input of the bake" in err and err.count("\n") == 1, err
+    assert (jobs.read_bytes(), (rig / "bend.json").read_bytes()) == before and not (tmp_path / "o").exists()
+
+
+def test_a_workers_warnings_are_the_drivers_one_line_of_notes(rig, tmp_path, capsys, monkeypatch):
+    """A warning in a worker (here: the binding cache cannot be written) reaches stderr as the
+    command's single line of notes after the run, not as the worker's own two-line warning."""
+    cache = tmp_path / "cache"
+    cache.write_text("a file where the cache folder should be")
+    monkeypatch.setenv("NRPOSE_CACHE_DIR", str(cache))
+    jobs = write_jobs(rig / "warn.json", {"defaults": {"character": "human.obj", "skeleton": "walk.bvh"},
+                                          "jobs": [{"output": "a.npz", "clip": "walk", "frames": "0:2",
+                                                    "weights": "euclidean"}]})
+    code, err = bake([jobs, "-o", tmp_path / "o"], capsys)
+    assert code == 0 and err.count("\n") == 1 and "cache" in err and "Warning" not in err, err
 
 
 @needs_data

@@ -16,6 +16,7 @@ import os
 import shutil
 import signal
 import sys
+import warnings
 from dataclasses import replace
 from pathlib import Path
 
@@ -61,6 +62,7 @@ def run(args) -> int:
         raise InputError(f"{outdir}: is a file; OUTDIR must be a directory")
     if args.summary:
         check_writable(args.summary)
+        _check_not_an_input(Path(args.summary), [args.jobs, *(f for job in jobs for f in job.inputs)])
     if args.ray is not None:
         from .ray_runner import check_ray
         check_ray()
@@ -72,6 +74,14 @@ def run(args) -> int:
         if made is not None:       # a failed run leaves no OUTDIR it made (its manifest could not be written...)
             shutil.rmtree(made, ignore_errors=True)
         raise
+
+
+def _check_not_an_input(summary: Path, inputs: list) -> None:
+    """InputError when --summary names the JOBS file or a file a job reads: the run would
+    overwrite it."""
+    for f in inputs:
+        if Path(f).exists() and summary.exists() and os.path.samefile(summary, f):
+            raise InputError(f"--summary {summary}: is {f}, an input of the bake; give another name")
 
 
 def _locked(args, jobs, outdir: Path) -> int:
@@ -104,6 +114,8 @@ def _bake(args, jobs, outdir: Path) -> int:
 
     def on_result(record: dict) -> None:
         records[record["index"]] = record
+        for message in record.get("warnings", ()):
+            warnings.warn(message, RuntimeWarning, stacklevel=1)     # the command's one line of notes
         if record["status"] == "done":
             manifest.record(by_index[record["index"]], record["size"], record["sha256"], record["frames"])
         progress.update(record)
@@ -122,18 +134,21 @@ def _bake(args, jobs, outdir: Path) -> int:
         interrupted = True
         signal.signal(signal.SIGINT, signal.SIG_IGN)    # a second Ctrl-C must not cut the clean-up short
     finally:
-        manifest.save()
-        clear_scratch(outdir)
+        try:
+            manifest.save()
+        finally:
+            clear_scratch(outdir)
+    # the summary before the failed jobs' lines: if it cannot be written, that is the run's one error line
+    if args.summary:
+        doc = summary(jobs, records, skipped, progress, runner, None if args.ray is not None else workers)
+        with atomic_path(Path(args.summary)) as tmp:
+            tmp.write_text(json.dumps(doc, indent=1) + "\n")
     if progress.tty and interrupted:
         print(file=sys.stderr)
     for job in jobs:
         r = records.get(job.index)
         if r is not None and r["status"] != "done":
             print(f"nrpose: bake: {job.label}: {r['error']}", file=sys.stderr)
-    if args.summary:
-        doc = summary(jobs, records, skipped, progress, runner, None if args.ray is not None else workers)
-        with atomic_path(Path(args.summary)) as tmp:
-            tmp.write_text(json.dumps(doc, indent=1) + "\n")
     print(progress.final_line(len(skipped)))
     if interrupted:
         left = len(todo) - len(records)

@@ -87,6 +87,14 @@ class Job:
     max_output_values: float = MAX_OUTPUT_VALUES
 
     @property
+    def inputs(self) -> list[str]:
+        """The files the job reads."""
+        files = [self.character, self.skeleton, self.motion, self.pose]
+        if self.retarget is not None:
+            files += [self.retarget.source, self.retarget.map]
+        return [f for f in files if isinstance(f, str)]
+
+    @property
     def label(self) -> str:
         return f"jobs[{self.index}] ({self.output})"
 
@@ -167,6 +175,8 @@ def _string(d: dict, key: str, required: bool = False) -> str | None:
         return None
     if not isinstance(value, str) or not value:
         raise InputError(f"{key!r} must be a non-empty string" + ("" if value is not None else " (required)"))
+    if "\0" in value:
+        raise InputError(f"{key!r} {value!r} holds a NUL character, which no file name or clip name can")
     return value
 
 

@@ -13,6 +13,7 @@ import os
 import shutil
 import socket
 import time
+import warnings
 from collections import OrderedDict
 from pathlib import Path
 
@@ -114,7 +115,17 @@ def failed_record(job: Job, error: str | None, worker: str | None = None, node: 
 
 
 def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None) -> dict:
-    """Run one job (module docstring); never raises for a bad job: the record says what failed."""
+    """Run one job (module docstring); never raises for a bad job: the record says what failed.
+    Warnings raised on the way go into the record's ``warnings`` (messages), not to the worker's
+    stderr: the driver reports them as the command's one line of notes."""
+    with warnings.catch_warnings(record=True) as seen:
+        warnings.simplefilter("default")
+        record = _run_job(job, outdir, cache, node)
+    record["warnings"] = list(dict.fromkeys(str(w.message) for w in seen))
+    return record
+
+
+def _run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None) -> dict:
     t0 = time.perf_counter()
     record = failed_record(job, None, worker_name(), node or node_name())
     tmp_dir = None
@@ -143,7 +154,7 @@ def run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None = None)
     except NrposeError as exc:
         record["error"] = str(exc)
     except OSError as exc:
-        record["error"] = f"{exc.filename or ''}: {exc.strerror or exc}"
+        record["error"] = (f"{exc.filename}: " if exc.filename else "") + str(exc.strerror or exc)
     except Exception as exc:     # a bug must not stop the other jobs; the record names it
         record["error"] = f"internal error ({type(exc).__name__}: {exc}); please report this job"
     finally:
