@@ -2,7 +2,7 @@
 
 1,200 deterministic cases (seed 0) over every command and input kind (24 more of bake,
 fit-skin and demo, whose cases take seconds), 2 worker processes,
-each case in a forked child with a 20 s time and 3 GiB memory limit: every case must end
+each case in a forked child with a 20 s CPU time and 3 GiB memory limit: every case must end
 in exit 0 with a valid output or exit 2 with one stderr line and nothing left behind. The
 long run is ``python bench/fuzz.py``. The harness's own parts (seeds valid, mutations
 deterministic, the contract checks able to fail) are tested here too and always run.
@@ -83,6 +83,12 @@ SEED_RUNS = {
 @pytest.mark.parametrize("name", sorted(SEED_RUNS))
 def test_seeds_are_accepted_with_valid_outputs(runner, seeds, name):
     argv = SEED_RUNS[name]
+    outcome, _ = runner.run(_case(argv, _seed_files(seeds, argv)))
+    assert outcome.outcome == "accepted", outcome
+
+
+def _seed_files(seeds, argv) -> dict:
+    """The input files ``argv`` (a SEED_RUNS entry) names, from the seeds."""
     by_name = {s.name: s for s in seeds.values() if s.kind not in ("ply_ascii", "stl_ascii", "dmat_ascii",
                                                                    "gltf_external")}
     files = {}
@@ -91,8 +97,7 @@ def test_seeds_are_accepted_with_valid_outputs(runner, seeds, name):
             files.update(bake_files(seeds, {}, BAKE_JOBS))
         elif a.startswith("in/"):
             files[a] = by_name[a.rsplit("/", 1)[1]].data
-    outcome, _ = runner.run(_case(argv, files))
-    assert outcome.outcome == "accepted", outcome
+    return files
 
 
 def test_contract_checks_can_fail(runner, seeds):
@@ -108,6 +113,17 @@ def test_contract_checks_can_fail(runner, seeds):
                             {"in/m/body.obj": ok, "in/h/handles.json": deep.encode()}))
     assert o.outcome in ("traceback", "rejected")
     assert (o.outcome == "traceback") == ("RecursionError" in o.stderr)
+
+
+def test_a_hang_is_cpu_time_over_the_limit(runner, seeds):
+    """A case is a hang when it spends more CPU than the limit (RLIMIT_CPU ends it), not when a
+    loaded machine stretches its wall time: the fit-skin seed (~0.3 s of CPU) with a limit of 0.1 s."""
+    fast = Runner(runner.root / "strict", time_limit=0.1)
+    try:
+        o, _ = fast.run(_case(SEED_RUNS["fit-skin"], _seed_files(seeds, SEED_RUNS["fit-skin"])))
+    finally:
+        fast.close()
+    assert o.outcome == "hang", o
 
 
 def test_cases_are_deterministic(seeds):

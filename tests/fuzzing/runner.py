@@ -6,7 +6,10 @@ own). The child gets a directory of its own (``in/`` inputs, ``out/`` outputs, s
 paths), an address-space limit (:data:`MEMORY_LIMIT`, ``RLIMIT_AS``), optionally a
 file-size limit (a full disk) or a closed stdout, and when the fuzzer runs as root it
 drops the capability to override file permissions so that read-only folders are read-only. Its stdout and stderr
-are captured through pipes; the parent kills it after :data:`TIME_LIMIT` seconds.
+are captured through pipes. A hang is a child that uses more than :data:`TIME_LIMIT` seconds
+of CPU (``RLIMIT_CPU``: SIGXCPU) or is still running after :data:`WALL_LIMIT` seconds (the
+parent kills it: a deadlock uses no CPU); CPU time, not wall time, so that a slow but finite
+case does not count as a hang on a loaded machine.
 
 The contract (``CLASSES`` are the ways to break it):
 
@@ -32,6 +35,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import json
+import math
 import os
 import pkgutil
 import re
@@ -49,9 +53,11 @@ from pathlib import Path
 
 from nrpose.cli import EXIT_PIPE
 
-__all__ = ["Outcome", "Runner", "Collector", "run_case", "CLASSES", "TIME_LIMIT", "MEMORY_LIMIT"]
+__all__ = ["Outcome", "Runner", "Collector", "run_case", "CLASSES", "TIME_LIMIT", "WALL_LIMIT", "MEMORY_LIMIT"]
 
 TIME_LIMIT = 20.0
+#: seconds of wall time after which a child is killed as hung whatever its CPU time
+WALL_LIMIT = 60.0
 MEMORY_LIMIT = 3 << 30
 CAPTURE_LIMIT = 1 << 20
 
@@ -394,7 +400,8 @@ class _Recorder:
         return getattr(self.stream, name)
 
 
-def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w_res: int) -> None:
+def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w_res: int,
+           time_limit: float) -> None:
     code = 1
     try:
         os.setpgid(0, 0)
@@ -413,6 +420,8 @@ def _child(case, casedir: Path, env: dict, drop: bool, w_out: int, w_err: int, w
         os.environ.update(env)
         resource.setrlimit(resource.RLIMIT_AS, (MEMORY_LIMIT, MEMORY_LIMIT))
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+        cpu = int(math.ceil(time_limit))
+        resource.setrlimit(resource.RLIMIT_CPU, (cpu, cpu + 1))
         if case.fsize is not None:
             signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
             resource.setrlimit(resource.RLIMIT_FSIZE, (case.fsize, case.fsize))
@@ -476,17 +485,18 @@ def run_case(case, root: Path, env: dict, drop: bool, time_limit: float = TIME_L
     if pid == 0:
         for r, _ in pipes:
             os.close(r)
-        _child(case, casedir, env, drop, pipes[0][1], pipes[1][1], pipes[2][1])
+        _child(case, casedir, env, drop, pipes[0][1], pipes[1][1], pipes[2][1], time_limit)
     for _, w in pipes:
         os.close(w)
     fds = {pipes[0][0]: "out", pipes[1][0]: "err", pipes[2][0]: "res"}
-    bufs, timed_out = _read_all(fds, t0 + time_limit)
+    bufs, timed_out = _read_all(fds, t0 + max(WALL_LIMIT, 3 * time_limit))
     if timed_out:
         try:
             os.killpg(pid, signal.SIGKILL)
         except ProcessLookupError:
             pass
-    _, status = os.waitpid(pid, 0)
+    _, status, usage = os.wait4(pid, 0)
+    timed_out = timed_out or usage.ru_utime + usage.ru_stime >= time_limit   # RLIMIT_CPU ended it
     seconds = time.monotonic() - t0
     for fd in fds:
         os.close(fd)
