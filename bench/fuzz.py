@@ -5,8 +5,8 @@
 
 Runs cases ``0..N-1`` of ``--seed`` (tests/fuzzing: seeds of every input kind, mutated
 bytes, tokens, JSON structure, headers, options and paths; one forked child per case with a
-limit of 20 s of CPU (60 s of wall time as a backstop) and a 3 GiB address-space limit) over ``--workers`` processes, stopping
-early after ``--minutes``. ``--shared`` adds the assets of ../shared/data as extra seeds.
+limit of 20 s of CPU (60 s of wall time as a backstop) and a 3 GiB address-space limit) over
+``--workers`` processes, stopping early after ``--minutes``. ``--shared`` adds the assets of ../shared/data as extra seeds.
 
 Writes a JSON summary (every 30 s and at the end): ``cases``, ``violations``,
 ``by_outcome``, ``totals`` (command × input kind × outcome: ``accepted``, ``rejected`` and
