@@ -88,7 +88,9 @@ def closest_rotations(M: np.ndarray, iterations: int = 30) -> np.ndarray:
     with det +1); the identity for a zero matrix.
 
     Scaled Newton iteration ``X <- (g X + X^-T / g) / 2``, ``g = |det X|^(-1/3)``, on rows of positive
-    determinant, written on the nine entries as separate arrays (a batched 3x3 SVD costs ~10x more);
+    determinant, written on the nine entries as separate arrays (a batched 3x3 SVD costs ~10x more;
+    :func:`nrpose.model.skeleton.polar_components` covers only maps near a scaled rotation, and a
+    neighbourhood's sum is far from one);
     rows with det <= 0 or not converged to 1e-13 take the SVD with its last axis flipped to det +1."""
     M = np.asarray(M, dtype=np.float64).reshape(-1, 3, 3)
     R = np.broadcast_to(np.eye(3), M.shape).copy()
