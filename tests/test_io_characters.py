@@ -304,8 +304,12 @@ def test_gltf_bad_input(tmp_path):
     with pytest.raises(FileFormatError, match="skin 0"):
         load_gltf(save(broken, tmp_path / "joints.glb"))
     (tmp_path / "bad.gltf").write_text("{not json")
-    with pytest.raises(FileFormatError, match="invalid glTF JSON"):
+    with pytest.raises(FileFormatError, match="glTF JSON is not valid JSON"):
         load_gltf(tmp_path / "bad.gltf")
+    for number in ("1e999", "NaN", "-Infinity"):      # Python's json reads them; JSON has no such numbers
+        (tmp_path / "inf.gltf").write_text('{"asset": {"version": "2.0"}, "extras": {"x": %s}}' % number)
+        with pytest.raises(FileFormatError, match=r"extras\.x = -?(inf|nan): JSON has no such number"):
+            load_gltf(tmp_path / "inf.gltf")
 
 
 # --- BVH ---------------------------------------------------------------------------------

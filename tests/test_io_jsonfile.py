@@ -27,3 +27,15 @@ def test_deep_gltf_refused(tmp_path):
     path.write_text('{"asset": ' + "[" * 5000 + "]" * 5000 + "}")
     with pytest.raises(FileFormatError, match="5001 deep"):
         load_character(path)
+
+
+def test_numbers_json_does_not_have_are_refused_or_named():
+    """Python's json reads NaN, Infinity and 1e999 (as infinity); JSON has no such numbers."""
+    from nrpose.io.jsonfile import check_finite, parse_json
+    for text in ('{"a": 1e999}', '{"a": [NaN]}', '{"a": -Infinity}'):
+        with pytest.raises(FileFormatError, match="not valid JSON"):
+            parse_json(text, "x.json", "a test file")
+    doc = parse_json('{"a": [1, {"b": -1e999}]}', "x.json", "a test file", finite=False)
+    with pytest.raises(FileFormatError, match=r"x\.json: a\[1\]\.b = -inf: JSON has no such number"):
+        check_finite(doc, "x.json")
+    check_finite(parse_json('{"a": [1.5, {"b": 1e308}]}', "x.json", "a test file"), "x.json")

@@ -55,7 +55,7 @@ from ..model.rotation import Rotation
 from ..model.skeleton import Skeleton, local_matrices, polar_rotation
 from .files import read_input
 from .gltf_schema import COMPONENTS, UNIT_TOLERANCE, WIDTHS, decode
-from .jsonfile import check_depth
+from .jsonfile import check_finite, parse_json
 
 __all__ = ["load_gltf", "read_document", "read_accessor", "joint_nodes", "node_globals", "document_character"]
 
@@ -141,12 +141,9 @@ def _load(path: Path) -> tuple[str, SimpleNamespace, list[bytes]]:
             text, blob = data.decode("utf-8"), None
         except UnicodeDecodeError:
             raise FileFormatError(f"{path}: a .gltf file must be UTF-8 JSON") from None
-    check_depth(text, str(path), "glTF JSON")
-    try:
-        root = json.loads(text)
-    except ValueError as exc:  # JSONDecodeError, and integers past Python's digit limit
-        raise FileFormatError(f"{path}: invalid glTF JSON ({exc})") from None
-    doc = decode(str(path), root)
+    root = parse_json(text, str(path), "the glTF JSON", finite=False)
+    doc = decode(str(path), root)     # names a bad number in a field it reads; then any other
+    check_finite(root, str(path))
     return text, doc, _buffer_bytes(path, doc, blob)
 
 

@@ -669,7 +669,7 @@ def fit_skinned_nodes(path, gltf: pygltflib.GLTF2, bounds) -> None:
             continue
         accessors = [gltf.accessors[p.attributes.POSITION] for p in gltf.meshes[node.mesh].primitives
                      if p.attributes.POSITION is not None]
-        box = [(a.min, a.max) for a in accessors if a.min is not None and a.max is not None]
+        box = [(a.min, a.max) for a in accessors if a.min and a.max]      # pygltflib's default is []
         if not box:
             continue
         mn = np.min([b[0] for b in box], axis=0)

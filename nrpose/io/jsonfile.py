@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -35,14 +36,43 @@ def check_depth(text: str, where: str, what: str, error: type[NrposeError] = Fil
                     "is it the right file?")
 
 
-def parse_json(text: str, where: str, what: str, error: type[NrposeError] = FileFormatError):
-    """``json.loads(text)``, with ``error`` naming ``where`` and ``what`` for invalid JSON or
-    too deep nesting (:func:`check_depth`)."""
+def parse_json(text: str, where: str, what: str, error: type[NrposeError] = FileFormatError,
+               finite: bool = True):
+    """``json.loads(text)``, with ``error`` naming ``where`` and ``what`` for invalid JSON, too
+    deep nesting (:func:`check_depth`) and, with ``finite``, ``NaN``/``Infinity`` (not JSON,
+    though Python reads them) and numbers past float64's range (``1e999`` reads as infinity).
+    ``finite=False`` leaves them to a reader that names the field (then :func:`check_finite`)."""
     check_depth(text, where, what, error)
+    hooks = {"parse_float": _finite_float, "parse_constant": _not_a_number} if finite else {}
     try:
-        return json.loads(text)
+        return json.loads(text, **hooks)
     except ValueError as exc:       # JSONDecodeError, and integers past Python's digit limit
         raise error(f"{where}: {what} is not valid JSON ({exc})") from None
+
+
+def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) -> None:
+    """``error`` naming the first NaN or infinite number in parsed JSON ``value`` by its path
+    (depth already bounded by :func:`check_depth`)."""
+    stack = [("", value)]
+    while stack:
+        path, v = stack.pop()
+        if isinstance(v, float) and not math.isfinite(v):
+            raise error(f"{where}: {path.lstrip('.') or 'the document'} = {v}: JSON has no such number")
+        if isinstance(v, dict):
+            stack.extend((f"{path}.{k}", x) for k, x in v.items())
+        elif isinstance(v, list):
+            stack.extend((f"{path}[{i}]", x) for i, x in enumerate(v))
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"the number {text[:40]} is beyond float64's range")
+    return value
+
+
+def _not_a_number(name: str):
+    raise ValueError(f"{name} is not a JSON number")
 
 
 def read_json(path: str | Path, what: str, error: type[NrposeError] = FileFormatError):

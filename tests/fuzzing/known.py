@@ -18,7 +18,7 @@ from .seeds import BAKE_INPUTS, Seed, glb_bytes, gltf_document, make_seeds
 __all__ = ["known_cases", "bake_files", "MUST_REJECT"]
 
 #: cases whose exit 0 is itself the defect (the input is invalid)
-MUST_REJECT = {"pose --alpha nan (authored)", "pose --alpha -1 (authored)", "glTF index as a string",
+MUST_REJECT = {"glTF -Infinity in an unread field (retarget)", "pose --alpha nan (authored)", "pose --alpha -1 (authored)", "glTF index as a string",
                "glTF POSITION index as a string", "pose -o '' (empty output name)"}
 
 
@@ -93,6 +93,10 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
         "glTF channel sampler null": _case("sampler-null", pose_glb,
                                            _gltf(_set(("animations", 0, "channels", 0, "sampler"), None))),
         "glTF index as a string": _case("index-string", pose_glb, _gltf(_set(("accessors", 0, "bufferView"), "0"))),
+        "glTF -Infinity in an unread field (retarget)": _case("extra-infinity", retarget, {
+            "in/s/rig.bvh": bvh, **_gltf(_set(("bufferViews", 0, "extensions"), float("-inf")))}),
+        "glTF POSITION without min/max (retarget)": _case("no-min-max", retarget, {
+            "in/s/rig.bvh": bvh, **_gltf(lambda d: [a.pop(k, None) for a in d["accessors"] for k in ("min", "max")])}),
         "glTF POSITION index as a string": _case("position-string", pose_glb, _gltf(
             _set(("meshes", 0, "primitives", 0, "attributes", "POSITION"), "0"))),
         "glTF count true": _case("count-true", pose_glb, _gltf(_set(("accessors", 0, "count"), True))),
