@@ -13,7 +13,7 @@ import pytest
 
 from cli_run import DATA, needs_data, run
 from nrpose.cli import EXIT_PIPE
-from nrpose.io.files import atomic_path, output_transaction
+from nrpose.io.files import atomic_path, on_commit, output_transaction
 from nrpose.io.meshes import write_geometry
 from nrpose.model.handles import handles_document
 from nrpose.rigs import cylinder
@@ -78,6 +78,37 @@ def test_output_transaction_commits_all_or_nothing(tmp_path):
                 tmp.write_text(p.name)
     assert a.read_text() == "a.txt" and b.read_text() == "b.txt"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
+    # a commit that fails (the first output's rename, say) leaves the later outputs' temporaries nowhere
+    d = tmp_path / "d.txt"
+
+    def failing_commit():
+        raise OSError(17, "File exists", "first output")
+    with pytest.raises(OSError):
+        with output_transaction():
+            on_commit(failing_commit, lambda: None)
+            with atomic_path(d) as tmp:
+                tmp.write_text("d")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.txt", "b.txt"]
+
+
+@needs_data
+def test_frames_into_an_existing_non_directory_are_refused_first(tmp_path, capsys):
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)
+    code, _, err = run(["pose", FOX, "--clip", "Run", "--frames", "0:1", "-o", fifo, "--png", tmp_path / "s.png"],
+                       capsys)
+    assert code == 2 and "is not a directory" in err and err.count("\n") == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fifo"]
+
+
+def test_too_many_segments_refused_before_weights(tmp_path, capsys):
+    V = np.random.default_rng(0).normal(size=(30, 3))
+    write_geometry(tmp_path / "m.xyz", V, np.zeros((0, 3), np.int64))
+    seg = {"rest": [[0, 0, 0], [1, 0, 0]], "pose": [[0, 0, 0], [1, 0, 0]]}
+    (tmp_path / "h.json").write_text(json.dumps({"segments": [seg] * 2049}))
+    code, _, err = run(["deform", tmp_path / "m.xyz", "-H", tmp_path / "h.json", "-o", tmp_path / "o.xyz",
+                        "--weights", "graph"], capsys)
+    assert code == 2 and "2,049 segment handles: at most 2,048" in err
 
 
 def test_a_failing_png_leaves_no_main_output(deform_case, tmp_path, capsys, monkeypatch):

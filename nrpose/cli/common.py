@@ -1,6 +1,7 @@
 """What several commands share: output checks before any work, frame writing, progress, timing."""
 from __future__ import annotations
 
+import os
 import shutil
 import sys
 import tempfile
@@ -98,6 +99,8 @@ def check_outputs(out: str | None, suffixes, png: str | None, out_is_dir: bool =
         if suffixes is not None and Path(out).suffix.lower() not in suffixes:
             raise NrposeError(f"{out}: unknown output extension; use one of {', '.join(suffixes)}")
         check_writable(out, directory_ok=out_is_dir)
+        if out_is_dir and os.path.lexists(out) and not Path(out).is_dir():
+            raise NrposeError(f"{out}: exists and is not a directory; the frames need a directory (or a new name)")
     if png is not None:
         if Path(png).suffix.lower() != ".png":
             raise NrposeError(f"--png {png}: the preview must end in .png")

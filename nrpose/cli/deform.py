@@ -7,7 +7,7 @@ import numpy as np
 
 from ..bind.distances import surface_distances
 from ..pose.blend import BLENDS, LEVERS
-from ..pose.mls import BACKENDS, Deformer
+from ..pose.mls import BACKENDS, Deformer, check_segment_count
 from ..errors import NrposeError
 from ..io.meshes import SUFFIXES, read_geometry, write_geometry
 from ..io.poses import load_handles
@@ -41,6 +41,7 @@ def run(args) -> None:
     check_outputs(args.output, SUFFIXES, args.png)
     geometry = read_geometry(args.input)
     rest, pose, file_alpha = load_handles(args.handles)
+    check_segment_count(rest)          # before weights are computed for every handle
     alpha = check_alpha(args.alpha) if args.alpha is not None else (file_alpha or 1.0)
     t0 = time.perf_counter()
     distances = None

@@ -96,8 +96,14 @@ def output_transaction() -> Iterator[None]:
                 abort()
         raise
     _pending = outer
-    for commit, _ in actions:
-        commit()
+    for k, (commit, _) in enumerate(actions):
+        try:
+            commit()
+        except BaseException:       # the outputs not yet put in place are removed, not left as temporaries
+            for _, abort in reversed(actions[k:]):
+                with contextlib.suppress(OSError):
+                    abort()
+            raise
 
 
 def on_commit(commit, abort) -> None:

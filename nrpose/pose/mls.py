@@ -46,6 +46,14 @@ BOUND_ALIGN = 128       # bytes: each array's offset a multiple (float8 rows are
 #: most segment handles a deformer binds: the quaternion blend's sign tree and the OpenCL
 #: kernel's per-frame rotation tables grow as segments² (2,048: 67 MB a frame)
 MAX_SEGMENTS = 2048
+
+
+def check_segment_count(handles: HandleSet) -> None:
+    """InputError when ``handles`` has more than :data:`MAX_SEGMENTS` segments (a caller can
+    check before it computes weights for them)."""
+    if len(handles.segments) > MAX_SEGMENTS:
+        raise InputError(f"{len(handles.segments):,} segment handles: at most {MAX_SEGMENTS:,} (the per-frame "
+                         "rotation tables grow as segments squared)")
 #: index of ``nrmls_pose``'s ``handed`` argument (Deformer._pose_args)
 ARG_HANDED = 3
 
@@ -113,9 +121,7 @@ class Deformer(device.BoundKernel):
                  lever: str = "weight", distances=None, weights=None, k: int | None = None,
                  backend: str = "opencl", t=None, layout: dict | None = None):
         self.lever = lever
-        if len(rest.segments) > MAX_SEGMENTS:
-            raise InputError(f"{len(rest.segments):,} segment handles: at most {MAX_SEGMENTS:,} (the per-frame "
-                             "rotation tables grow as segments squared)")
+        check_segment_count(rest)
         if backend not in BACKENDS:
             raise InputError(f"backend must be one of {BACKENDS}, got {backend!r}")
         blend = default_blend(rest) if blend is None else blend

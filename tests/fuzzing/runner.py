@@ -496,7 +496,9 @@ def run_case(case, root: Path, env: dict, drop: bool, time_limit: float = TIME_L
         except ProcessLookupError:
             pass
     _, status, usage = os.wait4(pid, 0)
-    timed_out = timed_out or usage.ru_utime + usage.ru_stime >= time_limit   # RLIMIT_CPU ended it
+    # RLIMIT_CPU ended it (SIGXCPU at the soft limit, SIGKILL at the hard one)
+    timed_out = (timed_out or os.waitstatus_to_exitcode(status) == -signal.SIGXCPU
+                 or usage.ru_utime + usage.ru_stime >= time_limit)
     seconds = time.monotonic() - t0
     for fd in fds:
         os.close(fd)
