@@ -39,3 +39,15 @@ def test_numbers_json_does_not_have_are_refused_or_named():
     with pytest.raises(FileFormatError, match=r"x\.json: a\[1\]\.b = -inf: JSON has no such number"):
         check_finite(doc, "x.json")
     check_finite(parse_json('{"a": [1.5, {"b": 1e308}]}', "x.json", "a test file"), "x.json")
+
+
+def test_depth_counted_across_blocks_and_json_size_bounded(monkeypatch):
+    """Nesting is counted block by block (bounded memory) and carries over block edges; a JSON
+    text past MAX_JSON_CHARS is refused before it is scanned or decoded."""
+    import nrpose.io.jsonfile as jsonfile
+    pad = " " * (1 << 22)                      # 4 MB: the next brackets start a new block
+    assert nesting_depth("[" + pad + "[[" + "]]]") == 3
+    assert nesting_depth("[[" + pad + "]]" + "[") == 2
+    monkeypatch.setattr(jsonfile, "MAX_JSON_CHARS", 100)
+    with pytest.raises(FileFormatError, match="is 0 MB of JSON"):
+        jsonfile.parse_json("[" + "0," * 60 + "0]", "x.json", "a test file")

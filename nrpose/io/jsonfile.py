@@ -15,16 +15,25 @@ from .files import read_input_text
 #: deepest nesting of arrays and objects accepted: far beyond any nrpose input (glTF needs < 10),
 #: far below where Python's recursive JSON decoder overflows its stack
 MAX_DEPTH = 100
+#: longest JSON text accepted (characters): a glTF within the schema's 10,000 entries per array
+#: stays far below; Python's objects for 64 MB of JSON take ~1 GB
+MAX_JSON_CHARS = 64_000_000
 _STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
 def nesting_depth(text: str) -> int:
     """Deepest nesting of JSON arrays/objects in ``text``, counted without recursion
-    (brackets inside strings are ignored)."""
+    (brackets inside strings are ignored), in blocks of 4 MB (bounded memory)."""
     code = np.frombuffer(_STRING.sub('""', text).encode("utf-8", "surrogatepass"), dtype=np.uint8)
-    step = (np.isin(code, (ord("["), ord("{"))).astype(np.int64)
-            - np.isin(code, (ord("]"), ord("}"))).astype(np.int64))
-    return int(np.cumsum(step).max(initial=0))
+    depth = deepest = 0
+    for start in range(0, len(code), 1 << 22):
+        block = code[start:start + (1 << 22)]
+        step = ((block == ord("[")) | (block == ord("{"))).astype(np.int32)
+        step -= (block == ord("]")) | (block == ord("}"))
+        levels = np.cumsum(step, dtype=np.int64) + depth
+        deepest = max(deepest, int(levels.max(initial=depth)))
+        depth = int(levels[-1]) if len(levels) else depth
+    return deepest
 
 
 def check_depth(text: str, where: str, what: str, error: type[NrposeError] = FileFormatError) -> None:
@@ -42,6 +51,9 @@ def parse_json(text: str, where: str, what: str, error: type[NrposeError] = File
     deep nesting (:func:`check_depth`) and, with ``finite``, ``NaN``/``Infinity`` (not JSON,
     though Python reads them) and numbers past float64's range (``1e999`` reads as infinity).
     ``finite=False`` leaves them to a reader that names the field (then :func:`check_finite`)."""
+    if len(text) > MAX_JSON_CHARS:
+        raise error(f"{where}: {what} is {len(text) / 1e6:.0f} MB of JSON (at most {MAX_JSON_CHARS // 10**6} MB); "
+                    "is it the right file?")
     check_depth(text, where, what, error)
     hooks = {"parse_float": _finite_float, "parse_constant": _not_a_number} if finite else {}
     try:
