@@ -58,7 +58,7 @@ def whole_job() -> bool:
     sets it unless the user has): its context is then PoCL's worker-thread device alone, a
     worker per CPU, instead of the worker device plus the calling thread's ``basic`` device.
     PoCL builds every program once per device, so a cold start compiles half as much
-    (Mannequin's cold LBS job ~0.95 s of CPU instead of ~1.7 s), while a clip's 16-frame
+    (Mannequin's cold LBS job ~1.1 s of CPU instead of ~1.7 s), while a clip's 16-frame
     launches lose nothing measurable to waking the workers. A process that poses frame by
     frame (the library's default) keeps the shared launch (:func:`nrpose.device.launch_shared`)."""
     return os.environ.get(WHOLE_JOB_VARIABLE) == "1"
