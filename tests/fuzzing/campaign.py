@@ -13,6 +13,8 @@ import json
 import multiprocessing as mp
 import os
 import queue
+import shutil
+import sys
 import time
 from pathlib import Path
 
@@ -30,11 +32,15 @@ def _worker(seed: int, start: int, step: int, count: int, deadline: float, use_s
         for i in range(start, count, step):
             if time.time() > deadline:
                 break
-            case = make_case(seed, i, seeds, shared, commands)
+            try:
+                case = make_case(seed, i, seeds, shared, commands)
+            except Exception as exc:     # a mutator's own bug must not end the worker's share of cases
+                print(f"fuzz: case {i}: the harness could not build it ({type(exc).__name__}: {exc})",
+                      file=sys.stderr, flush=True)
+                continue
             outcome, casedir = runner.run(case)
             q.put(outcome)
             if casedir.exists():
-                import shutil
                 shutil.rmtree(casedir, ignore_errors=True)
     finally:
         runner.close()

@@ -292,7 +292,7 @@ def mutate_json_doc(doc, kind: str, rng: random.Random) -> tuple[object, str, in
     if op == "root":
         new = rng.choice([[], "x", 1, None, [doc], {"": doc}])
         return new, f"root = {str(new)[:30]}", 0
-    if op == "cycle" and isinstance(doc, dict) and doc.get("nodes"):
+    if op == "cycle" and isinstance(doc, dict) and isinstance(doc.get("nodes"), list) and doc["nodes"]:
         nodes = doc["nodes"]
         a, b = rng.randrange(len(nodes)), rng.randrange(len(nodes))
         if isinstance(nodes[a], dict):
