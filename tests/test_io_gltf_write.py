@@ -296,3 +296,16 @@ def test_quantized_clip_travelling_far_stays_float(tmp_path):
     assert report.quantized_frames == 0 and report.max_error < 1e-6
     near = write_animated_glb(tmp_path / "near.glb", meshes, P * [0.01, 1, 1], [0.0, 1.0], quantize=True)
     assert near.quantized_frames == 2 and near.max_error <= QUANTIZATION_BOUND
+
+
+def test_nothing_is_written_that_nrpose_cannot_read_back():
+    """A document with more animations (or accessors...) than the reader takes is refused by name."""
+    import pygltflib
+    from nrpose.errors import InputError
+    from nrpose.io.gltf_schema import MAX_ITEMS
+    from nrpose.io.gltf_write import check_readable_size
+    gltf = pygltflib.GLTF2(animations=[pygltflib.Animation() for _ in range(MAX_ITEMS)])
+    check_readable_size(gltf, "o.glb")
+    gltf.animations.append(pygltflib.Animation())
+    with pytest.raises(InputError, match="o.glb: would hold 10,001 animations"):
+        check_readable_size(gltf, "o.glb")

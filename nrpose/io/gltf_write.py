@@ -82,6 +82,7 @@ from ..model.rotation import Rotation
 from ..model.skeleton import polar_rotation
 from .files import atomic_path
 from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
+from .gltf_schema import MAX_ITEMS
 
 __all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
            "save_glb", "add_clip", "BakeReport", "Blob",
@@ -265,10 +266,24 @@ def copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
     return gltf, blob, buffers
 
 
+def check_readable_size(gltf: pygltflib.GLTF2, out) -> None:
+    """InputError when the document has an array longer than a glTF nrpose reads holds
+    (:data:`nrpose.io.gltf_schema.MAX_ITEMS`): nrpose writes nothing it cannot read back."""
+    arrays = [(key, getattr(gltf, key)) for key in ("accessors", "animations", "bufferViews", "meshes", "nodes",
+                                                   "materials", "images", "textures", "skins")]
+    for a in gltf.animations or []:
+        arrays += [("channels of an animation", a.channels), ("samplers of an animation", a.samplers)]
+    for key, value in arrays:
+        if value is not None and len(value) > MAX_ITEMS:
+            raise InputError(f"{out}: would hold {len(value):,} {key}, more than a glTF file nrpose reads "
+                             f"(at most {MAX_ITEMS:,}): write fewer frames or clips, or thin the source's")
+
+
 def save_glb(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> int:
     """Write the document with ``blob`` as its binary chunk to ``out`` (atomically); its size in
     bytes. Written chunk by chunk: the blob's parts go to the file as they are, never joined into
     one copy (pygltflib's ``save_binary`` would join them, then copy every view again)."""
+    check_readable_size(gltf, out)
     align = max(blob.align, gltf.required_alignment())
     tail = -blob.size % align
     gltf.buffers = [pygltflib.Buffer(byteLength=blob.size + tail)]
