@@ -80,8 +80,11 @@ def test_invalid_skeletons_and_unknown_names():
         Skeleton(("a", "a"), [-1, 0], np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), np.ones((2, 3)))
     with pytest.raises(InputError, match="zero quaternion"):
         make([-1], np.zeros((1, 3)), rotation=np.zeros((1, 4)))
-    with pytest.raises(InputError, match=r"scale of joint 'j1' is \[1.0, 0.0, 1.0\]: a zero scale"):
-        Skeleton(("j0", "j1"), [-1, 0], np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), [[1, 1, 1], [1, 0, 1]])
+    # a rest frame the inverse bind cannot undo: zero, subnormal, or a chain of scales past 1e8
+    for scale in ([[1, 1, 1], [1, 0, 1]], [[1, 1, 1], [1e-320, 1, 1]], [[1e5, 1, 1], [1e4, 1, 1]]):
+        with pytest.raises(InputError, match=r"rest transform of joint 'j1' scales by .* must lie between"):
+            Skeleton(("j0", "j1"), [-1, 0], np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), scale)
+    Skeleton(("j0", "j1"), [-1, 0], np.zeros((2, 3)), np.tile(IDENTITY, (2, 1)), [[0.01, 0.01, 0.01], [1e-4, 1, 1]])
     # quaternions near the float64 limit normalise without overflow
     huge = make([-1, 0], np.zeros((2, 3)), rotation=[[1e308, 1e308, 0, 0], [0, 0, 0, 1e-6]])
     np.testing.assert_allclose(huge.rotation, [[0.5 ** 0.5, 0.5 ** 0.5, 0, 0], [0, 0, 0, 1]], atol=1e-15)

@@ -209,6 +209,8 @@ def covariance_rotation(C: np.ndarray, p_scale2: float) -> np.ndarray:
     less than an SVD and two determinants.
     kernels/global_fit.h is its device twin for the OpenCL deformer's R_g.
     """
+    if not np.isfinite(C).all():
+        return np.full((3, 3), np.nan)    # eigh cannot take it; the caller's non-finite check names it
     scale = max(np.abs(C).max(), p_scale2, 1e-300)
     (xx, xy, xz), (yx, yy, yz), (zx, zy, zz) = C.tolist()
     N = np.array([[xx + yy + zz, zy - yz, xz - zx, yx - xy],

@@ -56,6 +56,9 @@ __all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation",
 
 #: relative length below which a bone is considered degenerate
 ZERO_LENGTH = 1e-9
+#: smallest scale of a joint's rest frame (its largest is the inverse): the inverse bind stays
+#: well inside float32 range
+MIN_REST_SCALE = 1e-8
 
 
 @dataclass(frozen=True, eq=False)
@@ -219,10 +222,6 @@ class Skeleton:
             if key != "tips" and not np.isfinite(arr).all():
                 raise InputError(f"skeleton {key}: contains NaN or infinite values")
             object.__setattr__(self, key, arr)
-        flat = np.flatnonzero((self.scale == 0).any(axis=1))
-        if len(flat):
-            raise InputError(f"skeleton scale of joint {names[int(flat[0])]!r} is {self.scale[flat[0]].tolist()}: "
-                             f"a zero scale flattens the joint's frame (no inverse bind); give non-zero scales")
         self.rotation[:] = unit_quaternions(self.rotation, [f"skeleton rotation of joint {n!r}" for n in names])
         deform = np.ones(J, bool) if self.deform is None else np.asarray(self.deform, dtype=bool)
         if deform.shape != (J,):
@@ -237,6 +236,20 @@ class Skeleton:
         for key, value in (("names", names), ("parents", parents), ("deform", deform), ("_levels", levels),
                            ("_pre_at", pre_at)):
             object.__setattr__(self, key, value)
+        self._check_rest_scale()
+
+    def _check_rest_scale(self) -> None:
+        """Refuse rest frames the inverse bind cannot undo in float32 (a scale of 0 or 1e-320)."""
+        with np.errstate(over="ignore", invalid="ignore"):
+            sv = np.linalg.svd(self.rest_globals()[:, :3, :3], compute_uv=False)
+        bad = np.flatnonzero(~np.isfinite(sv).all(axis=1) | (sv[:, -1] < MIN_REST_SCALE)
+                             | (sv[:, 0] > 1 / MIN_REST_SCALE))
+        if len(bad):
+            j = int(bad[0])
+            raise InputError(f"the rest transform of joint {self.names[j]!r} scales by "
+                             f"{sv[j, -1]:.3g}..{sv[j, 0]:.3g}: joint scales (times their parents') must lie "
+                             f"between {MIN_REST_SCALE:g} and {1 / MIN_REST_SCALE:g} for an inverse bind; "
+                             "fix the joint's scale in the file")
 
     @property
     def num_joints(self) -> int:

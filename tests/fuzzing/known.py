@@ -105,6 +105,9 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
         "glTF skin joint 1e30": _case("joint-1e30", pose_glb, _gltf(_set(("skins", 0, "joints", 1), 1e30))),
         "glTF node rotation [1e308, 0, 0, 1]": _case("rotation-1e308", pose_glb,
                                                      _gltf(_set(("nodes", 1, "rotation"), [1e308, 0, 0, 1]))),
+        "glTF joint scale 1e-320 (nrmls, numpy)": _case("scale-subnormal", [
+            "pose", "in/c/body.gltf", "--rest", "--weights", "authored", "-o", "out/o.npz", "--backend", "numpy",
+            "--method", "nrmls"], _gltf(_set(("nodes", 1, "scale"), [1e-320, 1, 1]), kind="gltf")),
         "glTF zero animation keys": _case("zero-keys", pose_glb, _gltf(lambda d: None, _zero_view(6))),
         "glTF buffer URI with %00": _case("uri-nul", ["info", "in/c/body.gltf"],
                                           {"in/c/body.gltf": json.dumps(_doc_with(("buffers", 0, "uri"),
