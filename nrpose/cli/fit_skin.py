@@ -11,6 +11,7 @@ from ..errors import NrposeError
 from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
                                   nrmls_targets)
 from ..fit.helper_fit import add_helpers
+from ..fit.helper_tracks import fit_helper_tracks, refit_with_tracks
 from ..fit.rom import ROM_DEGREES, range_of_motion
 from ..fit.skin_file import skinned_primitives, write_fitted_glb
 from ..io import load_character
@@ -50,6 +51,10 @@ def add_parser(sub) -> None:
     p.add_argument("--influences", type=int, default=4, help="joints per vertex: 4 or 8 (default 4)")
     p.add_argument("--helpers", type=int, default=0,
                    help="helper joints added where the residual is largest (default 0)")
+    p.add_argument("--helper-tracks", choices=("rule", "fitted"), default="rule",
+                   help="helper animation in the file: 'rule' (a fixed rule of the joints' rotations, fitted "
+                        "on the training poses; default) or 'fitted' (solved per frame against each written "
+                        "clip's NR-MLS, weights fitted the same way; motions not written by nrpose get the rule)")
     p.add_argument("-o", "--output", required=True, help="OUT.glb")
     p.add_argument("--report", help="R.json: errors vs NR-MLS, sizes, times")
     p.set_defaults(func=run, flags=FLAGS)
@@ -107,10 +112,15 @@ def run(args) -> None:
         rom_frames = len(rom.rotation)
         local = concat([local, rom])
     V = sum(len(m.vertices) for m in character.meshes)
-    for name, pose in [("the training set", local)] + [(h[0], h[1]) for h in holdout]:
-        if len(pose.rotation) * V > MAX_VERTEX_FRAMES:
-            raise NrposeError(f"{name}: {len(pose.rotation)} poses x {V} vertices is more than "
-                              f"{MAX_VERTEX_FRAMES:,} at once; lower --fps or --rom-degrees, or train on less")
+    new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
+    written = tuple(character.clips) + tuple(new_clips)     # the file's animations
+    held = [("the training set", len(local.rotation))] + [(h[0], len(h[1].rotation)) for h in holdout]
+    if args.helper_tracks == "fitted" and args.helpers:     # each written clip posed whole for its tracks
+        held += [(f"clip {c.name!r}", len(sample_times(c.duration, args.fps))) for c in written]
+    for name, frames in held:
+        if frames * V > MAX_VERTEX_FRAMES:
+            raise NrposeError(f"{name}: {frames} poses x {V} vertices is more than {MAX_VERTEX_FRAMES:,} at once; "
+                              "lower --fps or --rom-degrees, or train on less")
     poser = CharacterPoser(character, method="nrmls", weights=args.weights, alpha=args.alpha)
     t0 = time.perf_counter()
     G, targets = nrmls_targets(poser, local)
@@ -119,8 +129,21 @@ def run(args) -> None:
     fitted = fit_character(character, G, targets, args.influences, allowed)
     base_seconds = fitted.seconds
     fitted, helper_log = add_helpers(character, fitted, G, local, targets, args.helpers, args.influences, allowed)
-    new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
-    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips, args.fps)
+    fitted_tracks = args.helper_tracks == "fitted" and bool(fitted.helpers)
+    if fitted_tracks:
+        fitted = refit_with_tracks(character, fitted, G, local, targets, args.influences, allowed)
+
+    def tracks_of(pose, G_pose=None, positions=None):
+        """Helper tracks (F, H, 4, 4) fitted to pose's NR-MLS (None in rule mode)."""
+        if not fitted_tracks:
+            return None
+        if positions is None:
+            G_pose, positions = nrmls_targets(poser, pose)
+        return fit_helper_tracks(character, fitted, G_pose, pose, positions)
+
+    tracks = [tracks_of(clip.sample(sample_times(clip.duration, args.fps))) for clip in written] \
+        if fitted_tracks else None
+    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips, args.fps, tracks)
     print(f"{args.output}: {V} vertices, {args.influences} influences, {len(fitted.helpers)} helper joints "
           f"fitted to {len(G)} poses ({rom_frames} range of motion) in {fitted.seconds:.1f} s "
           f"(NR-MLS targets {target_s:.1f} s)")
@@ -131,15 +154,17 @@ def run(args) -> None:
         errors, baseline = {}, {}
         for name, pose in [("training", None)] + [(h[0], h[1]) for h in holdout]:
             Gh, Th = (G, targets) if pose is None else nrmls_targets(poser, pose)
-            errors[name] = error_table(character, fitted_positions(character, fitted, Gh, local if pose is None
-                                                                  else pose), Th)
+            pose = local if pose is None else pose
+            errors[name] = error_table(character, fitted_positions(character, fitted, Gh, pose,
+                                                                   tracks_of(pose, Gh, Th)), Th)
             baseline[name] = {k: v for k, v in error_table(character, fitted_positions(character, authored, Gh),
                                                            Th).items() if k != "regions"}
         # the file's animations: the source's clips and the --export ones, at --fps
-        frames = sum(len(sample_times(c.duration, args.fps)) for c in tuple(character.clips) + tuple(new_clips))
+        frames = sum(len(sample_times(c.duration, args.fps)) for c in written)
         report = {
             "character": str(args.character), "vertices": V, "height": character_height(character),
             "influences": args.influences, "helpers": len(fitted.helpers), "helpers_requested": args.helpers,
+            "helper_tracks": args.helper_tracks,
             "helper_placement": helper_log,
             "training": {"motions": list(args.train), "poses": int(len(G)), "range_of_motion_poses": rom_frames,
                          "range_of_motion_degrees": args.rom_degrees},

@@ -37,16 +37,18 @@ class FittedSkin:
 
 
 def skin_matrices(character: Character, mesh: Mesh, fitted: FittedSkin, G: np.ndarray,
-                  pose: LocalPose | None) -> np.ndarray:
+                  pose: LocalPose | None, tracks: np.ndarray | None = None) -> np.ndarray:
     """Skinning matrices (F, J + H, 4, 4) float64 of a skinned mesh: joints, then the helpers
-    (their rules evaluated on pose, the local pose G was computed from; needed with helpers)."""
+    (their local transforms: tracks (F, H, 4, 4) if given, else their rules evaluated on pose,
+    the local pose G was computed from)."""
     _, ibm = mesh_space(character, mesh)
     mats = G @ ibm
     if not fitted.helpers:
         return mats
-    if pose is None:
+    if pose is None and tracks is None:
         raise InputError("a fit with helper joints needs the local pose to evaluate their rules")
-    return np.concatenate([mats, helper_skin_matrices(fitted.helpers, character.skeleton, G, pose, ibm)], axis=1)
+    return np.concatenate([mats, helper_skin_matrices(fitted.helpers, character.skeleton, G, pose, ibm, tracks)],
+                          axis=1)
 
 
 def mesh_space(character: Character, mesh: Mesh) -> tuple[np.ndarray, np.ndarray]:
@@ -97,9 +99,10 @@ def fit_character(character: Character, G: np.ndarray, targets: np.ndarray, infl
 
 
 def fitted_positions(character: Character, fitted: FittedSkin, G: np.ndarray,
-                     pose: LocalPose | None = None) -> np.ndarray:
+                     pose: LocalPose | None = None, tracks: np.ndarray | None = None) -> np.ndarray:
     """LBS of the fitted weights: (F, V, 3) float64 for global joint matrices G (F, J, 4, 4) of
-    pose (the local pose, needed when the fit has helper joints)."""
+    pose (the local pose, needed when the fit has helper joints); tracks: the helpers' local
+    transforms (F, H, 4, 4) (:mod:`nrpose.fit.helper_tracks`) instead of their rules."""
     rest_inv = np.linalg.inv(character.skeleton.rest_globals())
     parts = []
     for mesh, j, w in zip(character.meshes, fitted.joints, fitted.weights):
@@ -108,7 +111,7 @@ def fitted_positions(character: Character, fitted: FittedSkin, G: np.ndarray,
             parts.append(np.einsum("fij,nj->fni", M[:, :3, :3], mesh.vertices) + M[:, None, :3, 3])
         else:
             source, _ = mesh_space(character, mesh)
-            parts.append(skin_positions(source, skin_matrices(character, mesh, fitted, G, pose), j, w))
+            parts.append(skin_positions(source, skin_matrices(character, mesh, fitted, G, pose, tracks), j, w))
     return np.concatenate(parts, axis=1)
 
 

@@ -107,11 +107,13 @@ def rigid_fit(z: np.ndarray, u: np.ndarray, a: np.ndarray) -> np.ndarray:
     return L
 
 
-def helper_skin_matrices(helpers, skeleton: Skeleton, G: np.ndarray, pose: LocalPose,
-                         ibm: np.ndarray) -> np.ndarray:
+def helper_skin_matrices(helpers, skeleton: Skeleton, G: np.ndarray, pose: LocalPose | None,
+                         ibm: np.ndarray, tracks: np.ndarray | None = None) -> np.ndarray:
     """Skinning matrices (F, H, 4, 4) float64 of the helpers in a mesh with inverse binds ibm
-    (J, 4, 4), for global joint matrices G (F, J, 4, 4) of pose (F, J, ...)."""
+    (J, 4, 4), for global joint matrices G (F, J, 4, 4) of pose (F, J, ...); the helpers' local
+    transforms are tracks (F, H, 4, 4) if given, else their rules evaluated on pose."""
     out = np.empty((len(G), len(helpers), 4, 4))
     for h, helper in enumerate(helpers):
-        out[:, h] = G[:, helper.parent] @ helper.local(skeleton, pose) @ helper.inverse_bind(ibm[helper.parent])
+        local = helper.local(skeleton, pose) if tracks is None else tracks[:, h]
+        out[:, h] = G[:, helper.parent] @ local @ helper.inverse_bind(ibm[helper.parent])
     return out

@@ -23,7 +23,6 @@ from ..model.character import Character
 from ..model.rotation import matrix_quats
 from ..model.timing import sample_times
 from .character_skin import FittedSkin, mesh_space
-from .helper_joints import HelperJoint
 
 __all__ = ["skinned_primitives", "write_fitted_glb", "add_helper_nodes", "add_helper_channels", "helper_trs"]
 
@@ -73,7 +72,7 @@ def skinned_primitives(path, character: Character) -> list:
 
 
 def write_fitted_glb(source_path, out_path, character: Character, fitted: FittedSkin, clips=(),
-                     fps: float = 30.0) -> int:
+                     fps: float = 30.0, tracks=None) -> int:
     """Write source_path (.glb/.gltf of ``character``) to out_path (.glb) with the fitted weights
     on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations; returns
     the file's size in bytes (the file itself is in place when the command's outputs commit).
@@ -82,6 +81,8 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     every skin holding that joint (inverse bind appended); their rules are evaluated at ``fps``
     over every animation of the file (the source's and ``clips``) and written as translation and
     rotation channels of those animations; their rest TRS is the rule at the rest pose.
+    tracks: instead of the rules, per animation (the source's, then ``clips``) the helpers'
+    local transforms (F, H, 4, 4) at ``fps`` (:func:`nrpose.fit.helper_tracks.fit_helper_tracks`).
     """
     path = Path(source_path)
     check_copyable(path)
@@ -118,15 +119,18 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
             s += 1
     if fitted.helpers:
         helper_nodes = node_of[skeleton.num_joints:]
-        for animation, clip in zip(gltf.animations, tuple(character.clips) + tuple(clips)):
-            add_helper_channels(blob, animation, skeleton, fitted.helpers, helper_nodes, clip, fps)
+        every = tuple(character.clips) + tuple(clips)
+        for k, (animation, clip) in enumerate(zip(gltf.animations, every)):
+            times = sample_times(clip.duration, fps)
+            local = [h.local(skeleton, clip.sample(times)) for h in fitted.helpers] if tracks is None else \
+                list(np.moveaxis(tracks[k], 1, 0))
+            add_helper_channels(blob, animation, local, helper_nodes, times)
     return save_glb(gltf, blob, Path(out_path))
 
 
-def helper_trs(helper: HelperJoint, skeleton, pose) -> tuple[np.ndarray, np.ndarray]:
+def helper_trs(L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Translations (F, 3) and unit quaternions (F, 4) (x, y, z, w; consecutive ones in the same
-    hemisphere, so that players' slerp takes the short way) of a helper's rule over pose."""
-    L = helper.local(skeleton, pose)
+    hemisphere, so that players' slerp takes the short way) of a helper's local transforms L (F, 4, 4)."""
     q = matrix_quats(L[:, :3, :3])
     flip = np.cumprod(np.r_[1.0, np.sign(np.einsum("fi,fi->f", q[1:], q[:-1]) + 1e-300)])
     return L[:, :3, 3], q * flip[:, None]
@@ -138,7 +142,7 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
     added = []
     names = {n.name for n in gltf.nodes}
     for h, helper in enumerate(helpers):
-        t, q = helper_trs(helper, skeleton, skeleton.rest_pose)
+        t, q = helper_trs(helper.local(skeleton, skeleton.rest_pose))
         name, k = f"nrpose_helper_{h}", 2
         while name in names:
             name, k = f"nrpose_helper_{h}_{k}", k + 1
@@ -167,14 +171,12 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
     return added
 
 
-def add_helper_channels(blob: Blob, animation, skeleton, helpers, helper_nodes, clip, fps: float) -> None:
-    """Append to ``animation`` (the document's animation of ``clip``) the helpers' translation and
-    rotation channels: their rules over the clip sampled at ``fps`` (LINEAR)."""
-    times = sample_times(clip.duration, fps)
-    pose = clip.sample(times)
+def add_helper_channels(blob: Blob, animation, local, helper_nodes, times: np.ndarray) -> None:
+    """Append to ``animation`` the helpers' translation and rotation channels (LINEAR): per
+    helper its local transforms (F, 4, 4) at times (F,) seconds."""
     key = blob.add(times.astype(np.float32), "SCALAR", minmax=True)
-    for helper, node in zip(helpers, helper_nodes):
-        t, q = helper_trs(helper, skeleton, pose)
+    for L, node in zip(local, helper_nodes):
+        t, q = helper_trs(L)
         for path, values, kind in (("translation", t, "VEC3"), ("rotation", q, "VEC4")):
             within_float32(values, f"helper joint {path}")
             animation.samplers.append(pygltflib.AnimationSampler(
