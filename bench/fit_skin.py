@@ -3,13 +3,14 @@
 Cases (issue 35's targets): Fox trained on Walk + Survey, Run held out; Mannequin and Ely
 trained on their own clip + the range of motion, CMU 131_03 retargeted onto them
 (``nrpose retarget``, in a temporary folder) held out. Each case is fitted with the given
-influences (default 4) and helper-joint counts (default 0, 8, 16); the held-out motion is
-also exported into the file (``--export``), so the file size includes it. Output: the reports
-of ``nrpose fit-skin --report`` in one JSON (``results/fit_skin.json``), a table on stdout
-(RMS / max as % of the height), and per character and helper count a map of the held-out
-error of the 4-influence fit (``results/fit_skin_<name>_h<N>.png``: per-vertex RMS over the
-held-out frames, colour scale 0 to 1 % of the height), evaluated by loading the written file
-(helpers move by the animation channels written from their rules).
+influences (default 4), helper-joint counts (default 0, 8, 16) and ``--helper-tracks`` modes
+(``--tracks``, default rule); the held-out motion is also exported into the file
+(``--export``), so the file size includes it. Output: the reports of ``nrpose fit-skin
+--report`` in one JSON (``results/fit_skin.json``), a table on stdout (RMS / max as % of the
+height), and per case a map of the held-out error (rule mode: 4-influence fits,
+``results/fit_skin_<name>_h<N>.png``; fitted tracks: ``fit_skin_<name>_k<k>_h<N>_tracks.png``;
+per-vertex RMS over the held-out frames, colour scale 0 to 1 % of the height), evaluated by
+loading the written file (helpers move by the animation channels it holds).
 """
 from __future__ import annotations
 
@@ -38,7 +39,8 @@ CASES = (("Fox", ["Walk", "Survey"], "Run"),
          ("Ely", ["Armature|mixamo.com|Layer0"], "131_03"))
 
 
-def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: str, k: int, helpers: int) -> dict:
+def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: str, k: int, helpers: int,
+             tracks: str = "rule") -> dict:
     src = data / "gltf" / f"{name}.glb"
     if holdout == "131_03":
         motion = tmp / f"{name}_131_03.glb"
@@ -46,12 +48,15 @@ def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: s
                                            "-o", str(motion)]):
             raise SystemExit(2)
         holdout = str(motion)
-    report, out = tmp / f"{name}_{k}_{helpers}.json", tmp / f"{name}_{k}_{helpers}.glb"
+    tag = f"{name}_{k}_{helpers}" + ("_tracks" if tracks == "fitted" else "")
+    report, out = tmp / f"{tag}.json", tmp / f"{tag}.glb"
     if nrpose(["fit-skin", str(src), "--train", *train, "--holdout", holdout, "--export", holdout,
-               "--influences", str(k), "--helpers", str(helpers), "-o", str(out), "--report", str(report)]):
+               "--influences", str(k), "--helpers", str(helpers), "--helper-tracks", tracks,
+               "-o", str(out), "--report", str(report)]):
         raise SystemExit(2)
-    if k == 4:
-        error_map(src, out, holdout, pathlib.Path(__file__).with_name("results") / f"fit_skin_{name}_h{helpers}.png")
+    if k == 4 or tracks == "fitted":
+        png = f"fit_skin_{name}_h{helpers}.png" if tracks == "rule" else f"fit_skin_{name}_k{k}_h{helpers}_tracks.png"
+        error_map(src, out, holdout, pathlib.Path(__file__).with_name("results") / png)
     return json.loads(report.read_text())
 
 
@@ -81,6 +86,8 @@ def main(argv=None) -> int:
     ap.add_argument("--json", default=str(pathlib.Path(__file__).with_name("results") / "fit_skin.json"))
     ap.add_argument("--influences", type=int, nargs="+", default=[4], choices=(4, 8))
     ap.add_argument("--helpers", type=int, nargs="+", default=[0, 8, 16])
+    ap.add_argument("--tracks", nargs="+", default=["rule"], choices=("rule", "fitted"),
+                    help="fit-skin --helper-tracks modes to run (default rule)")
     ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES], help="characters to run (default all)")
     a = ap.parse_args(argv)
     data = pathlib.Path(a.data)
@@ -92,19 +99,19 @@ def main(argv=None) -> int:
         for name, train, holdout in CASES:
             if a.only and name not in a.only:
                 continue
-            for k, n in [(k, n) for k in a.influences for n in a.helpers]:
-                r = run_case(data, pathlib.Path(tmp), name, train, holdout, k, n)
+            for k, n, mode in [(k, n, m) for k in a.influences for n in a.helpers for m in a.tracks]:
+                r = run_case(data, pathlib.Path(tmp), name, train, holdout, k, n, mode)
                 for label, e in r["errors"].items():
-                    rows.append({"character": name, "influences": k, "helpers": r["helpers"],
+                    rows.append({"character": name, "influences": k, "helpers": r["helpers"], "tracks": mode,
                                  "set": "training" if label == "training" else "held-out",
                                  "rms_pct": 100 * e["rms_fraction"], "max_pct": 100 * e["max_fraction"],
                                  "authored_rms_pct": 100 * r["authored_lbs_errors"][label]["rms_fraction"],
                                  "fit_seconds": r["fit_seconds"], "file_bytes": r["size"]["file_bytes"],
                                  "bake_10s_bytes": r["size"]["morph_bake_bytes_10s"], "report": r})
-    print(f"{'character':10} {'k':>2} {'h':>2} {'set':9} {'RMS %':>7} {'max %':>7} {'authored RMS %':>15} "
+    print(f"{'character':10} {'k':>2} {'h':>2} {'tracks':6} {'set':9} {'RMS %':>7} {'max %':>7} {'authored RMS %':>15} "
           f"{'fit s':>6} {'file / bake10s':>15}")
     for row in rows:
-        print(f"{row['character']:10} {row['influences']:2d} {row['helpers']:2d} {row['set']:9} {row['rms_pct']:7.3f} "
+        print(f"{row['character']:10} {row['influences']:2d} {row['helpers']:2d} {row['tracks']:6} {row['set']:9} {row['rms_pct']:7.3f} "
               f"{row['max_pct']:7.3f} {row['authored_rms_pct']:15.3f} {row['fit_seconds']:6.1f} "
               f"{row['file_bytes'] / row['bake_10s_bytes']:15.4f}")
     common.write_record({"created": common.now(), "environment": common.environment(), "rows": rows}, a.json)

@@ -65,13 +65,19 @@ def frames_of(rest: np.ndarray, posed) -> tuple[np.ndarray, bool]:
     return P, single
 
 
-def edge_strain(rest, posed, edges) -> np.ndarray:
-    """|ℓ/ℓ₀ − 1| per edge: (E,) for one frame or (F, E). Edges of zero rest length are dropped."""
+def _pairs_of(rest, posed, pairs):
+    """Checked rest (N, 3) and posed (F, N, 3) float64, whether one frame was given, and the
+    vertex pairs (E, 2) int64 of non-zero rest length with those lengths (E,)."""
     V = real_rows(rest, "rest vertices")
     P, single = frames_of(V, posed)
-    E = np.asarray(edges, np.int64).reshape(-1, 2)
+    E = np.asarray(pairs, np.int64).reshape(-1, 2)
     l0 = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
-    E, l0 = E[l0 > 0], l0[l0 > 0]
+    return V, P, single, E[l0 > 0], l0[l0 > 0]
+
+
+def edge_strain(rest, posed, edges) -> np.ndarray:
+    """|ℓ/ℓ₀ − 1| per edge: (E,) for one frame or (F, E). Edges of zero rest length are dropped."""
+    _, P, single, E, l0 = _pairs_of(rest, posed, edges)
     s = np.abs(np.linalg.norm(P[:, E[:, 0]] - P[:, E[:, 1]], axis=2) / l0 - 1.0)
     return s[0] if single else s
 
@@ -128,11 +134,7 @@ def region_volume_ratios(rest, posed, faces, face_region, apex_rest, apex_posed)
 
 def continuity_ratio(rest, posed, pairs) -> np.ndarray:
     """Per pair |Δ(posed − rest)| / |Δ rest|: (E,) or (F, E). Pairs of zero rest distance are dropped."""
-    V = real_rows(rest, "rest vertices")
-    P, single = frames_of(V, posed)
-    E = np.asarray(pairs, np.int64).reshape(-1, 2)
-    l0 = np.linalg.norm(V[E[:, 0]] - V[E[:, 1]], axis=1)
-    E, l0 = E[l0 > 0], l0[l0 > 0]
+    V, P, single, E, l0 = _pairs_of(rest, posed, pairs)
     D = P - V[None]
     r = np.linalg.norm(D[:, E[:, 0]] - D[:, E[:, 1]], axis=2) / l0
     return r[0] if single else r
