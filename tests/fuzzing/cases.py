@@ -30,8 +30,8 @@ COMMANDS = {"deform": 0.23, "pose": 0.27, "weights": 0.13, "retarget": 0.18, "in
 ADDED_FLAGS = {"*": ["--fps", "--alpha", "--time", "--frames", "--k", "--bone", "--clip", "--source-clip", "--png",
                      "--method", "--weights", "--format"],
                "bake": ["--workers", "--summary", "--ray"],
-               "fit-skin": ["--rom-degrees", "--influences", "--helpers", "--train", "--holdout", "--export",
-                            "--report"],
+               "fit-skin": ["--rom-degrees", "--influences", "--helpers", "--helper-tracks", "--train", "--holdout",
+                            "--export", "--report"],
                "demo": ["--frames", "--repeat", "--out"]}
 #: the kind of a file a seed refers to (mutated as that kind), by name
 EXTRA_KINDS = dict(BAKE_INPUTS, **{"body.bin": "bin"})
@@ -182,6 +182,8 @@ def _fit_skin(b: _Builder) -> tuple[str, list]:
         argv += ["--holdout", CLIP if r.random() < 0.5 else b.file("holdout", "bvh")]
     if r.random() < 0.15:
         argv += ["--export", b.file("export", "bvh")]
+    if r.random() < 0.2:
+        argv += ["--helpers", r.choice(["1", "2"]), *b.maybe(0.5, "--helper-tracks", "fitted")]
     argv += [*b.maybe(0.2, "--influences", "8"),
              *b.maybe(0.2, "--weights", r.choice(["euclidean", "graph"])), *b.maybe(0.1, "--alpha", "2")]
     return f"fit-skin-{'+'.join(train)}", argv
