@@ -125,3 +125,49 @@ def test_bad_input_writes_nothing(tmp_path, panels, handles, match):
 def test_bad_up_axis(tmp_path):
     with pytest.raises(InputError, match="up must be"):
         save_preview(tmp_path / "x.png", [("a", np.eye(3), None)], up="w")
+
+
+def spiky_sphere():
+    """A sphere with every third vertex moved to the far side: long triangles across the view
+    (a mesh with corrupt coordinates), covering it over ten times."""
+    V, F = sphere(24, 32)
+    V = V.copy()
+    V[::3] *= -1.0
+    return V, F
+
+
+def test_a_mesh_covering_the_view_many_times_is_refused_quickly(tmp_path):
+    import time
+
+    from nrpose.render.sheet import save_contact_sheet
+
+    V, F = spiky_sphere()
+    t0 = time.process_time()
+    with pytest.raises(InputError, match=r"cover the view [\d,]+ times over \(at most 8"):
+        save_preview(tmp_path / "p.png", [("spiky", V, F)])
+    with pytest.raises(InputError, match="times over"):
+        save_contact_sheet(tmp_path / "s.png", V[None], F)
+    assert time.process_time() - t0 < 5
+    assert not list(tmp_path.iterdir())
+    # an ordinary closed mesh covers its view about once: drawn
+    save_preview(tmp_path / "ok.png", [("sphere", *sphere(24, 32))])
+    save_contact_sheet(tmp_path / "ok_sheet.png", sphere(24, 32)[0][None], sphere(24, 32)[1])
+
+
+def test_cli_picture_of_a_spiky_mesh_is_one_line_and_leaves_nothing(tmp_path, capsys):
+    import json
+
+    from nrpose.cli import main
+    from nrpose.io.meshes import write_geometry
+
+    V, F = spiky_sphere()
+    write_geometry(tmp_path / "m.obj", V, F)
+    (tmp_path / "h.json").write_text(json.dumps({"points": [{"rest": [0, 0, 1], "pose": [0, 0.2, 1]},
+                                                            {"rest": [0, 0, -1], "pose": [0, 0, -1]}]}))
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main(["deform", str(tmp_path / "m.obj"), "-H", str(tmp_path / "h.json"), "-o", str(out / "o.obj"),
+                 "--backend", "numpy", "--png", str(out / "p.png")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "times over" in err, err
+    assert not list(out.iterdir())

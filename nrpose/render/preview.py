@@ -13,6 +13,9 @@ threads) and writes the PNG through :func:`nrpose.io.files.atomic_path`.
 * Point clouds are small dots coloured by height (the ``up`` axis), above
   ``MAX_POINTS`` an evenly spread subset.
 * Handles are drawn on top: segments as thick lines, points as dots.
+* A mesh whose triangles, projected, cover the view more than ``MAX_COVER``
+  times over (spikes across the whole mesh: drawing time grows with it) is
+  refused with InputError (:func:`check_cover`, also used by the contact sheets).
 * ``up`` names the data axis drawn vertically: ``"y"`` (default, glTF, BVH
   and most OBJ) or ``"z"`` (or ``"x"``). The data are only relabelled
   (a proper rotation), never rescaled.
@@ -27,10 +30,13 @@ from ..checks import real_rows, triangles
 from ..errors import InputError
 from ..io.files import atomic_path
 
-__all__ = ["save_preview", "render_figure", "spread", "MAX_FACES", "MAX_POINTS", "LIGHT", "MESH_RGB", "UP"]
+__all__ = ["save_preview", "render_figure", "spread", "check_cover", "MAX_FACES", "MAX_POINTS", "MAX_COVER", "LIGHT",
+           "MESH_RGB", "UP"]
 
 MAX_FACES = 60_000
 MAX_POINTS = 60_000
+#: projected triangle area a picture may draw, in views (the shared meshes and characters: 0.2-0.9)
+MAX_COVER = 8
 LIGHT = np.array([-0.4, -0.6, 0.7])       # in plot coordinates (x right, y depth, z up)
 MESH_RGB = np.array([0.62, 0.70, 0.86])
 # data axis -> plot axes (right-handed relabelling, the up axis becomes plot z)
@@ -44,14 +50,29 @@ def spread(n: int, keep: int) -> np.ndarray:
     return np.unique(np.linspace(0, n - 1, keep).round().astype(np.int64))
 
 
+def check_cover(projected_area: float, view_area: float) -> None:
+    """Refuse (InputError) to draw triangles whose projected areas sum to more than
+    ``MAX_COVER`` times the view's area (both in the same units): drawing time grows with it."""
+    cover = float(projected_area) / max(float(view_area), 1e-300)
+    if not cover <= MAX_COVER:
+        raise InputError(f"cannot draw the picture: the mesh's triangles cover the view {cover:,.0f} times over (at "
+                         f"most {MAX_COVER}; a surface seen whole covers it about once): are there spikes across the "
+                         "mesh? check its coordinates, or leave the picture out")
+
+
+def _eye(elev: float, azim: float) -> np.ndarray:
+    """Unit direction (3,) towards the camera in plot coordinates."""
+    el, az = np.radians(elev), np.radians(azim)
+    return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
 def _front_faces(tri: np.ndarray, nrm: np.ndarray, elev: float, azim: float) -> np.ndarray:
     """Indices of the faces turned towards the camera (back faces of a closed mesh are hidden).
 
     The outward side is taken from the sign of the mesh's signed volume, so
     inward-oriented meshes are culled correctly too.
     """
-    el, az = np.radians(elev), np.radians(azim)
-    eye = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    eye = _eye(elev, azim)
     volume = np.einsum("ij,ij->", tri[:, 0], nrm)         # 6 x signed volume (sum v0 . n)
     side = 1.0 if volume >= 0 else -1.0
     return np.flatnonzero(side * (nrm @ eye) >= 0)
@@ -121,6 +142,13 @@ def render_figure(panels: Sequence[tuple], handles: Sequence | None = None, *,
     ext = np.maximum(hi - lo, 1e-3 * (hi - lo).max())
     hi = lo + ext
     up_lo, up_hi = lo[2], hi[2]
+
+    eye = _eye(elev, azim)
+    for _, V, F, _, _ in prepared:
+        if F is not None:
+            tri = V[F]
+            check_cover(0.5 * np.abs(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]) @ eye).sum(),
+                        np.abs(eye) @ [ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]])
 
     n = len(prepared)
     fig = Figure(figsize=(panel_inches * n, panel_inches), dpi=dpi)

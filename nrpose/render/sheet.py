@@ -8,7 +8,9 @@ shared, equal-scale bounding box, so motion between panels is real motion.
 Drawing is a small orthographic software renderer in numpy on matplotlib's
 Agg backend (no screen, no pyplot state) instead of ``mplot3d``: each frame's
 mesh is projected once, faces turned away from the camera are dropped
-(closed meshes, either orientation) and the rest are rasterised with a
+(closed meshes, either orientation), a mesh whose front faces cover the
+panel more than ``MAX_COVER`` times over is refused (:func:`nrpose.render.preview.check_cover`),
+and the rest are rasterised with a
 per-pixel nearest-face test at twice the panel resolution, Lambert-shaded,
 then shown with ``imshow`` (smoothed down: anti-aliased). Cost grows with
 pixels, not with triangles drawn through matplotlib: 12 panels of 16k
@@ -33,7 +35,7 @@ import numpy as np
 from ..checks import real_rows, triangles
 from ..errors import InputError
 from ..io.files import atomic_path
-from .preview import LIGHT, MESH_RGB, UP, spread
+from .preview import LIGHT, MESH_RGB, UP, check_cover, spread
 
 __all__ = ["save_contact_sheet", "view_matrix", "rasterize", "draw_mesh", "draw_points",
            "draw_segments"]
@@ -97,6 +99,7 @@ def rasterize(screen: np.ndarray, faces: np.ndarray, light: np.ndarray, bounds, 
     hi_y = np.clip(np.floor(py.max(axis=1) - 0.5), -1, H - 1).astype(np.int64)
     bw, bh = np.maximum(hi_x - lo_x + 1, 0), np.maximum(hi_y - lo_y + 1, 0)
     area = (px[:, 1] - px[:, 0]) * (py[:, 2] - py[:, 0]) - (px[:, 2] - px[:, 0]) * (py[:, 1] - py[:, 0])
+    check_cover(0.5 * np.abs(area).sum(), W * H)
     sgn = np.where(area >= 0, 1.0, -1.0)
     top = np.full(W * H, -1, np.int64)                   # nearest face per pixel (rank)
     counts = bw * bh
