@@ -190,7 +190,7 @@ def run(args, capsys):
     ([], "no training motion"),
     (["--train", "Jump"], "not a clip"),
     (["--train", "Walk", "--rom-degrees", "-5"], "--rom-degrees"),
-    (["--train", "Walk", "--fps", "100000"], "more than"),
+    (["--train", "Walk", "--fps", "100000"], "poses, more than 10,000"),
 ])
 def test_cli_bad_options_exit_2_one_line_no_output(tmp_path, capsys, extra, message):
     out = tmp_path / "o.glb"

@@ -29,6 +29,7 @@ INFLUENCES = (4, 8)
 BAKE_BYTES = 12      # morph-target bake: one float32 xyz per vertex per frame
 BAKE_SECONDS, BAKE_FPS = 10.0, 30.0
 MAX_VERTEX_FRAMES = 40_000_000   # poses x vertices held at once (targets and fitted, ~1.5 GB)
+MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (Mannequin trains on 911)
 
 
 def add_parser(sub) -> None:
@@ -118,6 +119,9 @@ def run(args) -> None:
     if args.helper_tracks == "fitted" and args.helpers:     # each written clip posed whole for its tracks
         held += [(f"clip {c.name!r}", len(sample_times(c.duration, args.fps))) for c in written]
     for name, frames in held:
+        if frames > MAX_POSES:
+            raise NrposeError(f"{name}: {frames:,} poses, more than {MAX_POSES:,}; lower --fps or --rom-degrees, "
+                              "or train on less")
         if frames * V > MAX_VERTEX_FRAMES:
             raise NrposeError(f"{name}: {frames} poses x {V} vertices is more than {MAX_VERTEX_FRAMES:,} at once; "
                               "lower --fps or --rom-degrees, or train on less")
