@@ -122,8 +122,11 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
         every = tuple(character.clips) + tuple(clips)
         for k, (animation, clip) in enumerate(zip(gltf.animations, every)):
             times = sample_times(clip.duration, fps)
-            local = [h.local(skeleton, clip.sample(times)) for h in fitted.helpers] if tracks is None else \
-                list(np.moveaxis(tracks[k], 1, 0))
+            if tracks is None:
+                pose = clip.sample(times)
+                local = [h.local(skeleton, pose) for h in fitted.helpers]
+            else:
+                local = list(np.moveaxis(tracks[k], 1, 0))
             add_helper_channels(blob, animation, local, helper_nodes, times)
     return save_glb(gltf, blob, Path(out_path))
 
