@@ -11,9 +11,10 @@ from ..errors import NrposeError
 from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
                                   nrmls_targets)
 from ..fit.helper_fit import add_helpers
+from ..fit.helper_keys import KEY_TOLERANCE, helper_keys
 from ..fit.helper_tracks import fit_helper_tracks, refit_with_tracks
 from ..fit.rom import ROM_DEGREES, range_of_motion
-from ..fit.skin_file import skinned_primitives, write_fitted_glb
+from ..fit.skin_file import skinned_primitives, stored_skin, write_fitted_glb
 from ..io import load_character
 from ..io.files import atomic_path
 from ..io.poses import load_pose
@@ -56,6 +57,9 @@ def add_parser(sub) -> None:
                    help="helper animation in the file: 'rule' (a fixed rule of the joints' rotations, fitted "
                         "on the training poses; default) or 'fitted' (solved per frame against each written "
                         "clip's NR-MLS, weights fitted the same way; motions not written by nrpose get the rule)")
+    p.add_argument("--key-tolerance", type=float, default=KEY_TOLERANCE,
+                   help=f"helper channels keep the keys a player needs to stay within this fraction of the "
+                        f"character's height at every frame (default {KEY_TOLERANCE:g}; 0: a key every frame)")
     p.add_argument("-o", "--output", required=True, help="OUT.glb")
     p.add_argument("--report", help="R.json: errors vs NR-MLS, sizes, times")
     p.set_defaults(func=run, flags=FLAGS)
@@ -96,6 +100,8 @@ def run(args) -> None:
         raise NrposeError(f"--fps {args.fps}: expected a positive number")
     if not (np.isfinite(args.rom_degrees) and 0 <= args.rom_degrees <= 180):
         raise NrposeError(f"--rom-degrees {args.rom_degrees}: expected 0 to 180")
+    if not (np.isfinite(args.key_tolerance) and 0 <= args.key_tolerance <= 0.1):
+        raise NrposeError(f"--key-tolerance {args.key_tolerance}: expected a fraction of the height from 0 to 0.1")
     check_outputs(args.output, (".glb",), None)
     if args.report:
         check_outputs(args.report, (".json",), None)
@@ -136,6 +142,7 @@ def run(args) -> None:
     fitted_tracks = args.helper_tracks == "fitted" and bool(fitted.helpers)
     if fitted_tracks:
         fitted = refit_with_tracks(character, fitted, G, local, targets, args.influences, allowed)
+    fitted = stored_skin(fitted)        # the written clips' tracks and the report use the file's weights
 
     def tracks_of(pose, G_pose=None, positions=None):
         """Helper tracks (F, H, 4, 4) fitted to pose's NR-MLS (None in rule mode)."""
@@ -147,7 +154,8 @@ def run(args) -> None:
 
     tracks = [tracks_of(clip.sample(sample_times(clip.duration, args.fps))) for clip in written] \
         if fitted_tracks else None
-    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips, args.fps, tracks)
+    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips, args.fps, tracks,
+                            args.key_tolerance)
     print(f"{args.output}: {V} vertices, {args.influences} influences, {len(fitted.helpers)} helper joints "
           f"fitted to {len(G)} poses ({rom_frames} range of motion) in {fitted.seconds:.1f} s "
           f"(NR-MLS targets {target_s:.1f} s)")
@@ -156,11 +164,15 @@ def run(args) -> None:
         authored = FittedSkin(tuple(None if m.rigid_joint is not None else m.joints for m in character.meshes),
                               tuple(None if m.rigid_joint is not None else m.weights for m in character.meshes), 0.0)
         errors, baseline = {}, {}
-        for name, pose in [("training", None)] + [(h[0], h[1]) for h in holdout]:
-            Gh, Th = (G, targets) if pose is None else nrmls_targets(poser, pose)
-            pose = local if pose is None else pose
-            errors[name] = error_table(character, fitted_positions(character, fitted, Gh, pose,
-                                                                   tracks_of(pose, Gh, Th)), Th)
+        for name, pose, clip in [("training", local, None)] + holdout:
+            Gh, Th = (G, targets) if clip is None else nrmls_targets(poser, pose)
+            helper_local = tracks_of(pose, Gh, Th)
+            if clip is not None and fitted.helpers:     # a clip's helpers as the file plays them: from its keys
+                if helper_local is None:
+                    helper_local = np.stack([h.local(character.skeleton, pose) for h in fitted.helpers], axis=1)
+                helper_local = helper_keys(character, fitted, Gh, helper_local, sample_times(clip.duration, args.fps),
+                                           args.key_tolerance)[1]
+            errors[name] = error_table(character, fitted_positions(character, fitted, Gh, pose, helper_local), Th)
             baseline[name] = {k: v for k, v in error_table(character, fitted_positions(character, authored, Gh),
                                                            Th).items() if k != "regions"}
         # the file's animations: the source's clips and the --export ones, at --fps
@@ -168,7 +180,7 @@ def run(args) -> None:
         report = {
             "character": str(args.character), "vertices": V, "height": character_height(character),
             "influences": args.influences, "helpers": len(fitted.helpers), "helpers_requested": args.helpers,
-            "helper_tracks": args.helper_tracks,
+            "helper_tracks": args.helper_tracks, "key_tolerance": args.key_tolerance,
             "helper_placement": helper_log,
             "training": {"motions": list(args.train), "poses": int(len(G)), "range_of_motion_poses": rom_frames,
                          "range_of_motion_degrees": args.rom_degrees},

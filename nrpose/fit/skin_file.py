@@ -2,14 +2,17 @@
 
 Everything else is kept (nodes, materials, UVs, normals, textures, the source's
 animations); all buffers are copied into the single GLB buffer and the new
-weights appended after them (uint16 joints and float32 weights, 4 per set, so
-8 influences use ``JOINTS_0/1`` and ``WEIGHTS_0/1``; each set's weights are
-stored as fitted, the file's rows summing to 1 within float32).
+weights appended after them, 4 per set, so 8 influences use ``JOINTS_0/1`` and
+``WEIGHTS_0/1``: joints as unsigned bytes (unsigned shorts in a skin of more than
+256 joints), weights as normalised unsigned shorts (glTF's core formats for them)
+whose rows sum to exactly 65535 (:func:`stored_weights`: the fit's weights rounded by
+largest remainders, less than 1/65535 each from the fit's).
 Requested clips are added as ordinary animations (:func:`nrpose.io.gltf_write.add_clip`);
 helper joints as nodes with their rules written as animation channels (:func:`write_fitted_glb`).
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +23,14 @@ from ..errors import InputError
 from ..io.gltf_read import joint_nodes, node_globals, read_document
 from ..io.gltf_write import Blob, add_clip, check_copyable, copy_document, save_glb
 from ..model.character import Character
-from ..model.rotation import matrix_quats
 from ..model.timing import sample_times
 from .character_skin import FittedSkin, mesh_space
+from .helper_keys import KEY_TOLERANCE, helper_keys, helper_trs
 
-__all__ = ["skinned_primitives", "write_fitted_glb", "add_helper_nodes", "add_helper_channels", "helper_trs"]
+__all__ = ["skinned_primitives", "stored_weights", "stored_skin", "write_fitted_glb", "add_helper_nodes",
+           "add_helper_channels"]
+
+WEIGHT_SCALE = 65535     # a normalised unsigned short weight k means k / 65535
 
 
 def skinned_primitives(path, character: Character) -> list:
@@ -71,8 +77,26 @@ def skinned_primitives(path, character: Character) -> list:
     return found
 
 
+def stored_weights(w: np.ndarray) -> np.ndarray:
+    """Weights (N, k) >= 0 with rows summing to 1 as the file stores them: (N, k) uint16, each row
+    summing to exactly 65535 (rounded down, then the largest remainders rounded up)."""
+    scaled = np.asarray(w, np.float64) * (WEIGHT_SCALE / np.asarray(w, np.float64).sum(axis=1, keepdims=True))
+    out = np.floor(scaled)
+    short = (WEIGHT_SCALE - out.sum(axis=1)).astype(np.int64)       # 0 <= short < k
+    rank = np.argsort(np.argsort(out - scaled, axis=1, kind="stable"), axis=1)   # largest remainder first
+    out += rank < short[:, None]
+    return out.astype(np.uint16)
+
+
+def stored_skin(fitted: FittedSkin) -> FittedSkin:
+    """``fitted`` with the weights the file stores (:func:`stored_weights`, as float64 fractions),
+    so that what is computed from it is what players of the file compute."""
+    return replace(fitted, weights=tuple(None if w is None else stored_weights(w) / WEIGHT_SCALE
+                                         for w in fitted.weights))
+
+
 def write_fitted_glb(source_path, out_path, character: Character, fitted: FittedSkin, clips=(),
-                     fps: float = 30.0, tracks=None) -> int:
+                     fps: float = 30.0, tracks=None, key_tolerance: float = KEY_TOLERANCE) -> int:
     """Write source_path (.glb/.gltf of ``character``) to out_path (.glb) with the fitted weights
     on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations; returns
     the file's size in bytes (the file itself is in place when the command's outputs commit).
@@ -80,7 +104,9 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     Helper joints (``fitted.helpers``) become nodes, children of their parent joint's node, in
     every skin holding that joint (inverse bind appended); their rules are evaluated at ``fps``
     over every animation of the file (the source's and ``clips``) and written as translation and
-    rotation channels of those animations; their rest TRS is the rule at the rest pose.
+    rotation channels of those animations, keeping the keys a player needs to stay within
+    ``key_tolerance`` (a fraction of the character's height; 0 keeps every frame:
+    :func:`nrpose.fit.helper_keys.helper_keys`); their rest TRS is the rule at the rest pose.
     tracks: instead of the rules, per animation (the source's, then ``clips``) the helpers'
     local transforms (F, H, 4, 4) at ``fps`` (:func:`nrpose.fit.helper_tracks.fit_helper_tracks`).
     """
@@ -104,14 +130,15 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
             raise InputError(f"mesh {mesh}: a fitted joint is not in skin {skin}") from None
         sets = -(-j.shape[1] // 4)
         pad = 4 * sets - j.shape[1]
-        J = np.pad(skin_joints, ((0, 0), (0, pad)), mode="edge").astype(np.uint16)
-        W = np.pad(w, ((0, 0), (0, pad))).astype(np.float32)
+        small = len(gltf.skins[skin].joints) <= 256
+        J = np.pad(skin_joints, ((0, 0), (0, pad)), mode="edge").astype(np.uint8 if small else np.uint16)
+        W = np.pad(stored_weights(w), ((0, 0), (0, pad)))
         attrs = gltf.meshes[mesh].primitives[p].attributes
         for s in range(sets):
-            setattr(attrs, f"JOINTS_{s}", blob.add(J[:, 4 * s:4 * s + 4], "VEC4", pygltflib.UNSIGNED_SHORT,
-                                                   pygltflib.ARRAY_BUFFER))
-            setattr(attrs, f"WEIGHTS_{s}", blob.add(W[:, 4 * s:4 * s + 4], "VEC4", pygltflib.FLOAT,
-                                                    pygltflib.ARRAY_BUFFER))
+            setattr(attrs, f"JOINTS_{s}", blob.add(J[:, 4 * s:4 * s + 4], "VEC4", pygltflib.UNSIGNED_BYTE if small
+                                                   else pygltflib.UNSIGNED_SHORT, pygltflib.ARRAY_BUFFER))
+            setattr(attrs, f"WEIGHTS_{s}", blob.add(W[:, 4 * s:4 * s + 4], "VEC4", pygltflib.UNSIGNED_SHORT,
+                                                    pygltflib.ARRAY_BUFFER, normalized=True))
         s = sets
         while getattr(attrs, f"JOINTS_{s}", None) is not None:   # older sets beyond the fitted ones
             setattr(attrs, f"JOINTS_{s}", None)
@@ -122,21 +149,12 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
         every = tuple(character.clips) + tuple(clips)
         for k, (animation, clip) in enumerate(zip(gltf.animations, every)):
             times = sample_times(clip.duration, fps)
-            if tracks is None:
-                pose = clip.sample(times)
-                local = [h.local(skeleton, pose) for h in fitted.helpers]
-            else:
-                local = list(np.moveaxis(tracks[k], 1, 0))
-            add_helper_channels(blob, animation, local, helper_nodes, times)
+            pose = clip.sample(times)
+            local = np.stack([h.local(skeleton, pose) for h in fitted.helpers], axis=1) if tracks is None \
+                else tracks[k]
+            keys, _ = helper_keys(character, fitted, skeleton.forward_kinematics(pose), local, times, key_tolerance)
+            add_helper_channels(blob, animation, local, helper_nodes, times, keys)
     return save_glb(gltf, blob, Path(out_path))
-
-
-def helper_trs(L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Translations (F, 3) and unit quaternions (F, 4) (x, y, z, w; consecutive ones in the same
-    hemisphere, so that players' slerp takes the short way) of a helper's local transforms L (F, 4, 4)."""
-    q = matrix_quats(L[:, :3, :3])
-    flip = np.cumprod(np.r_[1.0, np.sign(np.einsum("fi,fi->f", q[1:], q[:-1]) + 1e-300)])
-    return L[:, :3, 3], q * flip[:, None]
 
 
 def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, nodes) -> list:
@@ -174,15 +192,20 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
     return added
 
 
-def add_helper_channels(blob: Blob, animation, local, helper_nodes, times: np.ndarray) -> None:
-    """Append to ``animation`` the helpers' translation and rotation channels (LINEAR): per
-    helper its local transforms (F, 4, 4) at times (F,) seconds."""
-    key = blob.add(times.astype(np.float32), "SCALAR", minmax=True)
-    for L, node in zip(local, helper_nodes):
-        t, q = helper_trs(L)
-        for path, values, kind in (("translation", t, "VEC3"), ("rotation", q, "VEC4")):
+def add_helper_channels(blob: Blob, animation, local: np.ndarray, helper_nodes, times: np.ndarray, keys) -> None:
+    """Append to ``animation`` the helpers' translation and rotation channels (LINEAR): local
+    (F, H, 4, 4) their local transforms at times (F,) seconds, of which helper h keeps the frames
+    keys[h] (int array)."""
+    inputs = {}
+    for h, node in enumerate(helper_nodes):
+        kept = np.asarray(keys[h])
+        if kept.tobytes() not in inputs:       # helpers keeping the same frames share their times
+            inputs[kept.tobytes()] = blob.add(times[kept].astype(np.float32), "SCALAR", minmax=True)
+        t, q = helper_trs(local[:, h])
+        for path, values, kind in (("translation", t[kept], "VEC3"), ("rotation", q[kept], "VEC4")):
             within_float32(values, f"helper joint {path}")
             animation.samplers.append(pygltflib.AnimationSampler(
-                input=key, output=blob.add(values.astype(np.float32), kind), interpolation="LINEAR"))
+                input=inputs[kept.tobytes()], output=blob.add(values.astype(np.float32), kind),
+                interpolation="LINEAR"))
             animation.channels.append(pygltflib.AnimationChannel(
                 sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path=path)))

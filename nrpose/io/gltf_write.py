@@ -194,12 +194,13 @@ class Blob:
         return len(self.gltf.bufferViews) - 1
 
     def add(self, array: np.ndarray, kind: str, component: int = pygltflib.FLOAT, target=None,
-            minmax: bool = False) -> int:
-        """A buffer view and an accessor for ``array`` (already of the component's dtype); its index."""
+            minmax: bool = False, normalized: bool = False) -> int:
+        """A buffer view and an accessor for ``array`` (already of the component's dtype; integers
+        read as fractions of the type's maximum where ``normalized``); its index."""
         view = self.raw(np.ascontiguousarray(array).tobytes(), target)
         count = len(array)
         acc = pygltflib.Accessor(bufferView=view, componentType=component,
-                                 count=count, type=kind)
+                                 count=count, type=kind, normalized=normalized)
         if minmax:
             flat = np.asarray(array).reshape(count, -1)
             acc.min = [float(x) for x in flat.min(axis=0)]

@@ -1,0 +1,130 @@
+"""Helper channels with fewer keys: the keys a LINEAR glTF player needs to stay within a tolerance.
+
+A helper's transform is known at every frame of a clip (its rule, or its fitted track), but
+most of those keys are redundant: between two keys a player interpolates, glTF's LINEAR
+(the translation lerped, the rotation slerped: three.js, nrpose's reader) or, in Blender,
+the quaternion's components lerped and normalised (nlerp). :func:`reduce_keys` keeps
+the first and last frames and refines greedily (each round, in every stretch between kept
+keys, the frame furthest off) until at every frame *both* interpolations are within the
+tolerance of the helper's transform, measured as the displacement of the farthest vertex
+the helper moves:
+
+    e_f = s_f (|dt_f| + r * 2 sin(theta_f / 2))
+
+with s_f the largest singular value of the helper's parent's global matrix at frame f, r
+the largest distance from the helper's centre of a vertex weighted to it (in the parent's
+bind frame), dt_f the translation error and theta_f the angle between
+the interpolated and exact rotations: a bound on every vertex's error, its helper weight
+being at most 1. Interpolating two keys whose quaternions lie in opposite hemispheres, nlerp
+turns the long way round, so such a gap is refined like any other.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..model.character import Character
+from ..model.rotation import matrix_quats, quat_matrices, quat_multiply, quat_slerp
+from .character_skin import FittedSkin, character_height, mesh_space
+
+__all__ = ["KEY_TOLERANCE", "helper_trs", "reduce_keys", "helper_keys"]
+
+#: default key tolerance, a fraction of the character's height (20x under the fit's RMS target)
+KEY_TOLERANCE = 1e-4
+
+
+def helper_trs(L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Translations (F, 3) and unit quaternions (F, 4) (x, y, z, w; consecutive ones in the same
+    hemisphere, so that players' slerp takes the short way) of a helper's local transforms L (F, 4, 4)."""
+    q = matrix_quats(L[:, :3, :3])
+    flip = np.cumprod(np.r_[1.0, np.sign(np.einsum("fi,fi->f", q[1:], q[:-1]) + 1e-300)])
+    return L[:, :3, 3], q * flip[:, None]
+
+
+def _radii(character: Character, fitted: FittedSkin) -> np.ndarray:
+    """(H,) float64: per helper of ``fitted`` the largest distance from its centre, in its parent's
+    bind frame, of a vertex with weight on it (0 for a helper no vertex uses)."""
+    J = character.skeleton.num_joints
+    radii = np.zeros(len(fitted.helpers))
+    for mesh, joints, weights in zip(character.meshes, fitted.joints, fitted.weights):
+        if joints is None:
+            continue
+        source, ibm = mesh_space(character, mesh)
+        b = np.c_[source, np.ones(len(source))]
+        for h, helper in enumerate(fitted.helpers):
+            used = ((joints == J + h) & (weights > 0)).any(axis=1)
+            if used.any():
+                z = (b[used] @ ibm[helper.parent].T)[:, :3] - helper.centre
+                radii[h] = max(radii[h], float(np.linalg.norm(z, axis=1).max()))
+    return radii
+
+
+def _parent_scales(G: np.ndarray, fitted: FittedSkin) -> np.ndarray:
+    """(F, H) float64: the largest singular value of each helper's parent's global matrix in
+    frames G (F, J, 4, 4)."""
+    parents = [h.parent for h in fitted.helpers]
+    return np.linalg.svd(G[:, parents, :3, :3], compute_uv=False)[..., 0]
+
+
+def reduce_keys(times: np.ndarray, t: np.ndarray, q: np.ndarray, scale: np.ndarray, radius: float,
+                tolerance: float) -> np.ndarray:
+    """Frames kept (K,) int64, increasing, the first and last among them, of one helper's
+    channels: times (F,) seconds, translations t (F, 3), unit quaternions q (F, 4) as
+    :func:`helper_trs`, parent scales (F,), radius (model units of the parent's bind frame) as
+    :func:`_radii`; tolerance in model units (module docstring; <= 0 keeps every frame)."""
+    F = len(times)
+    if tolerance <= 0 or F <= 2:
+        return np.arange(F)
+    keep = np.zeros(F, bool)
+    keep[[0, F - 1]] = True
+    while True:
+        lerp, slerp, nlerp = _played(times, t, q, np.flatnonzero(keep))
+        chord = np.maximum(_chord(slerp, q), _chord(nlerp, q))
+        err = scale * (np.linalg.norm(lerp - t, axis=1) + radius * chord)
+        if not (err > tolerance).any():
+            return np.flatnonzero(keep)
+        stretch = np.cumsum(keep) - 1                        # the stretch each frame starts or lies in
+        order = np.lexsort((err, stretch))
+        worst = order[np.r_[stretch[order][1:] != stretch[order][:-1], True]]
+        keep[worst[err[worst] > tolerance]] = True
+
+
+def _played(times, t, q, keys) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """At every frame, from ``keys`` (K >= 2,): the lerped translation (F, 3), the slerped and
+    the nlerped (Blender's) quaternion (F, 4)."""
+    k = np.clip(np.searchsorted(keys, np.arange(len(times)), side="right") - 1, 0, len(keys) - 2)
+    a, b = keys[k], keys[k + 1]
+    s = ((times - times[a]) / (times[b] - times[a]))[:, None]
+    nlerp = (1 - s) * q[a] + s * q[b]
+    nlerp /= np.maximum(np.linalg.norm(nlerp, axis=1, keepdims=True), 1e-300)
+    return (1 - s) * t[a] + s * t[b], quat_slerp(q[a], q[b], s), nlerp
+
+
+def _chord(r: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """(F,) 2 sin(theta / 2) of the angle theta between unit quaternions r and q (F, 4): twice the
+    length of the vector part of r^-1 q (no cancellation for small angles)."""
+    return 2 * np.linalg.norm(quat_multiply(r * [-1.0, -1.0, -1.0, 1.0], q)[:, :3], axis=1)
+
+
+def helper_keys(character: Character, fitted: FittedSkin, G: np.ndarray, local: np.ndarray, times: np.ndarray,
+                tolerance: float = KEY_TOLERANCE) -> tuple[list, np.ndarray]:
+    """Keys of every helper's channels in a clip and what a glTF LINEAR player makes of them.
+
+    G (F, J, 4, 4): the skeleton's global matrices at times (F,) seconds; local (F, H, 4, 4): the
+    helpers' local transforms there (rules or fitted tracks); tolerance: a fraction of the
+    character's height (module docstring). Returns the kept frames per helper (H arrays (K_h,)
+    int64, :func:`reduce_keys`) and the transforms (F, H, 4, 4) float64 played from those keys
+    at ``times`` (lerp, slerp).
+    """
+    played = np.array(local, dtype=np.float64, copy=True)
+    scales, radii = _parent_scales(G, fitted), _radii(character, fitted)
+    absolute = tolerance * character_height(character)
+    kept = []
+    for h in range(local.shape[1]):
+        t, q = helper_trs(local[:, h])
+        keys = reduce_keys(times, t, q, scales[:, h], float(radii[h]), absolute)
+        kept.append(keys)
+        if len(keys) < len(times):
+            lerp, slerp, _ = _played(times, t, q, keys)
+            played[:, h, :3, 3] = lerp
+            played[:, h, :3, :3] = quat_matrices(slerp)
+    return kept, played

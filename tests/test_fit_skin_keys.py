@@ -1,0 +1,129 @@
+"""The fitted file's compact encodings: helper channels with only the keys a player needs
+(nrpose.fit.helper_keys), weights stored as normalised unsigned shorts (nrpose.fit.skin_file)."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pygltflib
+import pytest
+
+from nrpose.cli import main
+from nrpose.fit.helper_keys import helper_trs, reduce_keys
+from nrpose.fit.skin_file import stored_weights
+from nrpose.model.rotation import Rotation, quat_matrices
+from nrpose.model.timing import sample_times
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+FOX = DATA / "gltf" / "Fox.glb"
+
+
+def transforms(rotvecs: np.ndarray, t: np.ndarray) -> np.ndarray:
+    L = np.tile(np.eye(4), (len(t), 1, 1))
+    L[:, :3, :3] = Rotation.from_rotvec(rotvecs).as_matrix()
+    L[:, :3, 3] = t
+    return L
+
+
+def played_points(times, t, q, keys, points, nlerp: bool) -> np.ndarray:
+    """(F, n, 3): points moved by the transforms a player interpolates from keys (slerp, or
+    Blender's normalised component lerp), independently of the module's own interpolation."""
+    out = []
+    for f, time in enumerate(times):
+        k = min(max(np.searchsorted(keys, f, side="right") - 1, 0), len(keys) - 2)
+        a, b = keys[k], keys[k + 1]
+        s = (time - times[a]) / (times[b] - times[a])
+        if nlerp:
+            r = (1 - s) * q[a] + s * q[b]
+            R = quat_matrices(r[None])[0]
+        else:
+            rel = Rotation.from_quat(q[a]).inv() * Rotation.from_quat(q[b])
+            R = (Rotation.from_quat(q[a]) * Rotation.from_rotvec(s * rel.as_rotvec())).as_matrix()
+        out.append(points @ R.T + (1 - s) * t[a] + s * t[b])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_kept_keys_play_every_frame_within_the_tolerance(seed):
+    """Every point within the radius, moved by either player's interpolation of the kept keys,
+    stays within the tolerance (times the parent's scale) of where the exact transforms put it."""
+    rng = np.random.default_rng(seed)
+    F = 120
+    times = np.sort(rng.random(F)).cumsum() / 10
+    # a uniform spin (slerp alone would need two keys for it, nlerp not), then a smooth
+    # motion with a jerk past 180 degrees
+    phase = np.linspace(0, 3, F)[:, None]
+    rot = np.sin(phase * rng.uniform(0.3, 1, 3)) * rng.uniform(0.2, 1, 3)
+    axis = rng.normal(size=3)
+    rot[:40] = np.outer(2.5 * (times[:40] - times[0]) / (times[39] - times[0]), axis / np.linalg.norm(axis))
+    rot[40:] += rot[39] - rot[40]
+    rot[F // 2:] += [0, 0, 1.5]
+    L = transforms(rot, np.cos(phase * rng.uniform(0.3, 1, 3)) * 0.3 * (np.arange(F) >= 40)[:, None])
+    t, q = helper_trs(L)
+    scale = np.full(F, rng.uniform(0.5, 2))
+    radius, tolerance = 0.8, 2e-3
+    keys = reduce_keys(times, t, q, scale, radius, tolerance)
+    assert keys[0] == 0 and keys[-1] == F - 1 and (np.diff(keys) > 0).all()
+    assert len(keys) < F / 2          # smooth stretches need few keys
+    points = rng.normal(size=(200, 3))
+    points *= radius / np.linalg.norm(points, axis=1, keepdims=True)
+    exact = np.einsum("fij,nj->fni", L[:, :3, :3], points) + L[:, None, :3, 3]
+    for nlerp in (False, True):
+        err = np.linalg.norm(played_points(times, t, q, keys, points, nlerp) - exact, axis=2).max(axis=1)
+        assert (err * scale <= tolerance * (1 + 1e-9)).all(), nlerp
+
+
+def test_a_uniform_motion_needs_two_keys_and_no_tolerance_keeps_every_frame():
+    F = 50
+    times = np.arange(F) / 30
+    L = transforms(np.outer(np.linspace(0, 1, F), [0, 0, 0.1]), np.outer(np.linspace(0, 1, F), [1, 2, 3]))
+    t, q = helper_trs(L)
+    assert list(reduce_keys(times, t, q, np.ones(F), 1.0, 1e-5)) == [0, F - 1]
+    assert list(reduce_keys(times, t, q, np.ones(F), 1.0, 0.0)) == list(range(F))
+
+
+def test_stored_weights_sum_to_65535_and_stay_within_a_step():
+    rng = np.random.default_rng(3)
+    w = rng.random((5000, 8)) ** 4
+    w[:, 6:] = 0
+    w /= w.sum(axis=1, keepdims=True)
+    s = stored_weights(w)
+    assert s.dtype == np.uint16 and (s.sum(axis=1, dtype=np.int64) == 65535).all()
+    assert np.abs(s / 65535 - w).max() < 1 / 65535
+    assert (s[:, 6:] == 0).all()
+
+
+@pytest.mark.skipif(not FOX.is_file(), reason=f"shared assets not found at {DATA}")
+def test_cli_file_is_compact_and_plays_what_the_report_says(tmp_path, capsys):
+    """The written Fox with helpers: helper channels of the slow clip (Survey) thinned, every
+    skin weight set a normalised unsigned short, joints unsigned bytes; the report's held-out
+    figures are those of the file as nrpose plays it (test_fit_skin_tracks checks the latter
+    with fitted tracks; here with rules)."""
+    from nrpose.fit.character_skin import character_height, nrmls_targets
+    from nrpose.io import load_character
+    from nrpose.pose.poser import CharacterPoser
+
+    out, report = tmp_path / "fox.glb", tmp_path / "r.json"
+    code = main(["fit-skin", str(FOX), "--train", "Walk", "--holdout", "Run", "--rom-degrees", "30",
+                 "--helpers", "2", "--key-tolerance", "1e-3", "-o", str(out), "--report", str(report)])
+    assert code == 0, capsys.readouterr().err
+    r = json.loads(report.read_text())
+    g = pygltflib.GLTF2().load(str(out))
+    helpers = {i for i, n in enumerate(g.nodes) if (n.name or "").startswith("nrpose_helper")}
+    assert len(helpers) == r["helpers"] >= 1
+    survey = [a for a in g.animations if a.name == "Survey"][0]
+    frames = len(sample_times(load_character(FOX).clip("Survey").duration, 30.0))
+    counts = [g.accessors[survey.samplers[c.sampler].input].count for c in survey.channels if c.target.node in helpers]
+    assert max(counts) < frames and min(counts) >= 2
+    for prim in (p for m in g.meshes for p in m.primitives if p.attributes.WEIGHTS_0 is not None):
+        weights, joints = g.accessors[prim.attributes.WEIGHTS_0], g.accessors[prim.attributes.JOINTS_0]
+        assert weights.componentType == pygltflib.UNSIGNED_SHORT and weights.normalized
+        assert joints.componentType == pygltflib.UNSIGNED_BYTE
+    fox, back = load_character(FOX), load_character(out)
+    run = [c for c in back.clips if c.name == "Run"][0]
+    times = sample_times(run.duration, 30.0)
+    lbs = CharacterPoser(back, method="lbs", backend="numpy").pose(run.sample(times)).positions
+    _, targets = nrmls_targets(CharacterPoser(fox, method="nrmls"), fox.clip("Run").sample(times))
+    rms = np.sqrt(((lbs - targets) ** 2).sum(axis=2).mean()) / character_height(fox)
+    assert rms == pytest.approx(r["errors"]["Run"]["rms_fraction"], rel=1e-3)
