@@ -94,6 +94,36 @@ def test_stored_weights_sum_to_65535_and_stay_within_a_step():
     assert (s[:, 6:] == 0).all()
 
 
+def referenced_accessors(g: pygltflib.GLTF2) -> set:
+    """Accessors the document's meshes, skins and animations read."""
+    used = {i for m in g.meshes for p in m.primitives for i in vars(p.attributes).values() if isinstance(i, int)}
+    used |= {p.indices for m in g.meshes for p in m.primitives if p.indices is not None}
+    used |= {s.inverseBindMatrices for s in g.skins if s.inverseBindMatrices is not None}
+    return used | {i for a in g.animations for s in a.samplers for i in (s.input, s.output)}
+
+
+def test_replace_takes_an_accessor_in_place_only_where_nothing_else_reads_it():
+    from nrpose.io.gltf_write import Blob
+    g = pygltflib.GLTF2()
+    blob = Blob(g)
+    a = blob.add(np.zeros((4, 4), np.float32), "VEC4")
+    b = blob.add(np.ones((4, 4), np.float32), "VEC4")
+    g.meshes = [pygltflib.Mesh(primitives=[pygltflib.Primitive(attributes=pygltflib.Attributes(WEIGHTS_0=a)),
+                                           pygltflib.Primitive(attributes=pygltflib.Attributes(WEIGHTS_0=b)),
+                                           pygltflib.Primitive(attributes=pygltflib.Attributes(WEIGHTS_0=b))])]
+    new = np.full((4, 4), 7, np.uint16)
+    assert blob.replace(a, new, "VEC4", pygltflib.UNSIGNED_SHORT, normalized=True) == a
+    assert blob.replace(b, new, "VEC4", pygltflib.UNSIGNED_SHORT) == 2        # read twice: a new accessor
+    blob.pack()
+    data = b"".join(blob.parts)
+    view = g.bufferViews[g.accessors[a].bufferView]
+    assert data[view.byteOffset:view.byteOffset + view.byteLength] == new.tobytes()
+    assert g.accessors[a].normalized and g.accessors[a].componentType == pygltflib.UNSIGNED_SHORT
+    assert blob.size == 32 + 64 + 32     # the old 64 bytes of accessor a are gone
+    g.extensionsUsed = ["EXT_meshopt_compression"]       # might read views: nothing replaced in place
+    assert blob.replace(a, new, "VEC4", pygltflib.UNSIGNED_SHORT) == 3
+
+
 @pytest.mark.skipif(not FOX.is_file(), reason=f"shared assets not found at {DATA}")
 def test_cli_file_is_compact_and_plays_what_the_report_says(tmp_path, capsys):
     """The written Fox with helpers: helper channels of the slow clip (Survey) thinned, every
@@ -120,6 +150,11 @@ def test_cli_file_is_compact_and_plays_what_the_report_says(tmp_path, capsys):
         weights, joints = g.accessors[prim.attributes.WEIGHTS_0], g.accessors[prim.attributes.JOINTS_0]
         assert weights.componentType == pygltflib.UNSIGNED_SHORT and weights.normalized
         assert joints.componentType == pygltflib.UNSIGNED_BYTE
+    # the source's weights and inverse binds were replaced in place: no buffer view left unread
+    read = {g.accessors[i].bufferView for i in referenced_accessors(g)} | {im.bufferView for im in g.images}
+    assert all(i in read for i in range(len(g.bufferViews)))
+    assert sum(v.byteLength for v in g.bufferViews) <= g.buffers[0].byteLength < \
+        sum(v.byteLength for v in g.bufferViews) + 4 * len(g.bufferViews)
     fox, back = load_character(FOX), load_character(out)
     run = [c for c in back.clips if c.name == "Run"][0]
     times = sample_times(run.duration, 30.0)

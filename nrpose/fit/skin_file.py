@@ -134,11 +134,13 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
         J = np.pad(skin_joints, ((0, 0), (0, pad)), mode="edge").astype(np.uint8 if small else np.uint16)
         W = np.pad(stored_weights(w), ((0, 0), (0, pad)))
         attrs = gltf.meshes[mesh].primitives[p].attributes
-        for s in range(sets):
-            setattr(attrs, f"JOINTS_{s}", blob.add(J[:, 4 * s:4 * s + 4], "VEC4", pygltflib.UNSIGNED_BYTE if small
-                                                   else pygltflib.UNSIGNED_SHORT, pygltflib.ARRAY_BUFFER))
-            setattr(attrs, f"WEIGHTS_{s}", blob.add(W[:, 4 * s:4 * s + 4], "VEC4", pygltflib.UNSIGNED_SHORT,
-                                                    pygltflib.ARRAY_BUFFER, normalized=True))
+        for s in range(sets):     # in the source's JOINTS_s / WEIGHTS_s accessors where it has them
+            for name, data, component, normalized in (
+                    (f"JOINTS_{s}", J, pygltflib.UNSIGNED_BYTE if small else pygltflib.UNSIGNED_SHORT, False),
+                    (f"WEIGHTS_{s}", W, pygltflib.UNSIGNED_SHORT, True)):
+                old = getattr(attrs, name, None)
+                setattr(attrs, name, blob.replace(-1 if old is None else old, data[:, 4 * s:4 * s + 4], "VEC4",
+                                                  component, pygltflib.ARRAY_BUFFER, normalized))
         s = sets
         while getattr(attrs, f"JOINTS_{s}", None) is not None:   # older sets beyond the fitted ones
             setattr(attrs, f"JOINTS_{s}", None)
@@ -187,8 +189,9 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
             if int(nodes[helper.parent]) in skin.joints:
                 skin.joints.append(node)
                 mats.append(helper.inverse_bind(ibm[helper.parent]))
-        skin.inverseBindMatrices = blob.add(np.transpose(mats, (0, 2, 1)).astype(np.float32).reshape(-1, 16),
-                                            "MAT4")
+        old = -1 if skin.inverseBindMatrices is None else skin.inverseBindMatrices
+        skin.inverseBindMatrices = blob.replace(old, np.transpose(mats, (0, 2, 1)).astype(np.float32).reshape(-1, 16),
+                                                "MAT4", pygltflib.FLOAT)
     return added
 
 

@@ -175,6 +175,7 @@ class Blob:
     def __init__(self, gltf: pygltflib.GLTF2):
         self.gltf, self.parts, self.size = gltf, [], 0
         self.align = max(4, gltf.required_alignment())     # 8 for documents that use EXT_structural_metadata
+        self.replaced: dict[int, bytes] = {}       # view -> its new bytes (:meth:`replace`)
 
     def append(self, data: bytes) -> int:
         """Append raw bytes (then pad to the document's alignment, 4 or 8); their byte offset."""
@@ -208,6 +209,42 @@ class Blob:
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
 
+    def replace(self, accessor: int, array: np.ndarray, kind: str, component: int, target=None,
+                normalized: bool = False) -> int:
+        """Like :meth:`add`, but where the document lets it, accessor ``accessor`` (read by one
+        reference only, the one the caller is replacing) takes the new data in place: its buffer
+        view, read by no other accessor or image, gets the new bytes and the old ones leave the
+        chunk (:func:`save_glb` packs the views again), so a rewritten attribute leaves no dead
+        data. Elsewhere (a shared view, sparse data, an extension nrpose does not know, which
+        might read views) a new accessor is added. Returns the accessor's index."""
+        acc = self.gltf.accessors[accessor] if 0 <= accessor < len(self.gltf.accessors) else None
+        if acc is None or acc.sparse is not None or acc.bufferView is None:
+            return self.add(array, kind, component, target, normalized=normalized)
+        accessors, views = _references(self.gltf)
+        if accessors[accessor] != 1 or views[acc.bufferView] != 1:
+            return self.add(array, kind, component, target, normalized=normalized)
+        data = np.ascontiguousarray(array)
+        view = self.gltf.bufferViews[acc.bufferView]
+        view.byteStride, view.target, view.byteLength = None, target, data.nbytes
+        self.replaced[acc.bufferView] = data.tobytes()
+        self.gltf.accessors[accessor] = pygltflib.Accessor(bufferView=acc.bufferView, componentType=component,
+                                                           count=len(data), type=kind, normalized=normalized)
+        return accessor
+
+    def pack(self) -> None:
+        """Lay the chunk out again from the buffer views (the replaced ones' new bytes), leaving out
+        bytes no view reads; nothing to do without :meth:`replace` d views."""
+        if not self.replaced:
+            return
+        old = memoryview(b"".join(self.parts))
+        self.parts, self.size = [], 0
+        for i, view in enumerate(self.gltf.bufferViews):
+            data = self.replaced.get(i)
+            if data is None:
+                data = old[view.byteOffset or 0:(view.byteOffset or 0) + view.byteLength]
+            view.byteOffset = self.append(bytes(data))
+        self.replaced = {}
+
     def normalized_vec3(self, values: np.ndarray, dtype, minmax: bool = False) -> int:
         """A normalised integer VEC3 vertex attribute of ``values`` (N, 3) (already integers of
         ``dtype``), padded to a 4-byte stride as glTF requires; its accessor index."""
@@ -222,6 +259,30 @@ class Blob:
             acc.max = [int(x) for x in values.max(axis=0)]
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
+
+
+def _references(gltf: pygltflib.GLTF2) -> tuple[np.ndarray, np.ndarray]:
+    """How many times each accessor and each buffer view is referenced: (accessors,) and (views,)
+    int64 counts; every count is a large number in a document using an extension outside
+    :data:`CARRIED` (one might reference them)."""
+    acc = np.zeros(len(gltf.accessors), np.int64)
+    views = np.zeros(len(gltf.bufferViews), np.int64)
+    if set(gltf.extensionsUsed or []) - CARRIED:
+        return acc + 2 ** 40, views + 2 ** 40
+    for mesh in gltf.meshes:
+        for prim in mesh.primitives:
+            refs = [v for v in vars(prim.attributes).values() if isinstance(v, int)] + \
+                [v for t in prim.targets or [] for v in (t if isinstance(t, dict) else vars(t)).values()
+                 if isinstance(v, int)] + ([prim.indices] if prim.indices is not None else [])
+            np.add.at(acc, [r for r in refs if 0 <= r < len(acc)], 1)
+    refs = [s.inverseBindMatrices for s in gltf.skins if s.inverseBindMatrices is not None] + \
+        [i for a in gltf.animations for s in a.samplers for i in (s.input, s.output)]
+    np.add.at(acc, [r for r in refs if isinstance(r, int) and 0 <= r < len(acc)], 1)
+    refs = [a.bufferView for a in gltf.accessors] + [im.bufferView for im in gltf.images or []] + \
+        [v for a in gltf.accessors if a.sparse is not None for v in (a.sparse.indices.bufferView,
+                                                                     a.sparse.values.bufferView)]
+    np.add.at(views, [r for r in refs if isinstance(r, int) and 0 <= r < len(views)], 1)
+    return acc, views
 
 
 def check_copyable(source) -> None:
@@ -285,6 +346,7 @@ def save_glb(gltf: pygltflib.GLTF2, blob: Blob, out: Path) -> int:
     bytes. Written chunk by chunk: the blob's parts go to the file as they are, never joined into
     one copy (pygltflib's ``save_binary`` would join them, then copy every view again)."""
     check_readable_size(gltf, out)
+    blob.pack()
     align = max(blob.align, gltf.required_alignment())
     tail = -blob.size % align
     gltf.buffers = [pygltflib.Buffer(byteLength=blob.size + tail)]
