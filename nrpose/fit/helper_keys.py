@@ -16,7 +16,10 @@ the largest distance from the helper's centre of a vertex weighted to it (in the
 bind frame), dt_f the translation error and theta_f the angle between
 the interpolated and exact rotations: a bound on every vertex's error, its helper weight
 being at most 1. Interpolating two keys whose quaternions lie in opposite hemispheres, nlerp
-turns the long way round, so such a gap is refined like any other.
+turns the long way round, so such a gap is refined like any other. Rotations are stored as
+normalised int16 (:func:`stored_quats`, glTF's core format; each component within 1/65534):
+the interpolation starts from the stored keys, so their rounding is inside the check
+(a key itself is off by its rounding only, under 3.1e-5 r).
 """
 from __future__ import annotations
 
@@ -26,7 +29,9 @@ from ..model.character import Character
 from ..model.rotation import matrix_quats, quat_matrices, quat_multiply, quat_slerp
 from .character_skin import FittedSkin, character_height, mesh_space
 
-__all__ = ["KEY_TOLERANCE", "helper_trs", "reduce_keys", "helper_keys"]
+__all__ = ["KEY_TOLERANCE", "helper_trs", "stored_quats", "reduce_keys", "helper_keys"]
+
+QUAT_SCALE = 32767      # rotations stored as normalised int16: k means k / 32767
 
 #: default key tolerance, a fraction of the character's height (20x under the fit's RMS target)
 KEY_TOLERANCE = 1e-4
@@ -38,6 +43,11 @@ def helper_trs(L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     q = matrix_quats(L[:, :3, :3])
     flip = np.cumprod(np.r_[1.0, np.sign(np.einsum("fi,fi->f", q[1:], q[:-1]) + 1e-300)])
     return L[:, :3, 3], q * flip[:, None]
+
+
+def stored_quats(q: np.ndarray) -> np.ndarray:
+    """Unit quaternions q (K, 4) as the file stores them: (K, 4) int16, normalised (k / 32767)."""
+    return np.rint(np.asarray(q) * QUAT_SCALE).astype(np.int16)
 
 
 def _radii(character: Character, fitted: FittedSkin) -> np.ndarray:
@@ -80,6 +90,7 @@ def reduce_keys(times: np.ndarray, t: np.ndarray, q: np.ndarray, scale: np.ndarr
         lerp, slerp, nlerp = _played(times, t, q, np.flatnonzero(keep))
         chord = np.maximum(_chord(slerp, q), _chord(nlerp, q))
         err = scale * (np.linalg.norm(lerp - t, axis=1) + radius * chord)
+        err[keep] = 0.0           # a key's own error is the int16 rounding, which no key can lower
         if not (err > tolerance).any():
             return np.flatnonzero(keep)
         stretch = np.cumsum(keep) - 1                        # the stretch each frame starts or lies in
@@ -89,14 +100,15 @@ def reduce_keys(times: np.ndarray, t: np.ndarray, q: np.ndarray, scale: np.ndarr
 
 
 def _played(times, t, q, keys) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """At every frame, from ``keys`` (K >= 2,): the lerped translation (F, 3), the slerped and
-    the nlerped (Blender's) quaternion (F, 4)."""
+    """At every frame, from ``keys`` (K >= 2,) as stored (:func:`stored_quats`): the lerped
+    translation (F, 3), the slerped and the nlerped (Blender's) unit quaternion (F, 4)."""
     k = np.clip(np.searchsorted(keys, np.arange(len(times)), side="right") - 1, 0, len(keys) - 2)
     a, b = keys[k], keys[k + 1]
     s = ((times - times[a]) / (times[b] - times[a]))[:, None]
-    nlerp = (1 - s) * q[a] + s * q[b]
+    stored = stored_quats(q) / QUAT_SCALE
+    nlerp = (1 - s) * stored[a] + s * stored[b]
     nlerp /= np.maximum(np.linalg.norm(nlerp, axis=1, keepdims=True), 1e-300)
-    return (1 - s) * t[a] + s * t[b], quat_slerp(q[a], q[b], s), nlerp
+    return (1 - s) * t[a] + s * t[b], quat_slerp(stored[a], stored[b], s), nlerp
 
 
 def _chord(r: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -123,8 +135,10 @@ def helper_keys(character: Character, fitted: FittedSkin, G: np.ndarray, local: 
         t, q = helper_trs(local[:, h])
         keys = reduce_keys(times, t, q, scales[:, h], float(radii[h]), absolute)
         kept.append(keys)
-        if len(keys) < len(times):
+        if len(times) >= 2:
             lerp, slerp, _ = _played(times, t, q, keys)
             played[:, h, :3, 3] = lerp
             played[:, h, :3, :3] = quat_matrices(slerp)
+        else:
+            played[:, h, :3, :3] = quat_matrices(stored_quats(q) / QUAT_SCALE)
     return kept, played

@@ -25,7 +25,7 @@ from ..io.gltf_write import Blob, add_clip, check_copyable, copy_document, save_
 from ..model.character import Character
 from ..model.timing import sample_times
 from .character_skin import FittedSkin, mesh_space
-from .helper_keys import KEY_TOLERANCE, helper_keys, helper_trs
+from .helper_keys import KEY_TOLERANCE, helper_keys, helper_trs, stored_quats
 
 __all__ = ["skinned_primitives", "stored_weights", "stored_skin", "write_fitted_glb", "add_helper_nodes",
            "add_helper_channels"]
@@ -198,17 +198,23 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
 def add_helper_channels(blob: Blob, animation, local: np.ndarray, helper_nodes, times: np.ndarray, keys) -> None:
     """Append to ``animation`` the helpers' translation and rotation channels (LINEAR): local
     (F, H, 4, 4) their local transforms at times (F,) seconds, of which helper h keeps the frames
-    keys[h] (int array)."""
-    inputs = {}
-    for h, node in enumerate(helper_nodes):
+    keys[h] (int array). One buffer view holds them all; rotations are normalised int16
+    (:func:`nrpose.fit.helper_keys.stored_quats`, glTF's core format for them), translations
+    float32; helpers keeping the same frames share their times."""
+    items, times_item, slots = [], {}, []
+    for h in range(len(helper_nodes)):
         kept = np.asarray(keys[h])
-        if kept.tobytes() not in inputs:       # helpers keeping the same frames share their times
-            inputs[kept.tobytes()] = blob.add(times[kept].astype(np.float32), "SCALAR", minmax=True)
+        if kept.tobytes() not in times_item:
+            times_item[kept.tobytes()] = len(items)
+            items.append((times[kept].astype(np.float32), "SCALAR", pygltflib.FLOAT, False, True))
         t, q = helper_trs(local[:, h])
-        for path, values, kind in (("translation", t[kept], "VEC3"), ("rotation", q[kept], "VEC4")):
-            within_float32(values, f"helper joint {path}")
-            animation.samplers.append(pygltflib.AnimationSampler(
-                input=inputs[kept.tobytes()], output=blob.add(values.astype(np.float32), kind),
-                interpolation="LINEAR"))
+        within_float32(t[kept], "helper joint translation")
+        slots.append((times_item[kept.tobytes()], len(items), len(items) + 1))
+        items += [(t[kept].astype(np.float32), "VEC3", pygltflib.FLOAT, False, False),
+                  (stored_quats(q[kept]), "VEC4", pygltflib.SHORT, True, False)]
+    index = blob.add_together(items)
+    for node, (k, t, r) in zip(helper_nodes, slots):
+        for path, output in (("translation", index[t]), ("rotation", index[r])):
+            animation.samplers.append(pygltflib.AnimationSampler(input=index[k], output=output, interpolation="LINEAR"))
             animation.channels.append(pygltflib.AnimationChannel(
                 sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path=path)))
