@@ -77,7 +77,8 @@ def error_map(src: pathlib.Path, fitted_file: pathlib.Path, holdout: str, png: p
     F = np.concatenate([m.faces + o for m, o in zip(character.meshes, offsets)])
     scaled = np.clip(rms / (MAP_SCALE * character_height(character)), 0, 1)
     save_weight_maps(V, F, {"held-out RMS / 1 % of height": scaled}, png,
-                     title=f"{src.stem}: fitted LBS vs NR-MLS on {pathlib.Path(holdout).name} (yellow >= 1 %)")
+                     title=f"{src.stem}: fitted LBS vs NR-MLS on {pathlib.Path(holdout).name} (yellow >= 1 %)",
+                     scale_label="held-out RMS, % of height")
 
 
 def main(argv=None) -> int:

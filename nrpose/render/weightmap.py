@@ -31,7 +31,8 @@ def _check(vertices, faces, w):
 
 
 def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, title: str = "",
-                     vmax: float | None = None, gamma: float = 1.0, views=None, up: str = "z") -> Path:
+                     vmax: float | None = None, gamma: float = 1.0, views=None, up: str = "z",
+                     scale_label: str = "weight") -> Path:
     """One row per labelled weight column, one panel per view; returns the path.
 
     ``gamma`` < 1 stretches the colour scale near 0 (``PowerNorm``) so that
@@ -39,7 +40,7 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
     triples in degrees (default: front and oblique, for a shape lying in the
     xy plane). ``up="y"`` draws Y-up data (glTF) upright: the drawing frame is
     ``(x, -z, y)``, so azimuth -90 at elevation 0 faces a character that looks
-    along +z and azimuth 0 shows its left side."""
+    along +z and azimuth 0 shows its left side. ``scale_label`` names the colour bar's quantity."""
     if up not in ("z", "y"):
         raise InputError(f"up must be 'z' or 'y', got {up!r}")
     views = tuple(_VIEWS if views is None else views)
@@ -93,7 +94,7 @@ def save_weight_maps(vertices, faces, columns: Mapping[str, np.ndarray], path, t
     sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
     fig.subplots_adjust(left=0.0, right=1.0 - 1.26 / (4.5 * len(views)), bottom=0.02, top=1.0 - 0.75 / height, wspace=0.0, hspace=0.08)
     cax = fig.add_axes((1.0 - 1.0 / (4.5 * len(views)), 0.2, 0.18 / (4.5 * len(views)), 0.6))
-    fig.colorbar(sm, cax=cax, label="weight" + (f" (colour scale γ={gamma:g})" if gamma != 1.0 else ""))
+    fig.colorbar(sm, cax=cax, label=scale_label + (f" (colour scale γ={gamma:g})" if gamma != 1.0 else ""))
     path = Path(path)
     fig.savefig(path)
     plt.close(fig)
