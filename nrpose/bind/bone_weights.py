@@ -66,12 +66,12 @@ SKELETON_K = 8        # bones kept per vertex by default on skeletons with more 
 class BoneWeights:
     """weights (V, B) float64 rows summing to 1 (at most ``k`` non-zero); distances (V, B)
     float64 vertex-to-bone distances (over the surface for deforming vertices with heat,
-    exact, graph; else straight-line); bones; k (bones kept per vertex, B when dense);
+    exact, graph; else straight-line), or None where not asked for; bones; k (bones kept per vertex, B when dense);
     alpha; meshes: the concatenated meshes the rows belong to; t: (V, B) float64 segment
     parameters in [0, 1] for the NR-MLS blend (module docstring), or None (closest points)."""
 
     weights: np.ndarray
-    distances: np.ndarray
+    distances: np.ndarray | None
     bones: Bones
     k: int
     alpha: float
@@ -80,13 +80,14 @@ class BoneWeights:
 
 
 def bone_weights(character, weights: str = "authored", k: int | str | None = None,
-                 alpha: float = 1.0, parameters: bool = True) -> BoneWeights:
+                 alpha: float = 1.0, parameters: bool = True, distances: bool = True) -> BoneWeights:
     """Weights of a character's vertices on its bones (see the module docstring).
 
     weights: one of :data:`WEIGHTS`; k: bones kept per vertex (a positive integer, "all",
     or None for the default); alpha: the exponent of distance weights; parameters: compute
     the blend's segment parameters ``t`` of topological weights (False: ``t`` None there,
-    for callers that only want the weights).
+    for callers that only want the weights); distances: False leaves ``distances`` None for
+    authored weights, which do not use them (a pose's bind).
     """
     if weights not in WEIGHTS:
         raise InputError(f"weights must be one of {', '.join(WEIGHTS)}, got {weights!r}")
@@ -110,7 +111,8 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
     geo = concatenate_meshes(character.meshes)
     V, rigid = geo.vertices, geo.rigid
     deform = np.flatnonzero(rigid < 0)
-    D = point_segment_distances(V, bones.segments)[0] if len(V) else np.zeros((0, B))
+    D = None if weights == "authored" and not distances else \
+        point_segment_distances(V, bones.segments)[0] if len(V) else np.zeros((0, B))
     W = np.zeros((len(V), B))
     t = None
     if len(deform):
@@ -120,7 +122,9 @@ def bone_weights(character, weights: str = "authored", k: int | str | None = Non
             X = group_centers(V[deform], weight_groups(joint_w))
             dense = authored_bone_weights([m for m in character.meshes if m.rigid_joint is None], X, bones,
                                           skel.parents)
-            t = segment_parameters(V, bones.segments)
+            t = np.empty((len(V), B))
+            rigid_rows = np.flatnonzero(rigid >= 0)
+            t[rigid_rows] = segment_parameters(V[rigid_rows], bones.segments)
             t[deform] = segment_parameters(X, bones.segments)
         else:
             if weights != "euclidean":

@@ -159,16 +159,20 @@ def _validate(vertices, faces, point_handles, segment_handles):
 # ----------------------------------------------------------------------------
 # Euclidean geometry
 # ----------------------------------------------------------------------------
-def segment_parameters(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
-    """Closest-point parameters t (N, S) of points (N, 3) on segments (S, 2, 3), clamped to [0, 1]."""
+def segment_parameters(points: np.ndarray, segments: np.ndarray, chunk: int = 2048) -> np.ndarray:
+    """Closest-point parameters t (N, S) of points (N, 3) on segments (S, 2, 3), clamped to [0, 1]
+    (computed ``chunk`` rows at a time: the (rows, S, 3) temporaries stay a few MB)."""
     a = segments[:, 0]
     ab = segments[:, 1] - a
-    rel = points[:, None, :] - a[None]
-    t = np.einsum("nsk,sk->ns", rel, ab) / np.einsum("sk,sk->s", ab, ab)
-    return np.clip(t, 0.0, 1.0)
+    length2 = np.einsum("sk,sk->s", ab, ab)
+    t = np.empty((len(points), len(segments)))
+    for r in range(0, len(points), chunk):
+        rel = points[r:r + chunk, None, :] - a[None]
+        t[r:r + chunk] = np.einsum("nsk,sk->ns", rel, ab) / length2
+    return np.clip(t, 0.0, 1.0, out=t)
 
 
-def point_segment_distances(X: np.ndarray, segments: np.ndarray, chunk: int = 8192):
+def point_segment_distances(X: np.ndarray, segments: np.ndarray, chunk: int = 2048):
     """Distances (N, S) from points X (N, 3) to segments (S, 2, 3), and for
     each point the index (N,) of its nearest segment (lowest index on ties)
     and the closest point (N, 3) on that segment. A zero-length segment acts

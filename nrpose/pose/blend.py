@@ -225,10 +225,11 @@ def rest_terms(points, rest: HandleSet, alpha: float = 1.0, lever: str = "weight
     return out if per_block is not None else RestTerms(**out)
 
 
-#: points per block of rest_terms' computation
-BLOCK = 16384
-#: blocks computed at once (each holds ~25 H float64 values per point of temporaries:
-#: ~200 MB per block in flight for 65 handles)
+#: points per block of rest_terms' computation (a character of 16k vertices in 4 blocks, so the
+#: machine's cores share it and fewer temporaries are alive at once)
+BLOCK = 4096
+#: blocks computed at once (each holds ~12 H float64 values per point of temporaries:
+#: ~25 MB per block in flight for 64 handles)
 MAX_WORKERS = 4
 
 

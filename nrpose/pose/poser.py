@@ -149,7 +149,7 @@ class CharacterPoser:
                     prefetch_program(rest, kk, blend=blend)     # compiles while the host binds
                     W, t, layout = self._nrmls_bind(character, V, rest, weights, kk, alpha, blend)
                 else:
-                    bw = bone_weights(character, weights, kk, alpha)
+                    bw = bone_weights(character, weights, kk, alpha, distances=False)
                     W, t, layout = bw.weights[self._deform_idx], bw.t[self._deform_idx] if bw.t is not None else None, None
                 self._device_args = (V, rest, W, kk, blend, t, layout)
             else:
@@ -208,7 +208,7 @@ class CharacterPoser:
                              "skin_shapes": [list(np.shape(m.joints)) for m in deform] if skinned else []}}
 
         def compute() -> dict:
-            bw = bone_weights(character, weights, k, alpha)
+            bw = bone_weights(character, weights, k, alpha, distances=False)
             W = bw.weights[self._deform_idx]
             t = bw.t[self._deform_idx] if bw.t is not None else None
             cols = np.argsort(W == 0, axis=1, kind="stable")[:, :max(int((W != 0).sum(axis=1).max(initial=0)), 1)]
