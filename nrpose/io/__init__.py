@@ -7,11 +7,13 @@ joint-map JSON: :mod:`.poses`. Input checks and atomic writes: :mod:`.files`.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 from pathlib import Path
 
 from ..checks import check_magnitude
 from ..errors import FileFormatError, InputError
-from ..model.character import Character, Mesh
+from ..model.character import Character, Clip, Mesh
 from .bvh_read import read_bvh
 from .gltf_read import load_gltf
 from .tgf import MESH_SUFFIXES, read_mesh, read_tgf
@@ -66,16 +68,23 @@ def load_character(path: str | Path, skeleton: str | Path | None = None) -> Char
 
 def _check_ranges(character: Character, path: Path) -> Character:
     """The character, after FileFormatError if a coordinate it carries (vertices, joint
-    offsets, clip translations) exceeds :data:`nrpose.checks.MAX_COORDINATE`."""
+    offsets) exceeds :data:`nrpose.checks.MAX_COORDINATE`; its clips' translations are
+    checked likewise as each clip is made (:func:`_check_clip`)."""
     skel = character.skeleton
     check_magnitude(skel.translation, f"{path}: joint translations", FileFormatError)
     for mesh in character.meshes:
         for values in (mesh.vertices, mesh.bind_vertices):
             if values is not None:
                 check_magnitude(values, f"{path}: vertices of mesh {mesh.name!r}", FileFormatError)
-    for clip in character.clips:
-        for track in clip.tracks:
-            if track.path == "translation":
-                check_magnitude(track.values, f"{path}: clip {clip.name!r}: translations of joint "
-                                              f"{skel.names[track.joint]!r}", FileFormatError)
-    return character
+    return dataclasses.replace(character, clips=character.clips.then(functools.partial(_check_clip, path,
+                                                                                       skel.names)))
+
+
+def _check_clip(path: Path, joints: tuple[str, ...], clip: Clip) -> Clip:
+    """The clip of the file ``path`` (on joints named ``joints``), after FileFormatError if a
+    translation key exceeds :data:`nrpose.checks.MAX_COORDINATE`."""
+    for track in clip.tracks:
+        if track.path == "translation":
+            check_magnitude(track.values, f"{path}: clip {clip.name!r}: translations of joint "
+                                          f"{joints[track.joint]!r}", FileFormatError)
+    return clip
