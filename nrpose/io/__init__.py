@@ -14,30 +14,44 @@ from pathlib import Path
 from ..checks import check_magnitude
 from ..errors import FileFormatError, InputError
 from ..model.character import Character, Clip, Mesh
-from .bvh_read import read_bvh
-from .gltf_read import load_gltf
-from .tgf import MESH_SUFFIXES, read_mesh, read_tgf
 
-__all__ = ["load_character", "READERS"]
+__all__ = ["load_character", "READERS", "MESH_SUFFIXES"]
+
+#: mesh file suffixes (read by :func:`.tgf.read_mesh`)
+MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
+
+# Each reader below imports its module when called: a job imports the readers of its own files only.
+
+
+def _gltf_character(path: Path) -> Character:
+    from .gltf_read import load_gltf
+
+    return load_gltf(path)
 
 
 def _bvh_character(path: Path) -> Character:
+    from .bvh_read import read_bvh
+
     skeleton, clip = read_bvh(path)
     return Character(skeleton, clips=(clip,))
 
 
 def _tgf_character(path: Path) -> Character:
+    from .tgf import read_tgf
+
     return Character(read_tgf(path))
 
 
 def _mesh(path: Path) -> Mesh:
+    from .tgf import read_mesh
+
     vertices, faces = read_mesh(path)
     return Mesh(path.stem, vertices, faces)
 
 
 #: suffix -> (reader of a Path, what it gives: "character" with its own skeleton, "skeleton"
 #: (a Character without meshes), or "mesh" (a Mesh, needing a skeleton file beside it))
-READERS = {".glb": (load_gltf, "character"), ".gltf": (load_gltf, "character"),
+READERS = {".glb": (_gltf_character, "character"), ".gltf": (_gltf_character, "character"),
            ".bvh": (_bvh_character, "skeleton"), ".tgf": (_tgf_character, "skeleton"),
            **{suffix: (_mesh, "mesh") for suffix in MESH_SUFFIXES}}
 
