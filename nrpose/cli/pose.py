@@ -126,7 +126,7 @@ def run(args) -> None:
                               "SKELETON.tgf); a glTF file carries its own")
         if args.weights != "authored":
             raise NrposeError(f"--weights-file gives the weights; drop --weights {args.weights}")
-        # --weights-file only: bone weights are NR-MLS's module, the DMAT reader is libigl's formats'
+        # --weights-file only (a mesh + TGF character): libigl's DMAT reader, the bone weights' module
         from ..bind.bone_weights import with_skin_weights
         from ..io.tgf import read_dmat_weights
 
