@@ -508,7 +508,7 @@ def test_poser_binding_ships_without_its_device_part(rig, method, monkeypatch):
     builds its device part without computing weights again and poses bitwise the same frames."""
     import pickle
 
-    import nrpose.pose.poser as poser_module
+    import nrpose.bind.bone_weights as bone_weights_module
     from nrpose.io import load_character
     from nrpose.pose.poser import CharacterPoser
 
@@ -518,7 +518,7 @@ def test_poser_binding_ships_without_its_device_part(rig, method, monkeypatch):
     expected = poser.pose(local).positions.copy()
     shipped = pickle.dumps(poser)
     assert poser.deformer is not None       # pickling leaves the original working
-    monkeypatch.setattr(poser_module, "bone_weights", lambda *a, **k: pytest.fail("weights made again"))
+    monkeypatch.setattr(bone_weights_module, "bone_weights", lambda *a, **k: pytest.fail("weights made again"))
     copy = pickle.loads(shipped)
     assert copy.deformer is not None and copy.deformer is not poser.deformer
     assert np.array_equal(copy.pose(local).positions, expected)

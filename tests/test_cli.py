@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -197,6 +198,24 @@ def test_info_lists_meshes_joints_clips(capsys):
     code, stdout, _ = run(["info", DATA / "gltf" / "Fox.glb"], capsys)
     assert code == 0
     assert "1728 vertices" in stdout and "joints: 24" in stdout and "Run:" in stdout
+
+
+def test_a_malformed_second_clip_fails_only_the_jobs_that_use_it(tmp_path, capsys):
+    """Clips are decoded when used: the first clip poses; asking for the second names its fault in
+    one line (exit 2, nothing written), as does ``info``, which lists every clip."""
+    from test_io_gltf_read import BROKEN, malformed_second_clip
+
+    path = malformed_second_clip(tmp_path / "two.glb")
+    out = tmp_path / "o.npz"
+    code, stdout, err = run(["pose", path, "--clip", "clip", "--method", "lbs", "--backend", "numpy",
+                             "--time", "0", "1", "-o", out], capsys)
+    assert code == 0 and np.load(out)["positions"].shape == (2, 7, 3), err
+    out.unlink()
+    for args in (["pose", path, "--clip", "broken", "--method", "lbs", "--backend", "numpy", "-o", out],
+                 ["info", path]):
+        code, stdout, err = run(args, capsys)
+        assert code == 2 and err.count("\n") == 1 and re.search(BROKEN, err), (args, err)
+        assert stdout == "" and not out.exists()
 
 
 def test_demo_writes_pngs_and_prints_timing(tmp_path, capsys):

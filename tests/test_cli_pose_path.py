@@ -2,8 +2,10 @@
 
 A plain glTF pose (authored weights, every method) runs in a fresh interpreter and reports
 ``sys.modules`` after :func:`nrpose.cli.main`; plotting, mesh-processing and graph libraries
-must not be among them, nor the glTF writer's library (pygltflib) for an ``.npz`` output. The rotation helpers that replaced scipy on the posing path are
-checked against scipy here too.
+must not be among them, nor the glTF writer's library (pygltflib) for an ``.npz`` output, nor
+the readers of other files (BVH, TGF and meshes, libigl's DMAT), nor, for the skinning methods,
+NR-MLS's modules (its blend and deformer; with the bind cached, the bone weights too). The
+rotation helpers that replaced scipy on the posing path are checked against scipy here too.
 """
 from __future__ import annotations
 
@@ -20,6 +22,13 @@ FOX = ROOT.parent / "shared" / "data" / "gltf" / "Fox.glb"
 HEAVY = ("matplotlib", "pymeshlab", "igl", "scipy.spatial")
 #: what an .npz output does not need: the glTF writer (and its library) and the contact sheet
 NOT_FOR_NPZ = ("pygltflib", "nrpose.io.gltf_write", "nrpose.render")
+#: what a glTF character with its own clip does not need: the readers of other files
+NOT_FOR_GLTF_CLIP = ("nrpose.io.bvh_read", "nrpose.io.tgf")
+#: what the skinning methods (lbs, dqs) do not need: NR-MLS's blend and deformer...
+NOT_FOR_SKINNING = ("nrpose.pose.blend", "nrpose.pose.mls")
+#: ... and, their bind cached, the bone weights (a cold authored bind takes its joint weights there)
+NOT_FOR_CACHED_SKINNING = NOT_FOR_SKINNING + ("nrpose.bind.bone_weights", "nrpose.bind.distances",
+                                              "nrpose.bind.weights", "nrpose.model.deformation_metrics")
 
 PROBE = """
 import json, sys
@@ -27,6 +36,11 @@ from nrpose.cli import main
 code = main(sys.argv[1:])
 print(json.dumps({"code": code, "modules": sorted(sys.modules)}))
 """
+
+
+def among(mods, names) -> list:
+    """The modules of ``mods`` that are one of ``names`` or inside one of them."""
+    return sorted(m for m in mods if any(m == n or m.startswith(n + ".") for n in names))
 
 
 def modules_after(args, tmp_path) -> set:
@@ -47,13 +61,16 @@ def test_pose_imports_no_heavy_library(method, tmp_path):
     args = ["pose", FOX, "--clip", "Run", "--time", "0", "0.4", "--method", method, "-o", tmp_path / "out.npz"]
     mods = modules_after(args, tmp_path)
     assert "nrpose.pose.poser" in mods and "pyopencl" in mods          # the probe saw the real job
-    heavy = sorted(m for m in mods if any(m == h or m.startswith(h + ".") for h in HEAVY + NOT_FOR_NPZ))
-    assert not heavy, heavy
+    skinning = method != "nrmls"
+    assert not among(mods, HEAVY + NOT_FOR_NPZ + NOT_FOR_GLTF_CLIP + (NOT_FOR_SKINNING if skinning else ()))
+    assert skinning or "nrpose.pose.mls" in mods                        # the NR-MLS job does import it
     others = sorted(m for m in mods if m.startswith("nrpose.cli.") and m not in ("nrpose.cli.pose", "nrpose.cli.common"))
     assert not others, others                                           # no other command's module
     # the same job again, its bind cached: not even numpy.ma (np.median's import) on the way
     warm = modules_after(args, tmp_path)
-    assert "nrpose.pose.poser" in warm and not any(m == "numpy.ma" or m.startswith("numpy.ma.") for m in warm)
+    # nor difflib ("did you mean" hints; a cold NR-MLS bind's scipy imports it)
+    assert "nrpose.pose.poser" in warm and not among(warm, ("numpy.ma", "difflib") + NOT_FOR_GLTF_CLIP)
+    assert not skinning or not among(warm, NOT_FOR_CACHED_SKINNING)
 
 
 def test_glb_output_imports_its_writer(tmp_path):

@@ -3,16 +3,19 @@ import base64
 import copy
 import dataclasses
 import json
+import pickle
 import random
 from pathlib import Path
 
 import numpy as np
+import pygltflib
 import pytest
 
 from nrpose.errors import FileFormatError
-from nrpose.io.gltf_read import document_character, load_gltf, read_document
+from nrpose.io import load_character
+from nrpose.io.gltf_read import document_character, joint_nodes, load_gltf, read_document
 from nrpose.io.gltf_write import write_glb_with_clip
-from test_io_characters import save, synthetic_gltf
+from test_io_characters import raw_accessor, save, synthetic_gltf
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 SHARED = ["Fox", "Mannequin", "Ely"]
@@ -39,6 +42,13 @@ def assert_same_character(a, b):
             assert (s.joint, s.path, s.interpolation) == (t.joint, t.path, t.interpolation)
             np.testing.assert_array_equal(s.times, t.times)
             np.testing.assert_array_equal(s.values, t.values)
+
+
+def read_all(path: Path):
+    """The character of a glTF file with every clip made (clips are decoded when first used)."""
+    character = load_gltf(path)
+    tuple(character.clips)
+    return character
 
 
 def pygltflib_character(path: Path):
@@ -80,6 +90,103 @@ def test_external_buffer_file_inside_the_folder(tmp_path):
     external = tmp_path / "external.gltf"
     external.write_text(json.dumps(doc))
     assert_same_character(load_gltf(external), load_gltf(embedded))
+
+
+# --- clips: decoded when first used -----------------------------------------------------------------
+
+@pytest.mark.parametrize("name", SHARED)
+def test_clips_decoded_on_use_equal_the_files_keys(name):
+    """Each clip, made on first use (here the last first), holds exactly the keys of its
+    animation's accessors (read by the tests' own reader), as a load that makes them all."""
+    path = DATA / "gltf" / f"{name}.glb"
+    if not path.is_file():
+        pytest.skip(f"shared test data not found at {path}")
+    gltf = pygltflib.GLTF2().load(str(path))
+    blob = gltf.binary_blob()
+    joint_of = {int(node): j for j, node in enumerate(joint_nodes(path, *read_document(path))[1])}
+    character = load_gltf(path)
+    last_first = [character.clips[i] for i in reversed(range(len(character.clips)))][::-1]
+    every = tuple(load_gltf(path).clips)
+    assert [c.name for c in last_first] == [c.name for c in every] == [a.name for a in gltf.animations]
+    for anim, clip, again in zip(gltf.animations, last_first, every):
+        channels = [ch for ch in anim.channels if ch.target.node in joint_of
+                    and ch.target.path in ("translation", "rotation", "scale")]
+        assert len(clip.tracks) == len(again.tracks) == len(channels)
+        for ch, track, other in zip(channels, clip.tracks, again.tracks):
+            sampler = anim.samplers[ch.sampler]
+            times = raw_accessor(gltf, blob, sampler.input)[:, 0]
+            values = raw_accessor(gltf, blob, sampler.output)
+            mode = sampler.interpolation or "LINEAR"
+            values = values.reshape(len(times), 3, -1) if mode == "CUBICSPLINE" else values
+            for t in (track, other):
+                assert (t.joint, t.path, t.interpolation) == (joint_of[ch.target.node], ch.target.path, mode)
+                np.testing.assert_array_equal(t.times, times)
+                np.testing.assert_array_equal(t.values, values)
+        assert clip.duration == again.duration == max(float(t.times[-1]) for t in clip.tracks)
+
+
+def malformed_second_clip(path: Path) -> Path:
+    """The synthetic character with a second animation, "broken", whose key times are a VEC3
+    accessor (a fault only its data shows), saved at ``path``."""
+    gltf = synthetic_gltf()
+    gltf.animations.append(pygltflib.Animation(name="broken", samplers=[
+        pygltflib.AnimationSampler(input=12, output=11, interpolation="LINEAR")], channels=[
+        pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=1, path="rotation"))]))
+    return save(gltf, path)
+
+
+BROKEN = r"animations\[1\]\.samplers\[0\]\.input: key times must be a float SCALAR accessor"
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".gltf"])
+def test_a_malformed_clip_is_refused_when_it_is_used(tmp_path, suffix):
+    path = malformed_second_clip(tmp_path / f"two{suffix}")
+    character = load_character(path)                       # the second clip is not decoded
+    assert character.clips.names == ("clip", "broken") and len(character.clips) == 2
+    assert character.clip("clip").duration == 2.0
+    for _ in range(2):                                      # refused each time it is asked for
+        with pytest.raises(FileFormatError, match=BROKEN) as info:
+            character.clip("broken")
+        assert str(path) in str(info.value) and "\n" not in str(info.value)
+    with pytest.raises(FileFormatError, match=BROKEN):
+        tuple(character.clips)
+    # a file written with the character's animations kept must read back: they are decoded first
+    clip = character.clip("clip")
+    linear = dataclasses.replace(clip, tracks=tuple(t for t in clip.tracks if t.interpolation != "CUBICSPLINE"))
+    out = tmp_path / "out.glb"
+    with pytest.raises(FileFormatError, match=BROKEN):
+        write_glb_with_clip(path, out, character, linear)
+    assert not out.exists()
+    write_glb_with_clip(path, out, character, linear, keep_animations=False)
+    assert load_character(out).clips.names == ("clip",)
+
+
+def test_clip_translations_are_range_checked_when_used(tmp_path):
+    gltf = synthetic_gltf()
+    blob = gltf.binary_blob()
+    far = np.float32([[1, 0, 0], [3e30, 0, 0]]).tobytes()
+    gltf.bufferViews.append(pygltflib.BufferView(buffer=0, byteOffset=len(blob), byteLength=len(far)))
+    gltf.accessors.append(pygltflib.Accessor(bufferView=len(gltf.bufferViews) - 1, componentType=5126, count=2,
+                                             type="VEC3"))
+    gltf.buffers[0].byteLength = len(blob) + len(far)
+    gltf.set_binary_blob(blob + far)
+    gltf.animations.append(pygltflib.Animation(name="far", samplers=[
+        pygltflib.AnimationSampler(input=8, output=len(gltf.accessors) - 1)], channels=[
+        pygltflib.AnimationChannel(sampler=0, target=pygltflib.AnimationChannelTarget(node=2, path="translation"))]))
+    character = load_character(save(gltf, tmp_path / "far.glb"))
+    assert character.clip("clip").duration == 2.0
+    with pytest.raises(FileFormatError, match=r"far\.glb: clip 'far': translations of joint 'mid'"):
+        character.clip("far")
+
+
+def test_undecoded_clips_are_picklable(tmp_path):
+    """A loaded character ships (a Ray bake's load task) with its clips still to make; they are
+    made where they are used."""
+    path = malformed_second_clip(tmp_path / "two.glb")
+    copy_ = pickle.loads(pickle.dumps(load_character(path)))
+    assert copy_.clip("clip").duration == 2.0
+    with pytest.raises(FileFormatError, match=BROKEN):
+        copy_.clip("broken")
 
 
 # --- malformed files: one FileFormatError naming the field ------------------------------------------
@@ -237,7 +344,7 @@ def test_malformed_field_is_named(tmp_path, case):
     path = tmp_path / "bad.gltf"
     path.write_text(json.dumps(doc))
     with pytest.raises(FileFormatError, match=message) as info:
-        load_gltf(path)
+        read_all(path)
     text = str(info.value)
     assert "\n" not in text and str(path) in text
 
@@ -279,7 +386,7 @@ def leaves(value, prefix=()):
 
 def test_random_field_mutations_are_read_or_refused(tmp_path):
     """Every scalar of the document replaced by values of other JSON types or out of range:
-    the file is read, or refused with a FileFormatError (never another exception)."""
+    the file and its clips are read, or refused with a FileFormatError (never another exception)."""
     seed = document(tmp_path)
     spots = [p for p, v in leaves(seed) if not (p[0] == "buffers" and p[-1] == "uri")]
     bad = [None, True, False, -1, 0, 1, 3, 2 ** 31, 2 ** 64, 1e30, -1e308, float("inf"), float("nan"), 0.5,
@@ -297,7 +404,7 @@ def test_random_field_mutations_are_read_or_refused(tmp_path):
         path = tmp_path / "m.gltf"
         path.write_text(json.dumps(doc))
         try:
-            load_gltf(path)
+            read_all(path)
         except FileFormatError as exc:
             assert "\n" not in str(exc)
             refused += 1

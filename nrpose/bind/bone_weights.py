@@ -52,13 +52,13 @@ from ..model.handles import check_alpha
 from ..model.deformation_metrics import weight_groups
 from ..model.meshset import MeshSet, concatenate_meshes, submesh_faces
 from ..model.skeleton import Bones
+from ..options import WEIGHTS
 from .distances import arrival_parameters, point_segment_distances, segment_parameters, surface_distances
 from .weights import dense_weights, keep_top_k
 
 __all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "authored_bone_weights",
            "skin_entries", "group_centers", "with_skin_weights"]
 
-WEIGHTS = ("authored", "euclidean", "heat", "exact", "graph")
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
 
 

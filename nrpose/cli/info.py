@@ -18,6 +18,7 @@ def add_parser(sub) -> None:
 
 def run(args) -> None:
     ch = load_character(args.character, args.skeleton)
+    clips = tuple(ch.clips)     # decoded on first use: a malformed one fails the command before any line
     skel = ch.skeleton
     print(f"{args.character}")
     print(f"meshes: {len(ch.meshes)}")
@@ -35,6 +36,6 @@ def run(args) -> None:
     for j, p in enumerate(skel.parents):
         depth[j] = depth[p] + 1 if p >= 0 else 0
         print(f"  {'  ' * depth[j]}{skel.names[j]}")
-    print(f"clips: {len(ch.clips)}")
-    for c in ch.clips:
+    print(f"clips: {len(clips)}")
+    for c in clips:
         print(f"  {c.name}: {c.duration:.3f} s")

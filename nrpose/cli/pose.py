@@ -6,15 +6,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..pose.blend import BLENDS, DEFAULT_BLEND
-from ..pose.mls import BACKENDS
 from ..errors import NrposeError
 from ..io import load_character
-from ..io.tgf import read_dmat_animation, read_dmat_weights
-from ..bind.bone_weights import with_skin_weights
 from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
-from ..pose.poser import METHODS, WEIGHTS, CharacterPoser, prefetch
+from ..options import BACKENDS, BLENDS, DEFAULT_BLEND, METHODS, WEIGHTS
+from ..pose.poser import CharacterPoser, prefetch
 from .common import (add_budget_options, check_budget, check_outputs, frames_output_kind, median, output_values,
                      progress,
                      write_frames)
@@ -129,6 +126,10 @@ def run(args) -> None:
                               "SKELETON.tgf); a glTF file carries its own")
         if args.weights != "authored":
             raise NrposeError(f"--weights-file gives the weights; drop --weights {args.weights}")
+        # --weights-file only (a mesh + TGF character): libigl's DMAT reader, the bone weights' module
+        from ..bind.bone_weights import with_skin_weights
+        from ..io.tgf import read_dmat_weights
+
         W = read_dmat_weights(args.weights_file, skel, sum(len(m.vertices) for m in character.meshes))
         character = with_skin_weights(character, W)
     local, times, name = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
@@ -184,6 +185,8 @@ def pose_input(character, *, clip: str | Clip | None = None, motion: str | None 
     elif clip:
         source = character.clip(clip)
     elif Path(motion).suffix.lower() == ".dmat":
+        from ..io.tgf import read_dmat_animation      # libigl DMAT motions only
+
         source = read_dmat_animation(motion, skel, fps)
     else:
         source = motion_clip(load_character(motion), skel, motion)

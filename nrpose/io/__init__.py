@@ -7,35 +7,51 @@ joint-map JSON: :mod:`.poses`. Input checks and atomic writes: :mod:`.files`.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 from pathlib import Path
 
 from ..checks import check_magnitude
 from ..errors import FileFormatError, InputError
-from ..model.character import Character, Mesh
-from .bvh_read import read_bvh
-from .gltf_read import load_gltf
-from .tgf import MESH_SUFFIXES, read_mesh, read_tgf
+from ..model.character import Character, Clip, Mesh
 
-__all__ = ["load_character", "READERS"]
+__all__ = ["load_character", "READERS", "MESH_SUFFIXES"]
+
+#: mesh file suffixes (read by :func:`.tgf.read_mesh`)
+MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
+
+# Each reader below imports its module when called: a job imports the readers of its own files only.
+
+
+def _gltf_character(path: Path) -> Character:
+    from .gltf_read import load_gltf
+
+    return load_gltf(path)
 
 
 def _bvh_character(path: Path) -> Character:
+    from .bvh_read import read_bvh
+
     skeleton, clip = read_bvh(path)
     return Character(skeleton, clips=(clip,))
 
 
 def _tgf_character(path: Path) -> Character:
+    from .tgf import read_tgf
+
     return Character(read_tgf(path))
 
 
 def _mesh(path: Path) -> Mesh:
+    from .tgf import read_mesh
+
     vertices, faces = read_mesh(path)
     return Mesh(path.stem, vertices, faces)
 
 
 #: suffix -> (reader of a Path, what it gives: "character" with its own skeleton, "skeleton"
 #: (a Character without meshes), or "mesh" (a Mesh, needing a skeleton file beside it))
-READERS = {".glb": (load_gltf, "character"), ".gltf": (load_gltf, "character"),
+READERS = {".glb": (_gltf_character, "character"), ".gltf": (_gltf_character, "character"),
            ".bvh": (_bvh_character, "skeleton"), ".tgf": (_tgf_character, "skeleton"),
            **{suffix: (_mesh, "mesh") for suffix in MESH_SUFFIXES}}
 
@@ -66,16 +82,23 @@ def load_character(path: str | Path, skeleton: str | Path | None = None) -> Char
 
 def _check_ranges(character: Character, path: Path) -> Character:
     """The character, after FileFormatError if a coordinate it carries (vertices, joint
-    offsets, clip translations) exceeds :data:`nrpose.checks.MAX_COORDINATE`."""
+    offsets) exceeds :data:`nrpose.checks.MAX_COORDINATE`; its clips' translations are
+    checked likewise as each clip is made (:func:`_check_clip`)."""
     skel = character.skeleton
     check_magnitude(skel.translation, f"{path}: joint translations", FileFormatError)
     for mesh in character.meshes:
         for values in (mesh.vertices, mesh.bind_vertices):
             if values is not None:
                 check_magnitude(values, f"{path}: vertices of mesh {mesh.name!r}", FileFormatError)
-    for clip in character.clips:
-        for track in clip.tracks:
-            if track.path == "translation":
-                check_magnitude(track.values, f"{path}: clip {clip.name!r}: translations of joint "
-                                              f"{skel.names[track.joint]!r}", FileFormatError)
-    return character
+    return dataclasses.replace(character, clips=character.clips.then(functools.partial(_check_clip, path,
+                                                                                       skel.names)))
+
+
+def _check_clip(path: Path, joints: tuple[str, ...], clip: Clip) -> Clip:
+    """The clip of the file ``path`` (on joints named ``joints``), after FileFormatError if a
+    translation key exceeds :data:`nrpose.checks.MAX_COORDINATE`."""
+    for track in clip.tracks:
+        if track.path == "translation":
+            check_magnitude(track.values, f"{path}: clip {clip.name!r}: translations of joint "
+                                          f"{joints[track.joint]!r}", FileFormatError)
+    return clip

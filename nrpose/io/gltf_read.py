@@ -29,7 +29,10 @@ What is read:
   never posed. Each mesh records its ``source`` (node, mesh, primitive)
   indices. Morph targets, normals and texture coordinates are not read.
 * Clips: every animation, channels on joints only (channels on other nodes
-  and morph ``weights`` are ignored), samplers LINEAR / STEP / CUBICSPLINE.
+  and morph ``weights`` are ignored), samplers LINEAR / STEP / CUBICSPLINE. The
+  animations' structure is checked at load; a clip's key times and values are read and
+  checked when the clip is first used (:class:`~nrpose.model.character.Clips`), so a
+  malformed clip raises its FileFormatError then, and a clip never used is never decoded.
 
 Accessors honour ``byteStride``, normalised integers and sparse storage.
 Every inconsistency raises FileFormatError naming the object at fault.
@@ -50,9 +53,9 @@ from types import SimpleNamespace
 import numpy as np
 
 from ..errors import FileFormatError, InputError
-from ..model.character import Character, Clip, Mesh, Track
+from ..model.character import Character, Clip, Clips, Mesh, Track
 from ..model.rotation import Rotation
-from ..model.skeleton import Skeleton, local_matrices, polar_rotation
+from ..model.skeleton import LocalPose, Skeleton, local_matrices, polar_rotation
 from .files import read_input
 from .gltf_schema import COMPONENTS, UNIT_TOLERANCE, WIDTHS, decode
 from .jsonfile import check_finite, parse_json
@@ -519,11 +522,13 @@ def _meshes(path: Path, gltf, nodes: _Nodes, acc: _Accessors, binds: list[np.nda
     return meshes, static
 
 
-def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleton: Skeleton) -> list[Clip]:
-    """One clip per animation, tracks on joints only."""
+def _clip_channels(path: Path, gltf, node_to_joint: np.ndarray) -> list[tuple[int, str, list[tuple]]]:
+    """(animation index, clip name, channels) of each animation with a channel on a joint's
+    translation / rotation / scale, each channel ``(c, joint, target path, sampler index)``:
+    the structural checks of the animations, no accessor read."""
     clips = []
     for a, anim in enumerate(gltf.animations):
-        tracks = []
+        channels = []
         for c, channel in enumerate(anim.channels):
             node, target = channel.target.node, channel.target.path
             if node is None or target not in ("translation", "rotation", "scale"):
@@ -534,9 +539,28 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
                 continue
             if not 0 <= channel.sampler < len(anim.samplers):
                 raise FileFormatError(f"{path}: animation {a} channel {c}: sampler {channel.sampler} does not exist")
-            sampler = anim.samplers[channel.sampler]
+            channels.append((c, int(node_to_joint[node]), target, channel.sampler))
+        if channels:
+            clips.append((a, anim.name or f"animation{a}", channels))
+    return clips
+
+
+class _ClipReader:
+    """Makes clip i of a document (``Clips``' ``make``): reads and checks the accessors of its
+    channels (from :func:`_clip_channels`), tracks on joints only. Holds the document and its
+    buffers' bytes until every clip is made."""
+
+    def __init__(self, path: Path, gltf, buffers: list[bytes], clips: list[tuple], rest: LocalPose):
+        self.path, self.gltf, self.buffers, self.clips, self.rest = path, gltf, buffers, clips, rest
+
+    def __call__(self, i: int) -> Clip:
+        path, (a, name, channels) = self.path, self.clips[i]
+        acc, anim = _Accessors(path, self.gltf, self.buffers), self.gltf.animations[a]
+        tracks = []
+        for c, joint, target, s in channels:
+            sampler = anim.samplers[s]
             mode = sampler.interpolation or "LINEAR"
-            field = f"animations[{a}].samplers[{channel.sampler}]"
+            field = f"animations[{a}].samplers[{s}]"
             times = acc.read(sampler.input)
             if times.shape[1] != 1 or times.dtype.kind != "f":
                 raise FileFormatError(f"{path}: {field}.input: key times must be a float SCALAR accessor, "
@@ -553,14 +577,10 @@ def _clips(path: Path, gltf, acc: _Accessors, node_to_joint: np.ndarray, skeleto
                     raise FileFormatError(f"{path}: {field}.output: rotation key {bad[0]} has length "
                                           f"{length[bad[0]]:.3g}; rotation keys must be unit quaternions")
             try:
-                tracks.append(Track(int(node_to_joint[node]), target, times, values, mode))
+                tracks.append(Track(joint, target, times, values, mode))
             except InputError as exc:
                 raise FileFormatError(f"{path}: animation {a} channel {c}: {exc}") from None
-        if not tracks:
-            continue
-        duration = max(float(t.times[-1]) for t in tracks)
-        clips.append(Clip(anim.name or f"animation{a}", duration, skeleton.rest_pose, tuple(tracks)))
-    return clips
+        return Clip(name, max(float(t.times[-1]) for t in tracks), self.rest, tuple(tracks))
 
 
 def read_accessor(path: Path, gltf, buffers: list[bytes], index: int) -> np.ndarray:
@@ -596,11 +616,14 @@ def load_gltf(path: str | Path) -> Character:
 def document_character(path: Path, gltf, buffers: list[bytes]) -> Character:
     """Character of a document: typed records of :func:`.gltf_schema.decode` (what
     :func:`load_gltf` reads) or a pygltflib document from :func:`read_document`; ``path``
-    names the file in errors."""
+    names the file in errors. The animations' structure is checked now; each clip's keys are
+    read and checked when the clip is first asked for (:class:`~nrpose.model.character.Clips`),
+    from the document and buffers given, which must not change afterwards."""
     acc = _Accessors(path, gltf, buffers)
     binds = _skin_binds(path, gltf, acc)
     nodes = _Nodes(path, gltf)
     skeleton, node_to_joint, inverse_bind = _skeleton(gltf, nodes, binds)
     meshes, static = _meshes(path, gltf, nodes, acc, binds, node_to_joint)
-    clips = _clips(path, gltf, acc, node_to_joint, skeleton)
-    return Character(skeleton, tuple(meshes), tuple(clips), inverse_bind, tuple(static))
+    plan = _clip_channels(path, gltf, node_to_joint)
+    clips = Clips([name for _, name, _ in plan], _ClipReader(path, gltf, buffers, plan, skeleton.rest_pose))
+    return Character(skeleton, tuple(meshes), clips, inverse_bind, tuple(static))

@@ -701,8 +701,11 @@ def write_glb_with_clip(target_path, out_path, target, clip, bounds=None, *, kee
     is not written). bounds: optional world-space box (min (3,), max (3,)) the
     animated geometry stays in: each skinned mesh node is then placed
     (:func:`fit_skinned_nodes`) so that viewers' culling bounds hold it.
-    keep_animations=False: the clip is the file's only animation.
+    keep_animations=False: the clip is the file's only animation; else the target's clips are
+    made first (FileFormatError for a malformed one, which the output would carry).
     """
+    if keep_animations:
+        tuple(target.clips)     # clips are decoded on first use: the kept ones must read back
     path = Path(target_path)
     gltf, blob, buffers = copy_document(path)
     skeleton, nodes = joint_nodes(path, gltf, buffers)

@@ -65,6 +65,8 @@ def parse_json(text: str, where: str, what: str, error: type[NrposeError] = File
 def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) -> None:
     """``error`` naming the first NaN or infinite number in parsed JSON ``value`` by its path
     (depth already bounded by :func:`check_depth`)."""
+    if _all_finite(value):      # the common case, without a path string for every value
+        return
     stack = [("", value)]
     while stack:
         path, v = stack.pop()
@@ -74,6 +76,20 @@ def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) 
             stack.extend((f"{path}.{k}", x) for k, x in v.items())
         elif isinstance(v, list):
             stack.extend((f"{path}[{i}]", x) for i, x in enumerate(v))
+
+
+def _all_finite(value) -> bool:
+    """Whether parsed JSON ``value`` holds no NaN or infinite number."""
+    stack = [value]
+    while stack:
+        v = stack.pop()
+        if isinstance(v, dict):
+            stack.extend(v.values())
+        elif isinstance(v, list):
+            stack.extend(v)
+        elif isinstance(v, float) and not math.isfinite(v):
+            return False
+    return True
 
 
 def _finite_float(text: str) -> float:

@@ -52,13 +52,11 @@ from ..model.rotation import Rotation, unit_quaternions
 from ..model.skeleton import LocalPose, Skeleton, polar_rotation
 from ..model.timing import check_frame_count
 from ..native import quiet_native
+from . import MESH_SUFFIXES
 from .files import read_input, read_input_text
 
 __all__ = ["read_tgf", "read_dmat_pose", "read_dmat_weights", "read_dmat_animation", "bone_joints", "read_mesh",
            "MESH_SUFFIXES"]
-
-#: mesh file suffixes read by :func:`read_mesh`
-MESH_SUFFIXES = (".obj", ".off", ".ply", ".stl", ".mesh")
 
 
 def _tgf_sections(path: Path) -> tuple[list[tuple[int, list[str]]], list[tuple[int, list[str]]]]:

@@ -12,10 +12,17 @@ slerp along the shortest arc for rotations); ``CUBICSPLINE`` (Hermite, per the
 glTF 2.0 spec, tangents scaled by the key interval, quaternions normalised).
 Before its first key a track holds its first value, after its last key its
 last value; a joint without a track keeps its rest value.
+
+A character's clips are :class:`Clips`: their names are known at load, each clip is made
+(its keys decoded and checked) the first time it is asked for, so a job that plays one clip
+of a file decodes that clip alone.
 """
 from __future__ import annotations
 
+import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -24,7 +31,7 @@ from .rotation import quat_slerp
 from .skeleton import LocalPose, Skeleton
 from .timing import clip_times
 
-__all__ = ["Track", "Clip", "Mesh", "Character"]
+__all__ = ["Track", "Clip", "Clips", "Mesh", "Character"]
 
 PATH_WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
 INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
@@ -114,6 +121,54 @@ class Clip:
         return LocalPose(*(out[p].reshape(times.shape + out[p].shape[1:]) for p in PATH_WIDTH))
 
 
+class Clips(Sequence):
+    """A character's clips in file order, each made the first time it is asked for.
+
+    names: every clip's name, known without making any; make(i) -> Clip: clip i, called
+    when ``clips[i]`` is first asked for (the clip is kept; an error it raises, e.g. a
+    reader's FileFormatError for malformed keys, reaches every caller that asks for that
+    clip). Iterating, ``len`` and ``in`` behave as on a tuple of the clips (iterating
+    makes them all); a slice gives a tuple.
+    """
+
+    def __init__(self, names: Sequence[str], make: Callable[[int], Clip]):
+        self.names = tuple(names)
+        self._make = make
+        self._made: dict[int, Clip] = {}
+
+    @classmethod
+    def of(cls, clips: Sequence[Clip]) -> Clips:
+        """Clips already made."""
+        clips = tuple(clips)
+        return cls([c.name for c in clips], clips.__getitem__)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def __getitem__(self, index):
+        if isinstance(index, slice):
+            return tuple(self[i] for i in range(len(self))[index])
+        i = range(len(self))[index]      # IndexError as a tuple's, negative indices allowed
+        if i not in self._made:
+            self._made[i] = self._make(i)
+            if len(self._made) == len(self):
+                self._make = None        # every clip made: let go of what made them (a file's bytes)
+        return self._made[i]
+
+    def then(self, check: Callable[[Clip], Clip]) -> Clips:
+        """These clips, each passed through ``check`` (which returns it, or raises for a bad
+        clip) when it is made."""
+        return Clips(self.names, functools.partial(_checked, self, check))
+
+    def __repr__(self) -> str:
+        return f"Clips({list(self.names)!r}, {len(self._made)} made)"
+
+
+def _checked(clips: Clips, check: Callable[[Clip], Clip], i: int) -> Clip:
+    """``check(clips[i])``: the ``make`` of :meth:`Clips.then` (a module function, so picklable)."""
+    return check(clips[i])
+
+
 @dataclass(frozen=True, eq=False)
 class Mesh:
     """One mesh of a character.
@@ -146,6 +201,7 @@ class Mesh:
 class Character:
     """Meshes, skeleton, inverse bind matrices (J, 4, 4) float64 and clips.
 
+    clips: :class:`Clips` (a sequence of Clip given here is wrapped as ``Clips.of``);
     static_meshes: meshes the skeleton does not move (scenery beside the
     character), in world space; they are never posed, and glTF outputs keep
     them as they are.
@@ -153,21 +209,23 @@ class Character:
 
     skeleton: Skeleton
     meshes: tuple[Mesh, ...] = ()
-    clips: tuple[Clip, ...] = ()
+    clips: Clips = ()
     inverse_bind: np.ndarray | None = None
     static_meshes: tuple[Mesh, ...] = ()
 
     def __post_init__(self):
+        if not isinstance(self.clips, Clips):
+            object.__setattr__(self, "clips", Clips.of(self.clips))
         if self.inverse_bind is None:
             object.__setattr__(self, "inverse_bind", np.linalg.inv(self.skeleton.rest_globals()))
 
     def clip(self, name: str) -> Clip:
-        """The clip called ``name``; InputError naming the available clips otherwise."""
-        for clip in self.clips:
-            if clip.name == name:
-                return clip
-        names = [c.name for c in self.clips]
-        raise InputError(f"no clip {name!r}; available clips: {', '.join(map(repr, names)) or 'none'}")
+        """The (first) clip called ``name``, made now if it was not (only that clip); InputError
+        naming the available clips when there is none."""
+        names = self.clips.names
+        if name not in names:
+            raise InputError(f"no clip {name!r}; available clips: {', '.join(map(repr, names)) or 'none'}")
+        return self.clips[names.index(name)]
 
     def skin_matrices(self, globals_: np.ndarray) -> np.ndarray:
         """Skinning matrices ``G @ G_rest^-1`` (..., J, 4, 4) for world-space rest vertices."""

@@ -43,7 +43,6 @@ A child translated by the pose (stretch) is therefore not followed.
 """
 from __future__ import annotations
 
-import difflib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -161,7 +160,8 @@ def polar_components(C: np.ndarray, flat: np.ndarray | None = None) -> np.ndarra
 
 def match_hint(name: str, names) -> str:
     """"did you mean ...?" for an unknown joint name, else the first known joints."""
-    """"did you mean ...?" for an unknown joint name, or the known joints."""
+    import difflib      # error messages only
+
     close = difflib.get_close_matches(name, list(names), n=5, cutoff=0.5)
     if close:
         return "did you mean " + ", ".join(repr(c) for c in close) + "?"

@@ -92,14 +92,11 @@ import numpy as np
 
 from ..checks import coordinates
 from ..errors import InputError
+from ..options import BLENDS, DEFAULT_BLEND
 from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.rotation import Rotation, covariance_rotation, minimal_quat, minimal_rotvec, quat_multiply, relative_rotvec_table
 from ..bind.distances import segment_parameters
 from ..bind.weights import dense_weights, keep_top_k
-
-BLENDS = ("quaternion", "relative", "paper")
-#: the default blend of rigs with segments (skeletons): continuous at any spread, equivariant
-DEFAULT_BLEND = "quaternion"
 
 
 def default_blend(rest: HandleSet) -> str:

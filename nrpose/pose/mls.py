@@ -30,9 +30,9 @@ import numpy as np
 from .. import device
 from ..errors import DeviceError, InputError
 from ..model.handles import HandleSet, Pose
+from ..options import BACKENDS
 from .blend import BLENDS, GlobalRotation, RestTerms, pose_reference, rest_terms, segment_levers, sign_tree, default_blend
 
-BACKENDS = ("opencl", "numpy")
 #: points per block of work taken from the job mailbox (share.h): at least BLOCK_POINTS,
 #: about BLOCKS_PER_LAUNCH blocks per launch, at most MAX_BLOCK_POINTS (block_points)
 BLOCK_POINTS = 256

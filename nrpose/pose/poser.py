@@ -21,7 +21,7 @@ Vertices of all the character's meshes are concatenated in file order
   POSITION data with ``G_j @ inverse_bind_j`` of its own skin: the glTF
   specification's formula.
 
-Weights (:data:`nrpose.bind.bone_weights.WEIGHTS`): ``authored`` (the file's
+Weights (:data:`nrpose.options.WEIGHTS`): ``authored`` (the file's
 skin weights), ``euclidean`` (distance to the bone segments, ``1/d^(2α)``), or
 a topological distance over the surface (``heat``, ``exact``, ``graph``). For
 lbs/dqs the distance weights keep each vertex's 4 nearest bones, summed per
@@ -40,20 +40,17 @@ import numpy as np
 
 from . import skinning
 from .cor import centers as cor_centers, cor_reference
-from ..bind.bone_weights import SKELETON_K, WEIGHTS, authored_joint_weights, bone_weights
 from ..bind.cache import cache_dir, cached_status, code_version
-from .blend import BLENDS, DEFAULT_BLEND
-from .mls import Deformer, bind_layout, kept_terms, prefetch_program
 from ..checks import check_magnitude
 from ..errors import InputError
 from ..model.character import Character
 from ..model.handles import HandleSet, Pose, check_alpha
 from ..model.meshset import concatenate_meshes, submesh_faces
 from ..model.skeleton import LocalPose
+from ..options import BLENDS, DEFAULT_BLEND, METHODS, WEIGHTS
 
 __all__ = ["METHODS", "WEIGHTS", "CharacterPoser", "Frames", "FrameStream", "prefetch"]
 
-METHODS = ("nrmls", "lbs", "dqs", "cor")
 SKIN_INFLUENCES = 4   # bones kept per vertex for lbs/dqs with distance weights
 #: the modules whose code an NR-MLS bind runs: their source is part of the binding cache's key
 BIND_MODULES = ("nrpose.pose.poser", "nrpose.pose.mls", "nrpose.pose.blend", "nrpose.bind.bone_weights",
@@ -106,7 +103,7 @@ class CharacterPoser:
     """A character bound for posing. See the module docstring for the options.
 
     k: segment slots per vertex for nrmls (default: all bones up to 8, else 8).
-    blend: the nrmls rotation blend (:data:`nrpose.pose.blend.BLENDS`; the default
+    blend: the nrmls rotation blend (:data:`nrpose.options.BLENDS`; the default
     "quaternion" is continuous at any spread of the bones' rotations, "relative" jumps
     where the dominant bone changes among three or more, at hips and shoulders).
     """
@@ -143,6 +140,10 @@ class CharacterPoser:
         if deform_meshes:
             V = self._rest_world[self._deform_idx]
             if method == "nrmls":
+                # NR-MLS's modules (the blend, its deformer, bone weights): a skinning job never imports them
+                from ..bind.bone_weights import SKELETON_K, bone_weights
+                from .mls import prefetch_program
+
                 rest = HandleSet.make(segments=self.bones.segments, what="skeleton bones")
                 kk = k if k is not None else (SKELETON_K if len(self.bones) > SKELETON_K else None)
                 if backend == "opencl":
@@ -174,6 +175,8 @@ class CharacterPoser:
         if self._device_args is None:
             return None
         if self.method == "nrmls":
+            from .mls import Deformer     # NR-MLS only: a skinning job never imports it
+
             V, rest, W, k, blend, t, layout = self._device_args
             return Deformer(V, rest, weights=W, k=k, backend=self._backend, blend=blend, t=t, layout=layout)
         if self._backend != "opencl":
@@ -208,6 +211,9 @@ class CharacterPoser:
                              "skin_shapes": [list(np.shape(m.joints)) for m in deform] if skinned else []}}
 
         def compute() -> dict:
+            from ..bind.bone_weights import bone_weights    # NR-MLS only: a skinning job never imports it
+            from .mls import bind_layout, kept_terms
+
             bw = bone_weights(character, weights, k, alpha, distances=False)
             W = bw.weights[self._deform_idx]
             t = bw.t[self._deform_idx] if bw.t is not None else None
@@ -253,6 +259,9 @@ class CharacterPoser:
                              "skin_shapes": [list(np.shape(m.joints)) for m in deform] if authored else []}}
 
         def compute() -> dict:
+            # on a cache miss only: a cached skinning bind never imports the weights' module
+            from ..bind.bone_weights import authored_joint_weights, bone_weights
+
             if authored:
                 joint_w = authored_joint_weights(deform, skel.num_joints)
             else:

@@ -330,7 +330,7 @@ def validate(argv: list, code: int = 0, stdout: str = "", stderr: str = "") -> l
     def read_glb(p):
         _check_glb(Path(p), problems)
         if command in ("retarget", "fit-skin"):
-            load_character(p)
+            tuple(load_character(p).clips)      # clips are decoded when used: read them all
 
     def read_png(p):
         if Path(p).read_bytes()[:8] != b"\x89PNG\r\n\x1a\n":

@@ -29,9 +29,7 @@ from pathlib import Path, PurePosixPath
 
 from ...errors import InputError, NrposeError
 from ...io.jsonfile import parse_json
-from ...pose.blend import BLENDS, DEFAULT_BLEND
-from ...pose.mls import BACKENDS
-from ...pose.poser import METHODS, WEIGHTS
+from ...options import BACKENDS, BLENDS, DEFAULT_BLEND, METHODS, WEIGHTS
 from ...pose.retarget import ROOT_MODES
 from ..common import MAX_FRAMES, MAX_OUTPUT_VALUES, frames_output_kind
 from ..pose import parse_frames
