@@ -82,6 +82,7 @@ AGREEMENT_TOLERANCE = 1e-4
 # step). Update the paths when the package moves.
 STAGE_RULES = (
     ("load", r"nrpose/io/__init__\.py$", r"load_character"),
+    ("load", r"nrpose/model/character\.py$", r"Clips\.__getitem__"),   # a clip decoded when first used
     ("bind", r"nrpose/pose/poser\.py$", r"CharacterPoser\.__init__"),
     ("pose", r"nrpose/pose/poser\.py$", r"CharacterPoser\.(pose|stream|_posed_batches)"),
     ("pose", r"nrpose/model/character\.py$", r"(Clip|Track)\.sample"),   # the clip's local poses
