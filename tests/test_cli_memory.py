@@ -8,7 +8,7 @@ import pytest
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's mallopt: Linux only")
 
-# a freed 16 MB array raises glibc's default mmap threshold to 16 MB; 1 MB arrays then come from
+# a freed 16 MB array raises glibc's default mmap threshold to 16 MB; 2 MB arrays then come from
 # the heap, and with the last one alive at its top none of them goes back to the system
 SCRIPT = r"""
 import sys
@@ -24,7 +24,7 @@ if sys.argv[1] == "mapped":
 base = rss_mb()
 big = np.ones(2 * 1024 * 1024)
 del big
-blocks = [np.ones(128 * 1024) for _ in range(100)]
+blocks = [np.ones(256 * 1024) for _ in range(50)]
 last = blocks[-1]
 del blocks
 print(rss_mb() - base)

@@ -86,15 +86,16 @@ def command() -> int:
     return main()
 
 
-#: glibc's ``mallopt`` parameter M_MMAP_THRESHOLD, and the size set for it (its initial default)
-_M_MMAP_THRESHOLD, MMAP_THRESHOLD = -3, 128 * 1024
+#: glibc's ``mallopt`` parameter M_MMAP_THRESHOLD, and the size set for it: a bind's arrays are
+#: mapped, a frame's rows (190 KB on Mannequin) stay in the heap (at 128 KB, LBS jobs ran 7 % slower)
+_M_MMAP_THRESHOLD, MMAP_THRESHOLD = -3, 1024 * 1024
 
 
 def map_large_blocks() -> None:
     """Have glibc map every allocation of :data:`MMAP_THRESHOLD` bytes or more on its own, so
     it goes back to the system when freed. By default glibc raises that threshold to the largest
     block freed so far (up to 32 MB), after which a bind's temporary arrays come from the heap
-    and stay resident: a cold NR-MLS job on Mannequin peaked ~70 MB higher. Nothing to do
+    and stay resident: a cold NR-MLS job on Mannequin peaked ~60 MB higher. Nothing to do
     where the C library is not glibc."""
     import ctypes     # imported by numpy already
 
