@@ -9,6 +9,7 @@ import numpy as np
 import pygltflib
 import pytest
 
+from fit_skin_played import played_rms
 from nrpose.cli import main
 from nrpose.fit.helper_keys import helper_trs, reduce_keys, stored_quats
 from nrpose.fit.skin_file import stored_weights
@@ -133,9 +134,7 @@ def test_cli_file_is_compact_and_plays_what_the_report_says(tmp_path, capsys):
     skin weight set a normalised unsigned short, joints unsigned bytes; the report's held-out
     figures are those of the file as nrpose plays it (test_fit_skin_tracks checks the latter
     with fitted tracks; here with rules)."""
-    from nrpose.fit.character_skin import character_height, nrmls_targets
     from nrpose.io import load_character
-    from nrpose.pose.poser import CharacterPoser
 
     out, report = tmp_path / "fox.glb", tmp_path / "r.json"
     code = main(["fit-skin", str(FOX), "--train", "Walk", "--holdout", "Run", "--rom-degrees", "30",
@@ -158,10 +157,4 @@ def test_cli_file_is_compact_and_plays_what_the_report_says(tmp_path, capsys):
     assert all(i in read for i in range(len(g.bufferViews)))
     assert sum(v.byteLength for v in g.bufferViews) <= g.buffers[0].byteLength < \
         sum(v.byteLength for v in g.bufferViews) + 4 * len(g.bufferViews)
-    fox, back = load_character(FOX), load_character(out)
-    run = [c for c in back.clips if c.name == "Run"][0]
-    times = sample_times(run.duration, 30.0)
-    lbs = CharacterPoser(back, method="lbs", backend="numpy").pose(run.sample(times)).positions
-    _, targets = nrmls_targets(CharacterPoser(fox, method="nrmls"), fox.clip("Run").sample(times))
-    rms = np.sqrt(((lbs - targets) ** 2).sum(axis=2).mean()) / character_height(fox)
-    assert rms == pytest.approx(r["errors"]["Run"]["rms_fraction"], rel=1e-3)
+    assert played_rms(FOX, out, "Run") == pytest.approx(r["errors"]["Run"]["rms_fraction"], rel=1e-3)

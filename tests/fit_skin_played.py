@@ -1,0 +1,20 @@
+"""What a fitted file plays: shared by the fit-skin tests."""
+from __future__ import annotations
+
+import numpy as np
+
+from nrpose.fit.character_skin import character_height, nrmls_targets
+from nrpose.io import load_character
+from nrpose.model.timing import sample_times
+from nrpose.pose.poser import CharacterPoser
+
+
+def played_rms(source, out, clip: str, fps: float = 30.0) -> float:
+    """RMS distance, as a fraction of the height, between the file ``out``'s clip ``clip``
+    played by nrpose's LBS at ``fps`` and NR-MLS of the character ``source`` on the same clip."""
+    character, back = load_character(source), load_character(out)
+    played = [c for c in back.clips if c.name == clip][0]
+    times = sample_times(played.duration, fps)
+    lbs = CharacterPoser(back, method="lbs", backend="numpy").pose(played.sample(times)).positions
+    _, targets = nrmls_targets(CharacterPoser(character, method="nrmls"), character.clip(clip).sample(times))
+    return float(np.sqrt(((lbs - targets) ** 2).sum(axis=2).mean()) / character_height(character))
