@@ -19,7 +19,7 @@ import pytest
 from fuzzing.campaign import run
 from fuzzing.cases import COMMANDS, Case, make_case
 from fuzzing.known import MUST_REJECT, bake_files, known_cases
-from fuzzing.runner import GOOD, Runner
+from fuzzing.runner import GOOD, Runner, classify
 from fuzzing.seeds import BAKE_JOBS, make_seeds
 
 #: the known cases of issue 32 keep the contract (its fixes have landed)
@@ -113,6 +113,15 @@ def test_contract_checks_can_fail(runner, seeds):
                             {"in/m/body.obj": ok, "in/h/handles.json": deep.encode()}))
     assert o.outcome in ("traceback", "rejected")
     assert (o.outcome == "traceback") == ("RecursionError" in o.stderr)
+
+
+def test_a_nan_word_is_a_bad_value_of_a_number_option_not_of_a_path():
+    """`demo --out inf` writes a folder named inf (accepted rightly); `--frames inf` accepted is a defect."""
+    def accepted(argv):
+        case = Case(0, "demo", "demo", argv, input_kind="option", mutation="add")
+        return classify(case, 0, "", "", "[]", False, {}, {}).classes
+    assert "bad-option-accepted" not in accepted(["demo", "--out", "out/d", "--frames", "1", "--out", "inf"])
+    assert "bad-option-accepted" in accepted(["demo", "--out", "out/d", "--frames", "inf"])
 
 
 def test_a_hang_is_cpu_time_over_the_limit(runner, seeds):

@@ -53,6 +53,8 @@ from pathlib import Path
 
 from nrpose.cli import EXIT_PIPE
 
+from .cases import PATH_FLAGS, Case
+
 __all__ = ["Outcome", "Runner", "Collector", "run_case", "CLASSES", "TIME_LIMIT", "WALL_LIMIT", "MEMORY_LIMIT"]
 
 TIME_LIMIT = 20.0
@@ -579,7 +581,9 @@ def classify(case, code, out, err, res, timed_out, before, after) -> Outcome:
         if o.problems:
             classes.append("invalid-output")
             o.where = o.where or _message_head(o.problems[0])
-        if case.input_kind == "option" and any(v in case.argv for v in NAN_VALUES):
+        # a NaN word as the value of a number or name option (a path may be named "inf")
+        if case.input_kind == "option" and any(v in NAN_VALUES and flag not in PATH_FLAGS
+                                               for flag, v in zip(case.argv, case.argv[1:])):
             classes.append("bad-option-accepted")
             o.where = o.where or case.mutation.split(" ")[0]
         temps = [k for k in set(after) - set(before) if Path(k).name.startswith(".nrpose-")]
@@ -695,7 +699,6 @@ def save_repro(repro_dir: Path, case, o: Outcome) -> Path:
 
 def replay(repro: Path) -> Outcome:
     """Run a saved reproducer again; prints and returns its outcome."""
-    from .cases import Case
     meta = json.loads((repro / "case.json").read_text())
     files = {rel: (repro / rel).read_bytes() for rel in meta["files"]}
     case = Case(meta["index"], meta["command"], meta["template"], meta["argv"], files, meta["specials"],
