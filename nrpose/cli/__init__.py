@@ -95,7 +95,7 @@ def map_large_blocks() -> None:
     """Have glibc map every allocation of :data:`MMAP_THRESHOLD` bytes or more on its own, so
     it goes back to the system when freed. By default glibc raises that threshold to the largest
     block freed so far (up to 32 MB), after which a bind's temporary arrays come from the heap
-    and stay resident: a cold NR-MLS job on Mannequin peaked ~60 MB higher. Nothing to do
+    and stay resident: a cold NR-MLS job on Mannequin peaked ~60 MiB higher. Nothing to do
     where the C library is not glibc."""
     import ctypes     # imported by numpy already
 
