@@ -322,8 +322,12 @@ def _check_required(gltf: pygltflib.GLTF2, path) -> None:
 
 
 def copy_document(path: Path) -> tuple[pygltflib.GLTF2, Blob, list[bytes]]:
-    """The document at ``path`` with every buffer and image copied into one binary chunk."""
+    """The document at ``path`` with every buffer and image copied into one binary chunk;
+    FileFormatError (the reader's) for an accessor that cannot be read, as the copy carries
+    accessors the job never reads (clips not played, unused data)."""
     gltf, buffers = read_document(path)
+    for i in range(len(gltf.accessors or [])):
+        read_accessor(path, gltf, buffers, i)
     blob = Blob(gltf)
     starts = [blob.append(bytes(b)) for b in buffers]
     for view in gltf.bufferViews:

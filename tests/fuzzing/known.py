@@ -19,7 +19,8 @@ __all__ = ["known_cases", "bake_files", "MUST_REJECT"]
 
 #: cases whose exit 0 is itself the defect (the input is invalid)
 MUST_REJECT = {"glTF -Infinity in an unread field (retarget)", "pose --alpha nan (authored)", "pose --alpha -1 (authored)", "glTF index as a string",
-               "glTF POSITION index as a string", "pose -o '' (empty output name)"}
+               "glTF POSITION index as a string", "pose -o '' (empty output name)",
+               "glTF clip not played past its bufferView (posed copy)"}
 
 
 def _gltf(mutate, blob_mutate=None, kind: str = "glb") -> dict:
@@ -109,6 +110,9 @@ def known_cases(seeds: dict[str, Seed] | None = None) -> dict[str, Case]:
             "pose", "in/c/body.gltf", "--rest", "--weights", "authored", "-o", "out/o.npz", "--backend", "numpy",
             "--method", "nrmls"], _gltf(_set(("nodes", 1, "scale"), [1e-320, 1, 1]), kind="gltf")),
         "glTF zero animation keys": _case("zero-keys", pose_glb, _gltf(lambda d: None, _zero_view(6))),
+        "glTF clip not played past its bufferView (posed copy)": _case("unplayed-clip-range", [
+            "pose", "in/c/body.glb", "--rest", "-o", "out/o.glb", "--backend", "numpy"],
+            _gltf(_set(("accessors", 5, "count"), 1011))),
         "glTF buffer URI with %00": _case("uri-nul", ["info", "in/c/body.gltf"],
                                           {"in/c/body.gltf": json.dumps(_doc_with(("buffers", 0, "uri"),
                                                                                   "body%00.bin")).encode(),
