@@ -191,6 +191,9 @@ def run(args, capsys):
     (["--train", "Jump"], "not a clip"),
     (["--train", "Walk", "--rom-degrees", "-5"], "--rom-degrees"),
     (["--train", "Walk", "--fps", "100000"], "poses, more than 10,000"),
+    (["--train", "Walk", "--key-tolerance", "-1e-4"], "--key-tolerance"),
+    (["--train", "Walk", "--key-tolerance", "nan"], "--key-tolerance"),
+    (["--train", "Walk", "--key-tolerance", "0.5"], "--key-tolerance"),
 ])
 def test_cli_bad_options_exit_2_one_line_no_output(tmp_path, capsys, extra, message):
     out = tmp_path / "o.glb"

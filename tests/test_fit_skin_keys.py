@@ -53,8 +53,8 @@ def test_kept_keys_play_every_frame_within_the_tolerance(seed):
     rng = np.random.default_rng(seed)
     F = 120
     times = np.sort(rng.random(F)).cumsum() / 10
-    # a uniform spin (slerp alone would need two keys for it, nlerp not), then a smooth
-    # motion with a jerk past 180 degrees
+    # a uniform spin of 143 degrees (slerp alone would need two keys for it, nlerp not), then a
+    # smooth motion with a jerk (the rotation vector's z jumps by 1.5 between two frames)
     phase = np.linspace(0, 3, F)[:, None]
     rot = np.sin(phase * rng.uniform(0.3, 1, 3)) * rng.uniform(0.2, 1, 3)
     axis = rng.normal(size=3)
@@ -158,3 +158,36 @@ def test_cli_file_is_compact_and_plays_what_the_report_says(tmp_path, capsys):
     assert sum(v.byteLength for v in g.bufferViews) <= g.buffers[0].byteLength < \
         sum(v.byteLength for v in g.bufferViews) + 4 * len(g.bufferViews)
     assert played_rms(FOX, out, "Run") == pytest.approx(r["errors"]["Run"]["rms_fraction"], rel=1e-3)
+
+
+@pytest.mark.skipif(not FOX.is_file(), reason=f"shared assets not found at {DATA}")
+def test_helper_channels_go_to_the_clips_animations(tmp_path):
+    """A source whose first animation moves no joint (it makes no clip): each clip's helper
+    channels still land in that clip's own animation."""
+    from nrpose.fit.character_skin import fit_character, nrmls_targets
+    from nrpose.fit.helper_fit import add_helpers
+    from nrpose.fit.rom import range_of_motion
+    from nrpose.fit.skin_file import write_fitted_glb
+    from nrpose.io import load_character
+    from nrpose.pose.poser import CharacterPoser
+
+    g = pygltflib.GLTF2().load(str(FOX))
+    walk = [a for a in g.animations if a.name == "Walk"][0]
+    sampler = walk.samplers[walk.channels[0].sampler]
+    g.animations.insert(0, pygltflib.Animation(name="mesh node only", samplers=[pygltflib.AnimationSampler(
+        input=sampler.input, output=sampler.output)], channels=[pygltflib.AnimationChannel(
+            sampler=0, target=pygltflib.AnimationChannelTarget(node=1, path="rotation"))]))
+    source = tmp_path / "fox_extra_animation.glb"
+    g.save_binary(str(source))
+    fox = load_character(source)
+    assert [c.name for c in fox.clips] == ["Survey", "Walk", "Run"]
+    rom = range_of_motion(fox.skeleton, 30.0, pairs=1)
+    G, targets = nrmls_targets(CharacterPoser(fox, method="nrmls"), rom)
+    fitted, _ = add_helpers(fox, fit_character(fox, G, targets, 4), G, rom, targets, 1, 4)
+    out = tmp_path / "fitted.glb"
+    write_fitted_glb(source, out, fox, fitted)
+    back = pygltflib.GLTF2().load(str(out))
+    helper = next(i for i, n in enumerate(back.nodes) if (n.name or "").startswith("nrpose_helper"))
+    moves_helper = [any(c.target.node == helper for c in a.channels) for a in back.animations]
+    assert [a.name for a in back.animations] == ["mesh node only", "Survey", "Walk", "Run"]
+    assert moves_helper == [False, True, True, True]

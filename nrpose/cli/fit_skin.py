@@ -11,6 +11,7 @@ from ..errors import NrposeError
 from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
                                   nrmls_targets)
 from ..fit.helper_fit import add_helpers
+from ..fit.helper_joints import rule_locals
 from ..fit.helper_keys import KEY_TOLERANCE, helper_keys
 from ..fit.helper_tracks import fit_helper_tracks, refit_with_tracks
 from ..fit.rom import ROM_DEGREES, range_of_motion
@@ -169,7 +170,7 @@ def run(args) -> None:
             helper_local = tracks_of(pose, Gh, Th)
             if clip is not None and fitted.helpers:     # a clip's helpers as the file plays them: from its keys
                 if helper_local is None:
-                    helper_local = np.stack([h.local(character.skeleton, pose) for h in fitted.helpers], axis=1)
+                    helper_local = rule_locals(fitted.helpers, character.skeleton, pose)
                 helper_local = helper_keys(character, fitted, Gh, helper_local, sample_times(clip.duration, args.fps),
                                            args.key_tolerance)[1]
             errors[name] = error_table(character, fitted_positions(character, fitted, Gh, pose, helper_local), Th)

@@ -27,7 +27,7 @@ from ..errors import InputError
 from ..model.rotation import quat_multiply
 from ..model.skeleton import LocalPose, Skeleton, polar_rotation
 
-__all__ = ["HelperJoint", "driver_features", "fit_rule", "evaluate_rule", "rigid_fit", "helper_skin_matrices"]
+__all__ = ["HelperJoint", "driver_features", "fit_rule", "evaluate_rule", "rigid_fit", "rule_locals", "helper_skin_matrices"]
 
 RIDGE = 1e-3    # ridge of the rule regression, relative to the mean feature energy
 
@@ -105,6 +105,13 @@ def rigid_fit(z: np.ndarray, u: np.ndarray, a: np.ndarray) -> np.ndarray:
     L[:, :3, :3] = R
     L[:, :3, 3] = uc - np.einsum("fij,j->fi", R, zc)
     return L
+
+
+def rule_locals(helpers, skeleton: Skeleton, pose: LocalPose) -> np.ndarray:
+    """Local transforms (F, H, 4, 4) float64 of ``helpers`` by their rules for pose (F, J, ...)."""
+    if not helpers:
+        return np.zeros((len(pose.rotation), 0, 4, 4))
+    return np.stack([h.local(skeleton, pose) for h in helpers], axis=1)
 
 
 def helper_skin_matrices(helpers, skeleton: Skeleton, G: np.ndarray, pose: LocalPose | None,

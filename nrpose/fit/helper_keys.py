@@ -19,7 +19,7 @@ being at most 1. Interpolating two keys whose quaternions lie in opposite hemisp
 turns the long way round, so such a gap is refined like any other. Rotations are stored as
 normalised int16 (:func:`stored_quats`, glTF's core format; each component within 1/65534):
 the interpolation starts from the stored keys, so their rounding is inside the check
-(a key itself is off by its rounding only, under 3.1e-5 r).
+(a key itself is off by its rounding only, under 6.1e-5 r).
 """
 from __future__ import annotations
 

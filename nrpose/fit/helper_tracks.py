@@ -30,7 +30,7 @@ import numpy as np
 from ..model.character import Character
 from ..model.skeleton import LocalPose
 from .character_skin import FittedSkin, mesh_space, skin_matrices
-from .helper_joints import HelperJoint, driver_features, fit_rule, rigid_fit
+from .helper_joints import HelperJoint, driver_features, fit_rule, rigid_fit, rule_locals
 from .skin_weights import MAX_CANDIDATES, candidate_joints, fit_weights, skin_positions
 
 __all__ = ["fit_helper_tracks", "refit_with_tracks", "SWEEPS", "ALTERNATIONS"]
@@ -45,9 +45,7 @@ def fit_helper_tracks(character: Character, fitted: FittedSkin, G: np.ndarray, p
     frames, for the frames of pose (F, J, ...) with global joint matrices G (F, J, 4, 4) and
     NR-MLS positions targets (F, V, 3) (all meshes in file order, model units)."""
     J = character.skeleton.num_joints
-    H = len(fitted.helpers)
-    tracks = np.stack([h.local(character.skeleton, pose) for h in fitted.helpers], axis=1) if H else \
-        np.zeros((len(G), 0, 4, 4))
+    tracks = rule_locals(fitted.helpers, character.skeleton, pose)
     starts = np.cumsum([0] + [len(m.vertices) for m in character.meshes])
     meshes = []     # (source, ibm, joints, weights, targets, skinning matrices) of each skinned mesh
     for i, m in enumerate(character.meshes):

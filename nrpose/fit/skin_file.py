@@ -1,12 +1,14 @@
 """The source glTF written again with fitted skin weights (JOINTS_n / WEIGHTS_n).
 
 Everything else is kept (nodes, materials, UVs, normals, textures, the source's
-animations); all buffers are copied into the single GLB buffer and the new
-weights appended after them, 4 per set, so 8 influences use ``JOINTS_0/1`` and
-``WEIGHTS_0/1``: joints as unsigned bytes (unsigned shorts in a skin of more than
-256 joints), weights as normalised unsigned shorts (glTF's core formats for them)
-whose rows sum to exactly 65535 (:func:`stored_weights`: the fit's weights rounded by
-largest remainders, less than 1/65535 each from the fit's).
+animations); all buffers are copied into the single GLB buffer and the new weights
+take the place of the source's where nothing else reads those (else they are
+appended: :meth:`nrpose.io.gltf_write.Blob.replace`), 4 per set, so 8 influences use
+``JOINTS_0/1`` and ``WEIGHTS_0/1``: joints as unsigned bytes (unsigned shorts in a
+skin of more than 256 joints), weights as normalised unsigned shorts (glTF's core
+formats for them) whose rows sum to exactly 65535 (:func:`stored_weights`: the fit's
+weights rounded by largest remainders, less than 1/65535 each from the fit's). A
+source's sets beyond the fitted ones leave the primitive; their data stays.
 Requested clips are added as ordinary animations (:func:`nrpose.io.gltf_write.add_clip`);
 helper joints as nodes with their rules written as animation channels (:func:`write_fitted_glb`).
 """
@@ -20,11 +22,12 @@ import pygltflib
 
 from ..checks import within_float32
 from ..errors import InputError
-from ..io.gltf_read import joint_nodes, node_globals, read_document
+from ..io.gltf_read import clip_animations, joint_nodes, node_globals, read_document
 from ..io.gltf_write import Blob, add_clip, check_copyable, copy_document, save_glb
 from ..model.character import Character
 from ..model.timing import sample_times
 from .character_skin import FittedSkin, mesh_space
+from .helper_joints import rule_locals
 from .helper_keys import KEY_TOLERANCE, helper_keys, helper_trs, stored_quats
 
 __all__ = ["skinned_primitives", "stored_weights", "stored_skin", "write_fitted_glb", "add_helper_nodes",
@@ -79,8 +82,13 @@ def skinned_primitives(path, character: Character) -> list:
 
 def stored_weights(w: np.ndarray) -> np.ndarray:
     """Weights (N, k) >= 0 with rows summing to 1 as the file stores them: (N, k) uint16, each row
-    summing to exactly 65535 (rounded down, then the largest remainders rounded up)."""
-    scaled = np.asarray(w, np.float64) * (WEIGHT_SCALE / np.asarray(w, np.float64).sum(axis=1, keepdims=True))
+    summing to exactly 65535 (rounded down, then the largest remainders rounded up); InputError
+    for a row without a positive finite sum or with a negative weight."""
+    w = np.asarray(w, np.float64)
+    sums = w.sum(axis=1, keepdims=True)
+    if not (np.isfinite(sums).all() and (sums > 0).all() and (w >= 0).all()):
+        raise InputError("skin weights: a vertex's weights are negative, not finite or all zero")
+    scaled = w * (WEIGHT_SCALE / sums)
     out = np.floor(scaled)
     short = (WEIGHT_SCALE - out.sum(axis=1)).astype(np.int64)       # 0 <= short < k
     rank = np.argsort(np.argsort(out - scaled, axis=1, kind="stable"), axis=1)   # largest remainder first
@@ -149,11 +157,13 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     if fitted.helpers:
         helper_nodes = node_of[skeleton.num_joints:]
         every = tuple(character.clips) + tuple(clips)
-        for k, (animation, clip) in enumerate(zip(gltf.animations, every)):
+        animations = [gltf.animations[a] for a in clip_animations(path, gltf, nodes)]    # the clips' own
+        if len(animations) != len(every):
+            raise InputError(f"{path}: its animations do not match the loaded character's clips")
+        for k, (animation, clip) in enumerate(zip(animations, every)):
             times = sample_times(clip.duration, fps)
             pose = clip.sample(times)
-            local = np.stack([h.local(skeleton, pose) for h in fitted.helpers], axis=1) if tracks is None \
-                else tracks[k]
+            local = rule_locals(fitted.helpers, skeleton, pose) if tracks is None else tracks[k]
             keys, _ = helper_keys(character, fitted, skeleton.forward_kinematics(pose), local, times, key_tolerance)
             add_helper_channels(blob, animation, local, helper_nodes, times, keys)
     return save_glb(gltf, blob, Path(out_path))

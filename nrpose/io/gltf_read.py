@@ -599,6 +599,14 @@ def joint_nodes(path: Path, gltf, buffers: list[bytes]) -> tuple[Skeleton, np.nd
     return skeleton, nodes
 
 
+def clip_animations(path: Path, gltf, nodes: np.ndarray) -> list[int]:
+    """The document's animation index of each clip :func:`load_gltf` makes from it, in order
+    (animations without a channel on a joint make none); nodes: :func:`joint_nodes`' second value."""
+    node_to_joint = np.full(len(gltf.nodes), -1, np.int64)
+    node_to_joint[nodes] = np.arange(len(nodes))
+    return [a for a, _, _ in _clip_channels(path, gltf, node_to_joint)]
+
+
 def node_globals(path: Path, gltf) -> tuple[np.ndarray, np.ndarray]:
     """Parent (N,) int64 (-1 for roots) and rest world matrix (N, 4, 4) float64 of every node of a
     document from :func:`read_document`."""

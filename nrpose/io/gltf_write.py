@@ -251,7 +251,9 @@ class Blob:
         view.byteStride, view.target, view.byteLength = None, target, data.nbytes
         self.replaced[acc.bufferView] = data.tobytes()
         self.gltf.accessors[accessor] = pygltflib.Accessor(bufferView=acc.bufferView, componentType=component,
-                                                           count=len(data), type=kind, normalized=normalized)
+                                                           count=len(data), type=kind, normalized=normalized,
+                                                           name=acc.name, extras=acc.extras,
+                                                           extensions=acc.extensions)
         return accessor
 
     def pack(self) -> None:
@@ -259,13 +261,18 @@ class Blob:
         bytes no view reads; nothing to do without :meth:`replace` d views."""
         if not self.replaced:
             return
-        old = memoryview(b"".join(self.parts))
+        starts = np.cumsum([0] + [len(p) for p in self.parts])
+        parts = self.parts
         self.parts, self.size = [], 0
         for i, view in enumerate(self.gltf.bufferViews):
             data = self.replaced.get(i)
-            if data is None:
-                data = old[view.byteOffset or 0:(view.byteOffset or 0) + view.byteLength]
-            view.byteOffset = self.append(bytes(data))
+            if data is None:       # a slice of the part the view lies in (views never span two)
+                start = view.byteOffset or 0
+                k = int(np.searchsorted(starts, start, side="right")) - 1
+                data = memoryview(parts[k])[start - starts[k]:start - starts[k] + view.byteLength]
+                if len(data) != view.byteLength:
+                    raise FileFormatError(f"bufferView {i} runs past the end of its buffer")
+            view.byteOffset = self.append(data)
         self.replaced = {}
 
     def normalized_vec3(self, values: np.ndarray, dtype, minmax: bool = False) -> int:

@@ -39,7 +39,10 @@ def thread_settings(workers: int, cpus: int | None = None) -> dict[str, str]:
 def _worker_main(conn, env: dict, outdir: str) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)     # the driver stops the workers
     os.environ.update(env)                           # before PoCL starts in this process
+    from .. import map_large_blocks
     from .worker import WorkerCache, run_job
+
+    map_large_blocks()                               # a whole-job process, as the nrpose program
 
     cache = WorkerCache()
     while True:
