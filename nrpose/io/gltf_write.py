@@ -75,7 +75,7 @@ from typing import Sequence
 import numpy as np
 import pygltflib
 
-from ..checks import real_rows, triangles, within_float32
+from ..checks import check_magnitude, real_rows, triangles, within_float32
 from ..errors import FileFormatError, InputError, NrposeError
 from ..model.normals import Surface, weld
 from ..model.rotation import Rotation
@@ -751,6 +751,9 @@ def add_clip(gltf: pygltflib.GLTF2, blob: Blob, nodes, skeleton, clip) -> str:
         if track.interpolation == "CUBICSPLINE":
             raise InputError("write_glb_with_clip writes LINEAR and STEP tracks only")
         within_float32(track.values, f"retargeted {track.path} track of joint {track.joint}")
+        if track.path == "translation":     # what nrpose's reader takes back (nrpose.io's clip check)
+            check_magnitude(track.values,
+                            f"clip {clip.name!r}: translations of joint {skeleton.names[track.joint]!r}")
         key = track.times.tobytes()
         if key not in inputs:
             inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)
