@@ -198,16 +198,8 @@ class Blob:
             minmax: bool = False, normalized: bool = False) -> int:
         """A buffer view and an accessor for ``array`` (already of the component's dtype; integers
         read as fractions of the type's maximum where ``normalized``); its index."""
-        view = self.raw(np.ascontiguousarray(array).tobytes(), target)
-        count = len(array)
-        acc = pygltflib.Accessor(bufferView=view, componentType=component,
-                                 count=count, type=kind, normalized=normalized)
-        if minmax:
-            flat = np.asarray(array).reshape(count, -1)
-            acc.min = [float(x) for x in flat.min(axis=0)]
-            acc.max = [float(x) for x in flat.max(axis=0)]
-        self.gltf.accessors.append(acc)
-        return len(self.gltf.accessors) - 1
+        return self._accessor(self.raw(np.ascontiguousarray(array).tobytes(), target), 0, array, kind,
+                              component, normalized, minmax)
 
     def add_together(self, items) -> list[int]:
         """Accessors for several arrays in one buffer view (fewer views in the JSON than
@@ -221,16 +213,18 @@ class Blob:
             chunks += [data, b"\0" * (-len(data) % 4)]
             at += len(data) + (-len(data) % 4)
         view = self.raw(b"".join(chunks))
-        out = []
-        for (array, kind, component, normalized, minmax), offset in zip(items, offsets):
-            acc = pygltflib.Accessor(bufferView=view, byteOffset=offset, componentType=component, count=len(array),
-                                     type=kind, normalized=normalized)
-            if minmax:
-                flat = np.asarray(array).reshape(len(array), -1)
-                acc.min, acc.max = [float(x) for x in flat.min(axis=0)], [float(x) for x in flat.max(axis=0)]
-            self.gltf.accessors.append(acc)
-            out.append(len(self.gltf.accessors) - 1)
-        return out
+        return [self._accessor(view, offset, *item) for item, offset in zip(items, offsets)]
+
+    def _accessor(self, view: int, offset: int, array, kind: str, component: int, normalized: bool,
+                  minmax: bool) -> int:
+        """Append the accessor of ``array`` at ``offset`` in buffer view ``view``; its index."""
+        acc = pygltflib.Accessor(bufferView=view, byteOffset=offset, componentType=component, count=len(array),
+                                 type=kind, normalized=normalized)
+        if minmax:
+            flat = np.asarray(array).reshape(len(array), -1)
+            acc.min, acc.max = [float(x) for x in flat.min(axis=0)], [float(x) for x in flat.max(axis=0)]
+        self.gltf.accessors.append(acc)
+        return len(self.gltf.accessors) - 1
 
     def replace(self, accessor: int, array: np.ndarray, kind: str, component: int, target=None,
                 normalized: bool = False) -> int:
