@@ -22,7 +22,8 @@ cache (POCL_CACHE_DIR) per run, and the input .glb dropped from the OS page cach
 (posix_fadvise DONTNEED on that file only: no root-wide drop_caches); the interpreter's
 and the libraries' files stay cached. ``warm`` -- caches filled by an untimed run of the
 same job, input file read just before. Runs are alternated: per round every contestant
-runs once per mode, the order rotated by round. Reported per contestant: wall time of the
+runs once per mode, the order rotated by round. nrpose runs with the OpenCL drivers of a
+user's install, PoCL's alone (:func:`user_icds`; the test extra adds Oclgrind's). Reported per contestant: wall time of the
 process (start to reaped), peak RSS (the job's ru_maxrss, seen from a small launcher process), CPU time;
 medians with p10/p90 over ``--repeat`` rounds; the ratio Blender / nrpose of the medians
 and per round (paired).
@@ -39,6 +40,7 @@ CPU steal beside the figures.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import pathlib
@@ -392,6 +394,18 @@ def breakdown(py: str, args: list, env: dict, tmp: pathlib.Path) -> dict:
 
 # --------------------------------------------------------------------------- the suite
 
+def user_icds() -> dict:
+    """The environment that gives the timed processes the OpenCL drivers of a user's install
+    (``pip install nrpose``: PoCL's alone): ``{"OCL_ICD_VENDORS": <PoCL's .icd>}`` where the
+    pyopencl wheel's driver folder also holds others (the test extra's Oclgrind, whose
+    loading at platform enumeration costs ~15 ms per process), else {}."""
+    spec = importlib.util.find_spec("pyopencl")
+    folder = pathlib.Path(spec.submodule_search_locations[0]) / ".libs" if spec else None
+    if folder is None or not (folder / "pocl.icd").exists() or not (set(folder.glob("*.icd")) - {folder / "pocl.icd"}):
+        return {}
+    return {"OCL_ICD_VENDORS": str(folder / "pocl.icd")}
+
+
 def prepare(data: pathlib.Path, names, script: pathlib.Path, tmp: pathlib.Path, env: dict, log=None) -> tuple:
     """[{name, path, clip, source}] of the characters present, and [{name, reason}] skipped."""
     out, skipped = [], []
@@ -452,6 +466,7 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
                       "system time; medians, p10, p90 over rounds; "
                       "vs_blender: Blender's median wall / this row's (same mode, same character; > 1: nrpose "
                       "faster), paired: the same ratio per round",
+           "opencl_icds": user_icds(),
            "rows": [], "agreement": {}, "breakdown": [], "skipped": []}
     t_all, cpu_all = time.perf_counter(), common.cpu_times()
     bpy_python, doc["blender"] = blender_python(log) if blender else (None, {"reason": "not requested"})
@@ -460,15 +475,16 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
         log(f"e2e: Blender anchor skipped: {doc['blender']['reason']}")
     tmp = pathlib.Path(tempfile.mkdtemp(prefix="nrpose-e2e-"))
     try:
+        base = dict(os.environ, **doc["opencl_icds"])
         warm = {"NRPOSE_CACHE_DIR": str(tmp / "warm" / "nrpose"), "POCL_CACHE_DIR": str(tmp / "warm" / "pocl")}
-        base_env = dict(os.environ, **warm)
+        base_env = dict(base, **warm)
         chars, doc["skipped"] = prepare(data, names, script, tmp, base_env, log)
         for s in doc["skipped"]:
             if log:
                 log(f"e2e: {s['character']} skipped: {s['reason']}")
         for ch in chars:
-            doc["rows"].extend(_character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, warm, doc,
-                                          log))
+            doc["rows"].extend(_character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, base, warm,
+                                          doc, log))
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     _ratios(doc["rows"])
@@ -479,14 +495,14 @@ def run(repeat: int = 5, quick: bool = False, data=None, names=None, blender: bo
     return doc
 
 
-def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, warm, doc, log) -> list[dict]:
+def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, base, warm, doc, log) -> list[dict]:
     name, glb, clip = ch["character"], ch["path"], ch["clip"]
     work = tmp / name
     work.mkdir()
     cpu0, load0 = common.cpu_times(), common.load()
     # the reference job (also the warm-up of lbs -> npz): frames and vertices, and the agreement's nrpose side
     ref = work / "reference-lbs.npz"
-    warm_env = dict(os.environ, **warm)
+    warm_env = dict(base, **warm)
     run_process([script, "pose", glb, "--clip", clip, "--method", "lbs", "-o", ref], warm_env, work / "log")
     with np.load(ref) as z:
         frames, vertices = z["positions"].shape[:2]
@@ -518,7 +534,7 @@ def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, warm, 
                 out = work / f"run.{output}"
                 if mode == "cold":
                     fresh = work / f"cold-{r_i}"
-                    env = dict(os.environ, NRPOSE_CACHE_DIR=str(fresh / "nrpose"), POCL_CACHE_DIR=str(fresh / "pocl"))
+                    env = dict(base, NRPOSE_CACHE_DIR=str(fresh / "nrpose"), POCL_CACHE_DIR=str(fresh / "pocl"))
                     evicted = evict(glb)
                 else:
                     env, evicted = warm_env, None

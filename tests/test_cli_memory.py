@@ -1,4 +1,6 @@
-"""The nrpose program returns freed large blocks to the system (nrpose.cli.map_large_blocks)."""
+"""The nrpose program's process: freed large blocks go back to the system
+(nrpose.cli.map_large_blocks); its exit skips the last garbage collections, not its exit
+handlers (nrpose.cli.skip_final_collections)."""
 from __future__ import annotations
 
 import ctypes
@@ -43,3 +45,20 @@ def resident_after(mode: str) -> float:
 def test_freed_blocks_leave_the_process_with_map_large_blocks():
     assert resident_after("default") > 60      # glibc's default keeps the 100 MB resident
     assert resident_after("mapped") < 20
+
+
+# the exit handler registered first runs last, after nrpose's and the interpreter's own
+EXIT = r"""
+import atexit, gc, sys
+from nrpose import cli
+atexit.register(lambda: print("at exit: collecting", gc.isenabled(), "frozen", gc.get_freeze_count() > 0, flush=True))
+sys.argv = ["nrpose"] + sys.argv[1:]
+sys.exit(cli.command())
+"""
+
+
+@pytest.mark.parametrize("argv, status", [(["--version-of-nothing"], 2), (["demo", "--help"], 0)])
+def test_the_program_exits_with_its_status_and_handlers_and_no_final_collections(argv, status):
+    out = subprocess.run([sys.executable, "-c", EXIT, *argv], capture_output=True, text=True)
+    assert out.returncode == status, out.stderr
+    assert out.stdout.endswith("at exit: collecting False frozen True\n")

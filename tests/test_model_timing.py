@@ -92,3 +92,41 @@ def test_fox_run_loop_closes(fps):
     first, last = clip.sample(t[[0, -1]]).rotation
     # a loop: the last frame is the last key, which equals the first one (no seam of a partial step)
     assert np.abs(np.abs(np.sum(first * last, axis=-1)) - 1).max() < 1e-6
+
+
+@pytest.mark.parametrize("interpolation", ["LINEAR", "STEP", "CUBICSPLINE"])
+def test_a_clip_samples_its_tracks_together_as_each_alone(interpolation):
+    """Clip.sample interpolates tracks that share key times in one pass; each joint gets what
+    its track gives alone, the last of two tracks of one target wins, and a track of equal
+    keys holds its key."""
+    rng = np.random.default_rng(7)
+    J = 9
+    skel = Skeleton(names=tuple(f"j{j}" for j in range(J)), parents=np.arange(J) - 1,
+                    translation=rng.normal(size=(J, 3)), rotation=np.tile([0.0, 0, 0, 1], (J, 1)),
+                    scale=np.ones((J, 3)))
+    shared = np.sort(rng.uniform(0, 2, 6))
+    tracks = []
+    for path, width in (("translation", 3), ("rotation", 4), ("scale", 3)):
+        def keys(times):
+            return rng.normal(size=(len(times), 3, width) if interpolation == "CUBICSPLINE" else (len(times), width))
+        tracks += [Track(j, path, shared, keys(shared), interpolation) for j in range(5)]
+        tracks.append(Track(6, path, shared * 1.3, keys(shared), interpolation))     # other key times
+        tracks.append(Track(2, path, shared, keys(shared), interpolation))           # 2 again: wins
+        tracks.append(Track(6, path, shared, keys(shared), interpolation))           # 6 again, other times
+        constant = np.repeat(keys(shared[:1]), len(shared), axis=0)
+        tracks.append(Track(7, path, shared, constant, interpolation))
+    clip = Clip("c", float(shared[-1] * 1.3), skel.rest_pose, tuple(tracks))
+    t = np.concatenate([np.linspace(0, clip.duration, 41), shared])
+    pose = clip.sample(t)
+    for track in tracks:
+        winner = [x for x in tracks if (x.joint, x.path) == (track.joint, track.path)][-1]
+        got = getattr(pose, track.path)[:, track.joint]
+        np.testing.assert_allclose(got, winner.sample(t), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(pose.translation[:, 8], np.broadcast_to(skel.translation[8], (len(t), 3)))  # rest
+    if interpolation != "CUBICSPLINE":    # equal keys: the key itself (a slerp's rotation: unit)
+        held = tracks[-1].values[0]
+        np.testing.assert_array_equal(pose.scale[:, 7], np.broadcast_to(held, (len(t), 3)))
+        rotation = [x for x in tracks if (x.joint, x.path) == (7, "rotation")][0].values[0]
+        if interpolation == "LINEAR":
+            rotation = rotation / np.linalg.norm(rotation)
+        np.testing.assert_allclose(pose.rotation[:, 7], np.broadcast_to(rotation, (len(t), 4)), rtol=0, atol=1e-15)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import importlib
 import os
 import re
@@ -79,11 +80,25 @@ def command() -> int:
     """The ``nrpose`` program (console script, ``python -m nrpose``): :func:`main` in a process
     that runs one whole job, so its PoCL context is the worker device alone
     (``NRPOSE_WHOLE_JOB=1`` unless set: :func:`nrpose.device.env.whole_job`; its bake
-    workers inherit it), and its large blocks are returned when freed
-    (:func:`map_large_blocks`)."""
+    workers inherit it), its large blocks are returned when freed
+    (:func:`map_large_blocks`) and its exit skips the interpreter's last garbage collections
+    (:func:`skip_final_collections`)."""
     os.environ.setdefault("NRPOSE_WHOLE_JOB", "1")
     map_large_blocks()
-    return main()
+    try:
+        return main()
+    finally:
+        skip_final_collections()
+
+
+def skip_final_collections() -> None:
+    """Leave every object of a process about to exit out of the interpreter's garbage
+    collections (``gc.freeze``): at exit those passes traverse every object of the ~370 modules a
+    command imports (40-60 ms of a 400 ms job) to free memory the system takes back anyway.
+    Exit handlers, thread joins and stream flushes still run; objects are still freed by their
+    reference counts."""
+    gc.disable()
+    gc.freeze()
 
 
 #: glibc's ``mallopt`` parameter M_MMAP_THRESHOLD, and the size set for it: a bind's arrays are

@@ -71,25 +71,35 @@ class Track:
 
     def sample(self, t: np.ndarray) -> np.ndarray:
         """Values at times t (F,) seconds: (F, C) float64 (unit quaternions for rotations)."""
-        t = np.asarray(t, dtype=np.float64)
-        K, times, v = len(self.times), self.times, self.values
-        k = np.searchsorted(times, t, side="right") - 1
-        if self.interpolation == "STEP" or K == 1:
-            out = v[np.clip(k, 0, K - 1)]
-            return out[:, 1] if self.interpolation == "CUBICSPLINE" else out
-        k = np.clip(k, 0, K - 2)
-        dt = times[k + 1] - times[k]
-        s = np.clip((t - times[k]) / dt, 0.0, 1.0)[:, None]
-        if self.interpolation == "CUBICSPLINE":
-            s2, s3 = s * s, s * s * s
-            out = ((2 * s3 - 3 * s2 + 1) * v[k, 1] + (s3 - 2 * s2 + s) * dt[:, None] * v[k, 2]
-                   + (-2 * s3 + 3 * s2) * v[k + 1, 1] + (s3 - s2) * dt[:, None] * v[k + 1, 0])
-            if self.path == "rotation":
-                out = out / np.linalg.norm(out, axis=1, keepdims=True)
-            return out
-        if self.path == "rotation":
-            return quat_slerp(v[k], v[k + 1], s)
-        return (1 - s) * v[k] + s * v[k + 1]
+        return interpolate_keys(self.times, self.values[..., None, :], t, self.interpolation,
+                                self.path == "rotation")[:, 0]
+
+
+def interpolate_keys(times: np.ndarray, values: np.ndarray, t, interpolation: str, rotation: bool) -> np.ndarray:
+    """Values (F, G, C) float64 at times t (F,) seconds of G tracks sharing key times (K,)
+    seconds and ``interpolation``: values (K, G, C), or (K, 3, G, C) for CUBICSPLINE (as
+    :class:`Track`'s, a track per column). ``rotation``: values are quaternions (x, y, z, w),
+    slerped (LINEAR) or normalised (CUBICSPLINE). Each track's result is what it gives alone."""
+    t = np.asarray(t, dtype=np.float64)
+    K, cubic = len(times), interpolation == "CUBICSPLINE"
+    k = np.searchsorted(times, t, side="right") - 1
+    if interpolation == "STEP" or K == 1:
+        out = values[np.clip(k, 0, K - 1)]
+        return out[:, 1] if cubic else out
+    k = np.clip(k, 0, K - 2)
+    dt = (times[k + 1] - times[k])[:, None, None]
+    s = np.clip((t - times[k])[:, None, None] / dt, 0.0, 1.0)
+    v0, v1 = values[k], values[k + 1]
+    if cubic:
+        s2, s3 = s * s, s * s * s
+        out = ((2 * s3 - 3 * s2 + 1) * v0[:, 1] + (s3 - 2 * s2 + s) * dt * v0[:, 2]
+               + (-2 * s3 + 3 * s2) * v1[:, 1] + (s3 - s2) * dt * v1[:, 0])
+        return out / np.linalg.norm(out, axis=-1, keepdims=True) if rotation else out
+    if rotation:
+        shape = v0.shape
+        s = np.broadcast_to(s, shape[:-1] + (1,)).reshape(-1, 1)
+        return quat_slerp(v0.reshape(-1, 4), v1.reshape(-1, 4), s).reshape(shape)
+    return (1 - s) * v0 + s * v1
 
 
 @dataclass(frozen=True, eq=False)
@@ -114,11 +124,32 @@ class Clip:
         except InputError as exc:
             raise InputError(f"clip {self.name!r}: {exc}") from None
         out = {p: np.repeat(getattr(self.rest, p)[None], len(flat), axis=0) for p in PATH_WIDTH}
-        for track in self.tracks:
-            out[track.path][:, track.joint] = track.sample(flat)
+        for path, joints, keys, values, interpolation in self._groups:
+            out[path][:, joints] = interpolate_keys(keys, values, flat, interpolation, path == "rotation")
         if times.ndim == 0:
             return LocalPose(*(out[p][0] for p in PATH_WIDTH))
         return LocalPose(*(out[p].reshape(times.shape + out[p].shape[1:]) for p in PATH_WIDTH))
+
+    @functools.cached_property
+    def _groups(self) -> tuple:
+        """The tracks sampled together: ``(path, joints (G,), times (K,), values (K, [3,] G, C),
+        interpolation)`` per set of tracks sharing path, interpolation and key times (a clip's
+        tracks usually share one time accessor); of two tracks of one joint's path, the last.
+        A LINEAR or STEP track of equal keys is its first key (a LINEAR rotation's normalised,
+        as their slerp gives it)."""
+        last = {(track.joint, track.path): track for track in self.tracks}
+        groups: dict = {}
+        for track in last.values():
+            times, values, interpolation = track.times, track.values, track.interpolation
+            if interpolation != "CUBICSPLINE" and len(times) > 1 and (values == values[0]).all():
+                if track.path == "rotation" and interpolation == "LINEAR":   # unit, as their slerp
+                    values = values / np.linalg.norm(values, axis=-1, keepdims=True)
+                times, values, interpolation = times[:1], values[:1], "STEP"
+            key = (track.path, interpolation, times.tobytes() if len(times) > 1 else b"")
+            groups.setdefault(key, []).append((track.joint, times, values))
+        return tuple((path, np.array([j for j, _, _ in group], dtype=np.int64), group[0][1],
+                      np.stack([v for _, _, v in group], axis=-2), interpolation)
+                     for (path, interpolation, _), group in groups.items())
 
 
 class Clips(Sequence):
