@@ -32,6 +32,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).parent))
 from test_mls import random_pose, random_rest  # noqa: E402  (tests' own helpers)
 from test_skinning import affine, make_rig, rigid  # noqa: E402
+from test_model_normals import sphere  # noqa: E402
+from test_surface_rotations import TOL as SURFACE_TOL, bent  # noqa: E402
 
 from nrpose import Deformer  # noqa: E402
 from nrpose.device import HostArray  # noqa: E402
@@ -39,6 +41,8 @@ from nrpose.pose.mls import GlobalFit  # noqa: E402
 from nrpose.pose.blend import GlobalRotation  # noqa: E402
 from nrpose.pose.cor import CorSkinner, cor_reference  # noqa: E402
 from nrpose.pose.skinning import DqsSkinner, LbsSkinner, dqs_reference, lbs_reference  # noqa: E402
+from nrpose.model.normals import Surface, weld  # noqa: E402
+from nrpose.pose.surface_rotations import SurfaceRotations  # noqa: E402
 
 POINTS = 300        # a few blocks of work at 8 or 16 lanes
 FRAMES = 3
@@ -135,10 +139,19 @@ def global_fit_cases(rng) -> dict:
     return {"global fit": (got, want, 1e-4)}
 
 
+def surface_cases(rng) -> dict:
+    """Neighbourhood rotations (kernels/surface.cl) of a bent sphere with several chunks of
+    work, against Surface.rotations."""
+    V, F = sphere(9)
+    surface = Surface(V, F, weld(V))
+    posed = bent(V, rng)
+    return {"surface rotations": (SurfaceRotations(surface)(posed), surface.rotations(posed), SURFACE_TOL)}
+
+
 def main() -> None:
     rng = np.random.default_rng(32)
     made = fill_device_arrays(int(sys.argv[sys.argv.index("--fill") + 1], 0)) if "--fill" in sys.argv else []
-    cases = {**nrmls_cases(rng), **skinning_cases(rng), **global_fit_cases(rng)}
+    cases = {**nrmls_cases(rng), **skinning_cases(rng), **global_fit_cases(rng), **surface_cases(rng)}
     memory = {}
     for i, a in enumerate(made):
         a.download()

@@ -108,12 +108,14 @@ def check_outputs(out: str | None, suffixes, png: str | None, out_is_dir: bool =
 
 
 def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, source=None, quantize: bool = False,
-                 name: str = "baked"):
+                 name: str = "baked", backend: str = "opencl"):
     """Posed frames to OUT.npz, OUT.glb or a directory of ``frame_NNNN.<fmt>`` files:
     :class:`nrpose.pose.poser.Frames`, or for OUT.npz and a directory a
     :class:`nrpose.pose.poser.FrameStream`, whose frames are written as they are posed.
     source, quantize, name (the animation's): for OUT.glb, see
-    :func:`nrpose.io.gltf_write.write_animated_glb`, whose report is returned (else None)."""
+    :func:`nrpose.io.gltf_write.write_animated_glb`, whose report is returned (else None);
+    backend: "opencl" turns a large bake's normals on the device
+    (:func:`nrpose.pose.surface_rotations.surface_rotations_for`)."""
     path = Path(out)
     kind = frames_output_kind(out)
     streamed = hasattr(frames, "batches")
@@ -128,8 +130,10 @@ def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, sourc
         if streamed:
             raise NrposeError(f"{out}: a .glb is written from all the frames at once (CharacterPoser.pose)")
         from ..io.gltf_write import write_animated_glb      # pygltflib: imported for .glb outputs only
+        from ..pose.surface_rotations import surface_rotations_for
+        rotations = surface_rotations_for(frames.positions.shape[1], len(frames.positions), backend)
         return write_animated_glb(path, character, frames.positions, times, frames.mesh_offsets,
-                                  source=source, quantize=quantize, animation_name=name)
+                                  source=source, quantize=quantize, animation_name=name, rotations=rotations)
     else:
         from ..io.meshes import write_geometry
         # all frames go to a temporary sibling directory first; only at commit is the

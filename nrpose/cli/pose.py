@@ -136,6 +136,10 @@ def run(args) -> None:
                                     time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     vertices = sum(len(m.vertices) for m in character.meshes)
     check_budget(args, len(times), output_values(len(times), vertices, kind), args.output)
+    if kind == "glb" and args.bake == "morph":
+        from ..pose.surface_rotations import prefetch_program, surface_rotations_for
+        if surface_rotations_for(vertices, len(times), args.backend):
+            prefetch_program()      # the bake's normals kernel compiles while the frames are posed
     poser = CharacterPoser(character, method=args.method, weights=args.weights, alpha=args.alpha,
                            backend=args.backend, blend=args.blend or DEFAULT_BLEND)
     # an .npz or a directory takes the frames as they are posed, unless a contact sheet needs them all
@@ -150,7 +154,8 @@ def run(args) -> None:
                             bounds, keep_animations=False)
     else:
         source = args.character if Path(args.character).suffix.lower() in (".glb", ".gltf") else None
-        report = write_frames(args.output, frames, times, args.format, character, source, args.quantize, name)
+        report = write_frames(args.output, frames, times, args.format, character, source, args.quantize, name,
+                              args.backend)
         if report is not None:
             print(f"{args.output}: morph targets {report.bytes_per_frame_vertex:.2f} bytes per frame per vertex "
                   f"({report.quantized_frames} of {report.frames} frames quantized, {report.unique_frames} "

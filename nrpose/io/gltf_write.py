@@ -25,8 +25,9 @@ data stays in the buffer, unreferenced, so that nothing is renumbered.
 
 Normals: per vertex, the file's ``NORMAL`` (and ``TANGENT``) is turned by the
 rotation of the vertex's welded neighbourhood from the source geometry to the
-frame (:func:`nrpose.model.normals.local_rotations`): custom normals, seams
-and hard edges keep their shape. Without ``NORMAL`` in the source, the
+frame (:func:`nrpose.model.normals.local_rotations`; on the device for large bakes,
+``rotations=``): custom normals, seams and hard edges keep their shape. Without ``NORMAL``
+in the source, the
 smooth normals of the posed surface are written (positions welded across seams).
 
 A source that *requires* an extension nrpose cannot carry faithfully
@@ -428,13 +429,15 @@ class _Primitive:
 class _Node:
     """A posed node: its primitives, welded as one surface."""
 
-    def __init__(self, name: str, prims: list[_Primitive]):
+    def __init__(self, name: str, prims: list[_Primitive], rotations=None):
+        """rotations: as :func:`write_animated_glb`'s."""
         self.name, self.prims = name, prims
         sizes = [len(p.rest) for p in prims]
         self.cuts = np.cumsum([0] + sizes)
         faces = np.concatenate([p.faces + c for p, c in zip(prims, self.cuts)])
         bind = np.concatenate([p.bind for p in prims])
         self.surface = Surface(bind, faces, weld(bind))
+        self.rotations = self.surface.rotations if rotations is None else rotations(self.surface)
         self.authored = np.concatenate([np.full(len(p.rest), p.normals is not None) for p in prims])
         self.source_normals = np.concatenate([p.normals if p.normals is not None else np.zeros((len(p.rest), 3))
                                               for p in prims])
@@ -451,15 +454,23 @@ class _Node:
         else:
             normals = self.surface.smooth_normals(positions)
         if self.authored.any() or self.has_tangents:
-            R = self.surface.rotations(positions)
-            normals[self.authored] = np.matmul(R[self.authored], self.source_normals[self.authored, :, None])[..., 0]
+            R = self.rotations(positions)
+            turned = _turn(R, self.source_normals)
+            normals[self.authored] = turned if self.authored.all() else turned[self.authored]
             if self.has_tangents:
-                tangents = np.matmul(R, self.source_tangents[:, :3, None])[..., 0]
+                tangents = _turn(R, self.source_tangents[:, :3])
         return positions, normals, tangents
 
 
-def _posed_nodes(meshes, starts, source: Path | None, gltf, buffers) -> list[tuple[int | None, _Node]]:
-    """(source node index or None, posed node) per node to write."""
+def _turn(R: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``R @ v`` per row: R (N, 3, 3), v (N, 3); (N, 3) float64 (three whole-array products:
+    numpy's batched 3 x 3 matmul costs several times more)."""
+    return R[:, :, 0] * v[:, :1] + R[:, :, 1] * v[:, 1:2] + R[:, :, 2] * v[:, 2:3]
+
+
+def _posed_nodes(meshes, starts, source: Path | None, gltf, buffers, rotations=None) -> list[tuple[int | None, _Node]]:
+    """(source node index or None, posed node) per node to write; rotations: as
+    :func:`write_animated_glb`'s."""
     groups: dict = {}
     for k, ((name, V, F, src), start) in enumerate(zip(meshes, starts[:-1])):
         if source is None:
@@ -478,7 +489,7 @@ def _posed_nodes(meshes, starts, source: Path | None, gltf, buffers) -> list[tup
             raise FileFormatError(f"{source}: mesh {mesh} primitive {p}: NORMAL must be VEC3 and TANGENT VEC4")
         entry = groups.setdefault(("node", node), (node, gltf.nodes[node].name or name, []))
         entry[2].append(_Primitive(int(start), V, F, bind, normals, tangents, template))
-    return [(node, _Node(name, prims)) for node, name, prims in groups.values()]
+    return [(node, _Node(name, prims, rotations)) for node, name, prims in groups.values()]
 
 
 class _TargetWriter:
@@ -584,7 +595,8 @@ def _unique(name: str, gltf: pygltflib.GLTF2) -> str:
 
 
 def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets: Sequence[int] | None = None,
-                       *, animation_name: str = "baked", source=None, quantize: bool = False) -> BakeReport:
+                       *, animation_name: str = "baked", source=None, quantize: bool = False,
+                       rotations=None) -> BakeReport:
     """Write the meshes with the posed frames baked as morph targets and one animation.
 
     character_or_meshes: a :class:`~nrpose.model.character.Character` (its
@@ -597,6 +609,10 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     were loaded from (each Mesh's ``source`` indices refer to it): the output
     is a copy of it (module docstring); None: a new document, one node per
     mesh with a grey material. quantize: compact targets (module docstring).
+    rotations: what turns the normals and tangents (module docstring), given a node's
+    :class:`~nrpose.model.normals.Surface`, a callable posed (N, 3) -> rotations (N, 3, 3)
+    (:class:`nrpose.pose.surface_rotations.SurfaceRotations` on the device); None: the
+    float64 :meth:`Surface.rotations <nrpose.model.normals.Surface.rotations>`.
     Raises InputError on bad input, FileFormatError for a source that cannot
     be copied. Returns a :class:`BakeReport`.
     """
@@ -633,7 +649,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         gltf.scenes, gltf.scene = [pygltflib.Scene(nodes=[])], 0
     scene = gltf.scenes[gltf.scene or 0]
     joints = {j for skin in gltf.skins or [] for j in skin.joints or []}
-    for source_node, node in _posed_nodes(meshes, starts, source, gltf, buffers):
+    for source_node, node in _posed_nodes(meshes, starts, source, gltf, buffers, rotations):
         def frames():
             for f in range(n_frames):
                 yield np.concatenate([P[f, p.start:p.start + len(p.rest)] for p in node.prims]).astype(np.float64)

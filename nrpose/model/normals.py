@@ -33,6 +33,12 @@ class Surface:
     bind: (N, 3) source positions; faces: (M, 3) int; groups: (N,) int64 from :func:`weld`.
     Sums over the faces around each welded position are gathered in group order once
     (``numpy.add.reduceat``), so a frame costs a few array passes and no per-group loop.
+
+    Attributes: ``faces`` (M, 3) int64, ``groups`` (N,) int64, ``n_groups``; the faces
+    around each group, ``corner_faces`` (3M,) int64 (a face once per corner of it in the
+    group), group g's at ``corner_faces[group_starts[g]:group_starts[g + 1]]``
+    (``group_starts`` (n_groups + 1,) int64); ``bind_frames`` (M, 4, 3) float64, each face's
+    edge frame at the bind positions (:meth:`rotations`).
     """
 
     def __init__(self, bind: np.ndarray, faces: np.ndarray, groups: np.ndarray):
@@ -41,17 +47,18 @@ class Surface:
         self.n_groups = int(self.groups.max()) + 1 if len(self.groups) else 0
         corners = self.groups[self.faces].reshape(-1)
         order = np.argsort(corners, kind="stable")
-        self._face_of_corner = order // 3
+        self.corner_faces = order // 3
         sorted_groups = corners[order]
+        self.group_starts = np.searchsorted(sorted_groups, np.arange(self.n_groups + 1))
         self._present = np.unique(sorted_groups)
-        self._starts = np.searchsorted(sorted_groups, self._present)
-        self._bind_frames = _edge_frames(np.asarray(bind, dtype=np.float64), self.faces)
+        self._starts = self.group_starts[self._present]
+        self.bind_frames = _edge_frames(np.asarray(bind, dtype=np.float64), self.faces)
 
     def _group_sums(self, per_face: np.ndarray) -> np.ndarray:
         """(n_groups, C) sums of ``per_face`` (M, C) over each group's face corners."""
         total = np.zeros((self.n_groups, per_face.shape[1]))
         if len(self._present):
-            total[self._present] = np.add.reduceat(per_face[self._face_of_corner], self._starts, axis=0)
+            total[self._present] = np.add.reduceat(per_face[self.corner_faces], self._starts, axis=0)
         return total
 
     def smooth_normals(self, vertices: np.ndarray) -> np.ndarray:
@@ -71,7 +78,7 @@ class Surface:
         neighbourhood gets exactly its rotation, twist about the normal included. A vertex in no
         face gets the identity."""
         b = _edge_frames(np.asarray(posed, dtype=np.float64), self.faces)
-        per_face = np.matmul(b.transpose(0, 2, 1), self._bind_frames).reshape(len(self.faces), 9)
+        per_face = np.matmul(b.transpose(0, 2, 1), self.bind_frames).reshape(len(self.faces), 9)
         return closest_rotations(self._group_sums(per_face).reshape(-1, 3, 3))[self.groups]
 
 

@@ -147,7 +147,7 @@ def _run_job(job: Job, outdir: Path, cache: WorkerCache, node: str | None) -> di
             tmp_dir = scratch(outdir)
             tmp = tmp_dir / Path(job.output).name
             source = job.character if Path(job.character).suffix.lower() in (".glb", ".gltf") else None
-            write_frames(str(tmp), frames, times, job.format, character, source, job.quantize, name)
+            write_frames(str(tmp), frames, times, job.format, character, source, job.quantize, name, job.backend)
             record["size"], record["sha256"] = digest(tmp)
             publish(tmp, outdir / job.output)
         record.update(status="done", frames=int(len(times)))
