@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from nrpose.model.normals import Surface, weld
-from nrpose.pose.surface_rotations import LANES, SurfaceRotations, lane_layout, surface_rotations_for
+from nrpose.pose.surface_rotations import FRAMES, LANES, SurfaceRotations, lane_layout, surface_rotations_for
 from test_model_normals import sphere
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -38,6 +38,17 @@ def test_device_rotations_equal_the_reference(n):
         got, want = device_and_reference(V, F, posed)
         assert np.abs(got - want).max() < TOL
         np.testing.assert_allclose(np.linalg.det(got), 1.0, atol=1e-5)
+
+
+def test_frames_in_batches_equal_the_reference():
+    """More frames than one launch takes (FRAMES): each as the reference gives it."""
+    rng = np.random.default_rng(5)
+    V, F = sphere(10)
+    surface = Surface(V, F, weld(V))
+    batch = np.stack([bent(V, rng) for _ in range(FRAMES + 5)])
+    got = SurfaceRotations(surface)(batch)
+    assert got.shape == (len(batch), len(V), 3, 3)
+    assert np.abs(got - surface.rotations(batch)).max() < TOL
 
 
 def test_rigid_motion_gives_its_rotation_at_any_scale():

@@ -95,6 +95,8 @@ QUANTIZATION = "KHR_mesh_quantization"
 QUANTIZATION_BOUND = 1e-4
 #: largest angle (degrees) between a quantized frame's normal or tangent and the exact one
 DIRECTION_BOUND = 1.0
+#: frames whose normals' rotations are computed together (one launch on the device)
+FRAME_BATCH = 16
 #: required extensions a posed copy keeps faithfully (materials, textures, lights, quantized attributes)
 CARRIED = frozenset({
     QUANTIZATION, "KHR_texture_transform", "KHR_texture_basisu", "EXT_texture_webp", "EXT_texture_avif",
@@ -444,22 +446,27 @@ class _Node:
         self.has_tangents = all(p.tangents is not None for p in prims)
         self.source_tangents = np.concatenate([p.tangents for p in prims]) if self.has_tangents else None
 
-    def frame(self, positions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-        """Positions (N, 3), normals (N, 3) and tangent directions (N, 3) or None of the node's
-        vertices, given ``positions`` (N, 3) of one frame: the source's own normals and tangents
-        turned with their neighbourhood, smooth normals where the source has none."""
-        tangents = None
-        if self.authored.all():     # every normal is the source's, turned
-            normals = np.empty_like(self.source_normals)
-        else:
-            normals = self.surface.smooth_normals(positions)
-        if self.authored.any() or self.has_tangents:
-            R = self.rotations(positions)
-            turned = _turn(R, self.source_normals)
-            normals[self.authored] = turned if self.authored.all() else turned[self.authored]
-            if self.has_tangents:
-                tangents = _turn(R, self.source_tangents[:, :3])
-        return positions, normals, tangents
+    def frames(self, batch: np.ndarray) -> list[tuple[np.ndarray, np.ndarray | None]]:
+        """Per frame of ``batch`` (B, N, 3) float64 positions of the node's vertices, normals (N, 3)
+        and tangent directions (N, 3) or None: the source's own normals and tangents turned
+        with their neighbourhood (the batch's rotations at once), smooth normals where the
+        source has none."""
+        turns = self.authored.any() or self.has_tangents
+        rotations = self.rotations(batch) if turns else [None] * len(batch)
+        out = []
+        for positions, R in zip(batch, rotations):
+            tangents = None
+            if self.authored.all():     # every normal is the source's, turned
+                normals = np.empty_like(self.source_normals)
+            else:
+                normals = self.surface.smooth_normals(positions)
+            if turns:
+                turned = _turn(R, self.source_normals)
+                normals[self.authored] = turned if self.authored.all() else turned[self.authored]
+                if self.has_tangents:
+                    tangents = _turn(R, self.source_tangents[:, :3])
+            out.append((normals, tangents))
+        return out
 
 
 def _turn(R: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -501,8 +508,7 @@ class _TargetWriter:
         self.blob, self.node, self.scale, self.quantize = blob, node, scale, quantize
         rest = np.concatenate([p.rest for p in node.prims])
         self.base_positions = (rest / scale).astype(np.float32)
-        _, normals, tangents = node.frame(rest)
-        self.base_normals, self.base_tangents = normals, tangents
+        self.base_normals, self.base_tangents = node.frames(rest[None])[0]
         self.seen: dict = {}
         self.target_bytes = self.quantized = self.unique = 0
         self.max_error = 0.0
@@ -514,9 +520,12 @@ class _TargetWriter:
         self.target_bytes += view.byteLength
         return index
 
-    def frame(self, positions: np.ndarray) -> list[dict]:
-        """Targets (one dict per primitive) of a posed frame (N, 3) of the node."""
-        _, normals, tangents = self.node.frame(positions)
+    def frames(self, batch: np.ndarray) -> list[list[dict]]:
+        """Targets (one dict per primitive) of each posed frame of ``batch`` (B, N, 3) of the node."""
+        return [self._frame(positions, normals, tangents)
+                for positions, (normals, tangents) in zip(batch, self.node.frames(batch))]
+
+    def _frame(self, positions: np.ndarray, normals: np.ndarray, tangents: np.ndarray | None) -> list[dict]:
         base = self.base_positions.astype(np.float64)
         d_pos = positions / self.scale - base
         if self.quantize:
@@ -610,9 +619,9 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     is a copy of it (module docstring); None: a new document, one node per
     mesh with a grey material. quantize: compact targets (module docstring).
     rotations: what turns the normals and tangents (module docstring), given a node's
-    :class:`~nrpose.model.normals.Surface`, a callable posed (N, 3) -> rotations (N, 3, 3)
-    (:class:`nrpose.pose.surface_rotations.SurfaceRotations` on the device); None: the
-    float64 :meth:`Surface.rotations <nrpose.model.normals.Surface.rotations>`.
+    :class:`~nrpose.model.normals.Surface`, a callable posed (B, N, 3) -> rotations
+    (B, N, 3, 3) (:class:`nrpose.pose.surface_rotations.SurfaceRotations` on the device);
+    None: the float64 :meth:`Surface.rotations <nrpose.model.normals.Surface.rotations>`.
     Raises InputError on bad input, FileFormatError for a source that cannot
     be copied. Returns a :class:`BakeReport`.
     """
@@ -650,19 +659,21 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
     scene = gltf.scenes[gltf.scene or 0]
     joints = {j for skin in gltf.skins or [] for j in skin.joints or []}
     for source_node, node in _posed_nodes(meshes, starts, source, gltf, buffers, rotations):
-        def frames():
-            for f in range(n_frames):
-                yield np.concatenate([P[f, p.start:p.start + len(p.rest)] for p in node.prims]).astype(np.float64)
+        def batches():
+            for f in range(0, n_frames, FRAME_BATCH):
+                yield np.concatenate([P[f:f + FRAME_BATCH, p.start:p.start + len(p.rest)] for p in node.prims],
+                                     axis=1).astype(np.float64)
         rest = np.concatenate([p.rest for p in node.prims])
-        reach = max(float(np.abs(frame - rest).max()) for frame in frames())
+        reach = max(float(np.abs(batch - rest).max()) for batch in batches())
         # int16 steps of reach / 32767 keep the error within the bound, or the positions stay float
         quantized = quantize and reach / 65534 <= 0.9 * QUANTIZATION_BOUND * diagonal
         scale = max(reach, 1e-30) if quantized else 1.0
         writer = _TargetWriter(blob, node, scale, quantized)
         targets = [[] for _ in node.prims]
-        for frame in frames():
-            for k, t in enumerate(writer.frame(frame)):
-                targets[k].append(t)
+        for batch in batches():
+            for frame in writer.frames(batch):
+                for k, t in enumerate(frame):
+                    targets[k].append(t)
         report.target_bytes += writer.target_bytes
         report.quantized_frames = max(report.quantized_frames, writer.quantized)
         report.unique_frames = max(report.unique_frames, writer.unique)

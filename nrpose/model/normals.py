@@ -76,8 +76,11 @@ class Surface:
         ``posed`` (N, 3): the closest rotation (polar factor) to ``sum e' e^T`` over the edges ``e``
         and scaled normals of the faces around the vertex's welded position, so a rigidly moved
         neighbourhood gets exactly its rotation, twist about the normal included. A vertex in no
-        face gets the identity."""
-        b = _edge_frames(np.asarray(posed, dtype=np.float64), self.faces)
+        face gets the identity. Frames (B, N, 3) give (B, N, 3, 3), one frame at a time."""
+        posed = np.asarray(posed, dtype=np.float64)
+        if posed.ndim == 3:
+            return np.stack([self.rotations(p) for p in posed]) if len(posed) else np.zeros((0, len(self.groups), 3, 3))
+        b = _edge_frames(posed, self.faces)
         per_face = np.matmul(b.transpose(0, 2, 1), self.bind_frames).reshape(len(self.faces), 9)
         return closest_rotations(self._group_sums(per_face).reshape(-1, 3, 3))[self.groups]
 

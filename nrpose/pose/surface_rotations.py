@@ -25,6 +25,7 @@ PROGRAM = ("surface.cl", ())
  ARG_JOBS, ARG_ROLE) = range(13)
 LANES = 8          # groups per chunk (float8 lanes)
 BLOCK = 32         # chunks per block of work taken from the job mailbox
+FRAMES = 16        # frames per launch, at most
 #: vertices x frames from which a bake's rotations go to the device: below, the reference's
 #: ~1.5 us per vertex and frame costs less than a cold build of the kernel (~0.5 s)
 DEVICE_MIN_VERTEX_FRAMES = 300_000
@@ -48,8 +49,9 @@ class SurfaceRotations:
 
     surface: the :class:`~nrpose.model.normals.Surface` of the N vertices posed. Calling the
     object with ``posed`` (N, 3) float positions of one frame returns the rotation of each
-    vertex's neighbourhood, (N, 3, 3) float64 (float32 arithmetic: within ~1e-5 of the
-    reference where its Newton iteration converges, the reference's own where it does not).
+    vertex's neighbourhood, (N, 3, 3) float32 (frames (B, N, 3): (B, N, 3, 3)), within ~1e-5
+    of the reference where the kernel's Newton iteration converges, the reference's own
+    rounded where it does not.
     Not thread-safe (one job mailbox and one pair of arrays).
     """
 
@@ -65,8 +67,8 @@ class SurfaceRotations:
         self._bound = [cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(a, dtype).reshape(-1))
                        for a, dtype in ((starts, np.int32), (slots, np.int32), (faces, np.int32),
                                         (bind, np.float32), (rows, np.int32))]
-        self._posed = device.HostArray(3 * self.n)
-        self._out = device.HostArray(10 * (self.n_groups + 1))
+        self._posed = device.HostArray(FRAMES * 3 * self.n)
+        self._out = device.HostArray(FRAMES * 10 * (self.n_groups + 1))
         self._jobs = device.Jobs(owner=self, bound_bytes=sum(b.size for b in self._bound))
         self._jobs.keep = (self._posed, self._out)
         self._kernel = cl.Kernel(device.program(*PROGRAM), "surface_rotations")
@@ -80,18 +82,30 @@ class SurfaceRotations:
         self._blocks = -(-chunks // BLOCK)
 
     def __call__(self, posed: np.ndarray) -> np.ndarray:
-        """Rotations (N, 3, 3) float64 of the neighbourhoods of ``posed`` (N, 3) from the bind."""
-        self._posed.host[:] = np.asarray(posed).reshape(-1)
+        """Rotations (N, 3, 3) float32 of the neighbourhoods of ``posed`` (N, 3) from the bind;
+        of frames (B, N, 3), (B, N, 3, 3), :data:`FRAMES` frames per launch."""
+        posed = np.asarray(posed)
+        if posed.ndim == 2:
+            return self(posed[None])[0]
+        if len(posed) <= FRAMES:
+            return self._launch(posed)
+        return np.concatenate([self._launch(posed[f:f + FRAMES]) for f in range(0, len(posed), FRAMES)])
+
+    def _launch(self, posed: np.ndarray) -> np.ndarray:
+        """Rotations (B, N, 3, 3) float32 of at most :data:`FRAMES` frames (B, N, 3), one launch."""
+        frames = len(posed)
+        self._posed.host[:posed.size] = posed.reshape(-1)
         self._posed.upload()
         if self._blocks:
-            device.launch_shared(self._kernel, self._jobs, self._blocks, 1)
+            device.launch_shared(self._kernel, self._jobs, self._blocks, frames)
         self._out.download()
-        out = self._out.host[:10 * self.n_groups].reshape(self.n_groups, 10).astype(np.float64)
-        R = out[:, :9].reshape(-1, 3, 3)
-        unfinished = out[:, 9] == 0
+        out = self._out.host[:frames * 10 * (self.n_groups + 1)].reshape(frames, self.n_groups + 1, 10)
+        R = out[:, :self.n_groups, :9].reshape(frames, self.n_groups, 3, 3)
+        unfinished = out[:, :self.n_groups, 9] == 0
         if unfinished.any():
+            R = R.copy()
             R[unfinished] = closest_rotations(R[unfinished])
-        return R[self.surface.groups]
+        return R[:, self.surface.groups]      # a copy: the next launch writes over the output
 
 
 def lane_layout(surface: Surface) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
