@@ -51,12 +51,15 @@ def test_frames_in_batches_equal_the_reference():
     assert np.abs(got - surface.rotations(batch)).max() < TOL
 
 
-def test_rigid_motion_gives_its_rotation_at_any_scale():
+def test_rigid_motion_gives_its_rotation_at_any_scale_and_place():
     V, F = sphere(9)
     R = Rotation.from_rotvec([0.4, -1.9, 0.7]).as_matrix()
-    for scale in (1e-3, 1.0, 1e3):
-        got, _ = device_and_reference(V * scale, F, (V * scale) @ R.T + 5.0 * scale)
+    for scale, offset in ((1e-3, 5.0), (1.0, 5.0), (1e3, 5.0), (1e12, 1.0), (1e-12, 1.0), (1.0, 1e6)):
+        got, _ = device_and_reference(V * scale, F, (V * scale) @ R.T + offset * scale)
         assert np.abs(got - R).max() < TOL
+    rng = np.random.default_rng(9)
+    got, want = device_and_reference(V * 1e15, F, bent(V, rng) * 1e15)
+    assert np.abs(got - want).max() < TOL
 
 
 def test_adversarial_neighbourhoods_match_the_reference():

@@ -61,7 +61,9 @@ class SurfaceRotations:
         self.n, self.n_groups = len(surface.groups), surface.n_groups
         starts, slots, rows = lane_layout(surface)
         faces = np.vstack([surface.faces, np.zeros((1, 3), np.int64)])              # padding face M
-        bind = np.vstack([surface.bind_frames.reshape(-1, 12), np.zeros((1, 12))])
+        frames = surface.bind_frames.reshape(-1, 12)
+        big = float(np.abs(frames).max(initial=0.0))
+        bind = np.vstack([frames / (big if big > 0 else 1.0), np.zeros((1, 12))])   # a scale leaves R as it is
         ctx, _ = device.context()
         ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
         self._bound = [cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(a, dtype).reshape(-1))
@@ -94,7 +96,11 @@ class SurfaceRotations:
     def _launch(self, posed: np.ndarray) -> np.ndarray:
         """Rotations (B, N, 3, 3) float32 of at most :data:`FRAMES` frames (B, N, 3), one launch."""
         frames = len(posed)
-        self._posed.host[:posed.size] = posed.reshape(-1)
+        # rotations do not change with a move or a scale: to the unit box, so that float32 keeps the
+        # shape of a surface far from the origin and squared edge lengths (|e|^4) do not overflow
+        low = posed.min(axis=(0, 1)) if posed.size else 0.0
+        span = float(np.ptp(posed, axis=(0, 1)).max(initial=0.0)) if posed.size else 0.0
+        self._posed.host[:posed.size] = ((posed - low) / (span if span > 0 else 1.0)).reshape(-1)
         self._posed.upload()
         if self._blocks:
             device.launch_shared(self._kernel, self._jobs, self._blocks, frames)
