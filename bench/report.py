@@ -195,6 +195,9 @@ def manual_block(doc: dict, e2e: dict | None = None) -> str:
             + "."]
     if e2e:
         out += ["", whole_jobs_line(e2e)]
+        glb = glb_jobs_line(e2e)
+        if glb:
+            out += ["", glb]
     return "\n".join(out)
 
 
@@ -223,6 +226,25 @@ def whole_jobs_line(e2e: dict) -> str:
     return (f"Whole jobs, `nrpose pose CHARACTER --clip CLIP -o OUT.npz` as processes against Blender 5 "
             f"importing, playing and saving the same clip (`bench/results/e2e.json` of "
             f"{e2e.get('timestamp', '?')[:10]}, ms, medians): " + "; ".join(parts) + ".")
+
+
+def glb_jobs_line(e2e: dict) -> str:
+    """One sentence of the e2e document's ``.glb`` rows (morph targets with normals; Blender has
+    no such job in the suite): warm and cold medians per character and method; "" without them."""
+    rows = [r for r in e2e["rows"] if r.get("output") == "glb" and r["who"] == "nrpose"]
+    parts = []
+    for name in dict.fromkeys(r["character"] for r in rows):
+        cells = []
+        for mode in ("warm", "cold"):
+            got = [f"{ {'nrmls': 'NR-MLS', 'lbs': 'LBS', 'dqs': 'DQS'}[r['method']]} {r['wall_ms']['median']:.0f}"
+                   for r in rows if r["character"] == name and r["mode"] == mode]
+            if got:
+                cells.append(f"{mode} " + ", ".join(got))
+        parts.append(f"{name}: " + "; ".join(cells))
+    if not parts:
+        return ""
+    return ("The same jobs into `OUT.glb` (every frame a morph target with positions and normals), ms, "
+            "medians: " + "; ".join(parts) + ".")
 
 
 def bounds_block(doc: dict) -> str:
