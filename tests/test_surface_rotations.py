@@ -96,6 +96,14 @@ def _sums(surface: Surface, posed: np.ndarray) -> np.ndarray:
     return sums.reshape(-1, 3, 3)
 
 
+def test_a_surface_without_faces_turns_nothing():
+    V = np.random.default_rng(2).normal(size=(11, 3))
+    for F in (np.zeros((0, 3), np.int64), np.array([[0, 1, 2]])):
+        got, want = device_and_reference(V, F, V * 2.0 + 1.0)
+        assert np.abs(got - want).max() < TOL
+        assert (got[3:] == np.eye(3)).all()
+
+
 def test_lane_layout_gives_each_group_its_faces():
     V, F = sphere(7)
     surface = Surface(V, F, weld(V))

@@ -66,7 +66,8 @@ class SurfaceRotations:
         bind = np.vstack([frames / (big if big > 0 else 1.0), np.zeros((1, 12))])   # a scale leaves R as it is
         ctx, _ = device.context()
         ro = cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR
-        self._bound = [cl.Buffer(ctx, ro, hostbuf=np.ascontiguousarray(a, dtype).reshape(-1))
+        # (an element at least: a surface with no face has no slots, and OpenCL no empty buffers)
+        self._bound = [cl.Buffer(ctx, ro, hostbuf=np.append(np.asarray(a, dtype).reshape(-1), dtype(0)))
                        for a, dtype in ((starts, np.int32), (slots, np.int32), (faces, np.int32),
                                         (bind, np.float32), (rows, np.int32))]
         self._posed = device.HostArray(FRAMES * 3 * self.n)
