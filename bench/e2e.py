@@ -577,10 +577,11 @@ def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, base, 
 
 
 def _ratios(rows: list[dict]) -> None:
-    """vs_blender on every nrpose row: Blender's median wall / the row's, and per round."""
+    """vs_blender on every nrpose row of Blender's job (into .npz): Blender's median wall / the
+    row's, and per round (None on the .glb rows: Blender writes no such file here)."""
     for row in rows:
         bl = next((r for r in rows if r["who"] == "blender" and r["character"] == row["character"]
-                   and r["mode"] == row["mode"]), None)
+                   and r["mode"] == row["mode"] and r["output"] == row["output"]), None)
         if row["who"] != "nrpose" or bl is None:
             row["vs_blender"] = None
             continue
