@@ -76,7 +76,7 @@ def error_map(src: pathlib.Path, fitted_file: pathlib.Path, holdout: str, png: p
     offsets = np.cumsum([0] + [len(m.vertices) for m in character.meshes])
     F = np.concatenate([m.faces + o for m, o in zip(character.meshes, offsets)])
     scaled = np.clip(rms / (MAP_SCALE * character_height(character)), 0, 1)
-    save_weight_maps(V, F, {"held-out RMS / 1 % of height": scaled}, png,
+    save_weight_maps(V, F, {"held-out RMS / 1 % of height": scaled}, png, vmax=1.0,
                      title=f"{src.stem}: fitted LBS vs NR-MLS on {pathlib.Path(holdout).name} (yellow >= 1 %)",
                      scale_label="held-out RMS, % of height")
 

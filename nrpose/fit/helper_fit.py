@@ -2,10 +2,16 @@
 
 :func:`add_helpers` adds helpers one at a time to a fitted skin (:mod:`nrpose.fit.character_skin`):
 
-1. **Where**: the vertex with the largest RMS residual over the training poses (not in an
-   earlier helper's region) seeds a region: the vertices within ``REGION_RADIUS`` of the
-   character's height of it (rest positions), with a residual at least ``REGION_RESIDUAL``
-   of the seed's, that have the seed's dominant joint p among their candidates. The helper is
+1. **Where**: the vertex with the largest peak residual (its largest distance from NR-MLS in
+   any training pose, as the fit stands with the helpers so far) seeds a region, unless it
+   seeded one before or lies in a dropped helper's region (step 4): the vertices within
+   ``REGION_RADIUS`` of the character's height of it (rest positions), with a peak residual at
+   least ``REGION_RESIDUAL`` of the seed's, that have the seed's dominant joint p among their
+   candidates. The peak, not the RMS over the poses: a joint bent far in a few range-of-motion
+   poses (a knee at the sweep's limit) has a small RMS residual but is where a motion that
+   bends it as far fails. A vertex in an earlier kept helper's region seeds again if it is
+   still the worst (the helper did not serve it: a seam between two joints next to the
+   seed's). The helper is
    a child of p; its drivers (:mod:`nrpose.fit.helper_joints`)
    are p (unless p is the root or its parent carries no skin weight: its rotation then only
    turns the whole body) and p's children in the mesh's skin.
@@ -18,7 +24,7 @@
    those transforms and **evaluated** (the weights are always fitted against the rule's
    transforms, the ones the file plays).
 4. A helper that no region vertex uses (all its weights 0) or that does not lower the region's
-   residual is dropped; its region is not tried again.
+   RMS residual is dropped; its region's vertices do not seed again.
 """
 from __future__ import annotations
 
@@ -34,12 +40,19 @@ from .character_skin import FittedSkin, character_height, mesh_space, skin_matri
 from .helper_joints import HelperJoint, driver_features, fit_rule, rigid_fit
 from .skin_weights import candidate_joints, fit_weights, skin_positions
 
-__all__ = ["add_helpers", "REGION_RADIUS", "REGION_RESIDUAL", "ROUNDS"]
+__all__ = ["add_helpers", "residuals", "REGION_RADIUS", "REGION_RESIDUAL", "ROUNDS"]
 
 REGION_RADIUS = 0.25  # of the character's height
-REGION_RESIDUAL = 0.25   # region vertices: residual at least this fraction of the seed's
+REGION_RESIDUAL = 0.25   # region vertices: peak residual at least this fraction of the seed's
 ROUNDS = 3
 MIN_WEIGHT = 1e-3     # helper weights below this do not enter its transform fit
+
+
+def residuals(positions: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per vertex of positions (F, N, 3) vs targets (F, N, 3): the peak residual (N,) float64,
+    its largest distance over the poses (model units), and the mean squared distance (N,)."""
+    d2 = ((np.asarray(positions, np.float64) - targets) ** 2).sum(axis=2)
+    return np.sqrt(d2.max(axis=0)), d2.mean(axis=0)
 
 
 def drivers_of(character: Character, p: int, allowed: np.ndarray) -> tuple:
@@ -55,8 +68,8 @@ def drivers_of(character: Character, p: int, allowed: np.ndarray) -> tuple:
 
 def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: LocalPose, targets: np.ndarray,
                 count: int, influences: int, allowed=None) -> tuple[FittedSkin, list]:
-    """``fitted`` with up to ``count`` helper joints; and per helper tried a dict (parent, region
-    vertices, region RMS before/after, kept).
+    """``fitted`` with up to ``count`` helper joints; and per helper tried a dict (parent, drivers,
+    mesh, seed vertex, region vertices, region RMS before/after, kept).
 
     G (F, J, 4, 4) global matrices of the training poses pose (F, J, ...); targets (F, V, 3)
     their NR-MLS positions (all meshes in file order); allowed: per mesh (J,) bool or None.
@@ -74,20 +87,23 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
     for i, m in enumerate(character.meshes):
         cands.append(None if joints[i] is None else
                      candidate_joints(skeleton.parents, m.joints, m.weights, None if allowed is None else allowed[i]))
-    used = [np.zeros(len(m.vertices), bool) for m in character.meshes]
-    residual = []     # per mesh, per vertex RMS over the training poses (updated in each new region)
+    used = [np.zeros(len(m.vertices), bool) for m in character.meshes]    # seeds and dropped regions
+    peak, meansq = [], []    # per mesh, per vertex (updated in each new region): see residuals()
     current = FittedSkin(tuple(joints), tuple(weights), 0.0, tuple(helpers))
     for i, m in enumerate(character.meshes):
         if joints[i] is None:
-            residual.append(None)
+            peak.append(None)
+            meansq.append(None)
             continue
         source, _ = mesh_space(character, m)
         pos = skin_positions(source, skin_matrices(character, m, current, G, pose), joints[i], weights[i])
-        residual.append(np.sqrt(((pos - targets[:, starts[i]:starts[i + 1]]) ** 2).sum(axis=2).mean(axis=0)))
+        r, ms = residuals(pos, targets[:, starts[i]:starts[i + 1]])
+        peak.append(r)
+        meansq.append(ms)
     log = []
     while len(helpers) - len(fitted.helpers) < count:
         best = None
-        for i, r in enumerate(residual):
+        for i, r in enumerate(peak):
             if r is None:
                 continue
             r = np.where(used[i], -1.0, r)
@@ -97,7 +113,7 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
         if best is None:
             break
         i, seed, _ = best
-        r = residual[i]
+        r = peak[i]
         m = character.meshes[i]
         source, ibm = mesh_space(character, m)
         p = int(joints[i][seed, 0])
@@ -105,7 +121,7 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
         near = np.linalg.norm(m.vertices - m.vertices[seed], axis=1) <= REGION_RADIUS * height
         region = np.flatnonzero(near & (cands[i] == p).any(axis=1) & (r >= REGION_RESIDUAL * r[seed]))
         region = region if len(region) else np.array([seed])
-        used[i][region] = True
+        used[i][seed] = True
         y = targets[:, starts[i] + region]                                   # (F, n, 3)
         local_rest = (np.c_[source[region], np.ones(len(region))] @ ibm[p].T)[:, :3]
         centre = local_rest.mean(axis=0)
@@ -117,7 +133,7 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
         L = rigid_fit(z, u, np.ones(len(region)))
         h = len(helpers)
         trial_j, trial_w = joints[i].copy(), weights[i].copy()
-        before = float(np.sqrt((r[region] ** 2).mean()))
+        before = float(np.sqrt(meansq[i][region].mean()))
         helper = None
         # candidates: the joints', this helper, earlier helpers the vertex uses
         rows = [list(dict.fromkeys([int(c) for c in base if c >= 0] + [J + h] + [int(c) for c in held if c >= J]))
@@ -145,11 +161,13 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
         after = float(np.sqrt(((after_pos - y) ** 2).sum(axis=2).mean()))
         kept = helper is not None and (trial_j[region] == J + h).any() and after < before
         log.append({"parent": skeleton.names[p], "drivers": [skeleton.names[d] for d in drivers],
-                    "mesh": i, "region_vertices": int(len(region)), "region_rms_before": before,
+                    "mesh": i, "seed": int(seed), "region_vertices": int(len(region)), "region_rms_before": before,
                     "region_rms_after": after, "kept": bool(kept)})
         if kept:
             helpers.append(helper)
             joints[i], weights[i] = trial_j, trial_w
-            residual[i][region] = np.sqrt(((after_pos - y) ** 2).sum(axis=2).mean(axis=0))
+            peak[i][region], meansq[i][region] = residuals(after_pos, y)
+        else:
+            used[i][region] = True
     return replace(fitted, joints=tuple(joints), weights=tuple(weights), helpers=tuple(helpers),
                    seconds=fitted.seconds + time.perf_counter() - t0), log
