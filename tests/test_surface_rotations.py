@@ -87,9 +87,13 @@ def test_adversarial_neighbourhoods_match_the_reference():
 
 
 def _sums(surface: Surface, posed: np.ndarray) -> np.ndarray:
-    """Each group's sum matrix (G, 3, 3), as Surface.rotations forms it."""
-    from nrpose.model.normals import _edge_frames     # the reference's own step, for the test's conditioning
-    b = _edge_frames(posed, surface.faces)
+    """Each group's sum matrix (G, 3, 3) of b^T B over its faces' edge frames (e1, e2, e2 - e1,
+    n / sqrt|n|), formed here as Surface.rotations describes it."""
+    V = posed[surface.faces]
+    e1, e2 = V[:, 1] - V[:, 0], V[:, 2] - V[:, 0]
+    n = np.cross(e1, e2)
+    n = n / np.sqrt(np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300))
+    b = np.stack([e1, e2, e2 - e1, n], axis=1)
     per_face = np.matmul(b.transpose(0, 2, 1), surface.bind_frames).reshape(-1, 9)
     sums = np.zeros((surface.n_groups, 9))
     np.add.at(sums, np.repeat(np.arange(surface.n_groups), np.diff(surface.group_starts)), per_face[surface.corner_faces])

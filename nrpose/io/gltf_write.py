@@ -508,6 +508,7 @@ class _TargetWriter:
         self.blob, self.node, self.scale, self.quantize = blob, node, scale, quantize
         rest = np.concatenate([p.rest for p in node.prims])
         self.base_positions = (rest / scale).astype(np.float32)
+        self._base = self.base_positions.astype(np.float64)     # what a player adds the deltas to
         self.base_normals, self.base_tangents = node.frames(rest[None])[0]
         self.seen: dict = {}
         self.target_bytes = self.quantized = self.unique = 0
@@ -526,7 +527,7 @@ class _TargetWriter:
                 for positions, (normals, tangents) in zip(batch, self.node.frames(batch))]
 
     def _frame(self, positions: np.ndarray, normals: np.ndarray, tangents: np.ndarray | None) -> list[dict]:
-        base = self.base_positions.astype(np.float64)
+        base = self._base
         d_pos = positions / self.scale - base
         if self.quantize:
             enc_pos = np.clip(np.round(d_pos * 32767), -32767, 32767).astype(np.int16)
@@ -663,8 +664,8 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
             for f in range(0, n_frames, FRAME_BATCH):
                 yield np.concatenate([P[f:f + FRAME_BATCH, p.start:p.start + len(p.rest)] for p in node.prims],
                                      axis=1).astype(np.float64)
-        rest = np.concatenate([p.rest for p in node.prims])
-        reach = max(float(np.abs(batch - rest).max()) for batch in batches())
+        reach = max(float(np.abs(P[f:f + FRAME_BATCH, p.start:p.start + len(p.rest)] - p.rest).max(initial=0.0))
+                    for p in node.prims for f in range(0, n_frames, FRAME_BATCH))
         # int16 steps of reach / 32767 keep the error within the bound, or the positions stay float
         quantized = quantize and reach / 65534 <= 0.9 * QUANTIZATION_BOUND * diagonal
         scale = max(reach, 1e-30) if quantized else 1.0
