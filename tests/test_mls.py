@@ -275,6 +275,27 @@ def test_chunk_pairs_match_the_reference(blend, lever):
         for batch in (poses[:1], poses):
             assert np.array_equal(variant_frames(dev, unpaired, batch), singles[: len(batch)])
             assert not np.array_equal(variant_frames(dev, broken, batch), singles[: len(batch)])
+            assert np.array_equal(variant_frames(dev, "#define BATCHES_ONLY 1\n" + source, batch),
+                                  singles[: len(batch)])
+
+
+@pytest.mark.parametrize("n_pts, n_segs", [(4, 0), (3, 5), (0, 7)])
+def test_batches_only_program_poses_one_frame_bitwise(n_pts, n_segs, monkeypatch):
+    """Built for whole-job processes (-DBATCHES_ONLY, kernel_options in one), the pose kernel
+    has no single-pose path: a job of one frame takes the batch path, with the same bits."""
+    from nrpose.pose.mls import kernel_options
+    rng = np.random.default_rng(7 + n_pts + n_segs)
+    rest = random_rest(rng, n_pts, n_segs)
+    dev = Deformer(rng.uniform(-1.5, 1.5, (517, 3)), rest)
+    source = device.kernel_source("nrmls.cl")
+    assert "#ifndef BATCHES_ONLY" in source
+    pose = random_pose(rng, rest)
+    single = dev.pose(pose)
+    assert np.array_equal(variant_frames(dev, "#define BATCHES_ONLY 1\n" + source, [pose])[0], single)
+    monkeypatch.setenv("NRPOSE_WHOLE_JOB", "1")
+    assert "-DBATCHES_ONLY" in kernel_options(8, n_pts, n_segs, n_segs, "weight", True, False)
+    monkeypatch.setenv("NRPOSE_WHOLE_JOB", "0")
+    assert "-DBATCHES_ONLY" not in kernel_options(8, n_pts, n_segs, n_segs, "weight", True, False)
 
 
 @pytest.mark.parametrize("angle", [45.0, 60.0, 90.0, 135.0, 170.0, 179.5])

@@ -94,7 +94,8 @@ def command() -> int:
     try:
         return main()
     finally:
-        startup.join()
+        with contextlib.suppress(KeyboardInterrupt):     # a second Ctrl-C: no traceback
+            startup.join()
         skip_final_collections()
 
 
