@@ -21,15 +21,15 @@ import re
 import sys
 import warnings
 
+import numpy as np
+
 from ..errors import NrposeError
+from ..io.files import output_transaction
 
 __all__ = ["main", "build_parser", "flag_text", "Parser", "UsageError"]
 
 #: the commands, each a module of this package (imported when its parser is built)
 COMMANDS = ("deform", "pose", "weights", "retarget", "bake", "info", "demo", "fit_skin")
-#: the commands that build OpenCL programs in their own process (``bake``'s workers start PoCL
-#: in theirs)
-DEVICE_COMMANDS = ("deform", "pose", "demo", "fit-skin", "fit_skin")
 
 # name='value' | name= (before a space, punctuation or the end) | name()
 _ARGUMENT = re.compile(r"\b(\w+)(?:=(?:'([^']*)'|(?=[\s,;)]|$))|\(\))")
@@ -82,29 +82,13 @@ def command() -> int:
     (``NRPOSE_WHOLE_JOB=1`` unless set: :func:`nrpose.device.env.whole_job`; its bake
     workers inherit it), its large blocks are returned when freed
     (:func:`map_large_blocks`) and its exit skips the interpreter's last garbage collections
-    (:func:`skip_final_collections`). A command that builds OpenCL programs starts PoCL and
-    its compiler on a thread first (:func:`nrpose.device.start_pocl`), while the command's
-    modules are imported."""
-    from ..device import WHOLE_JOB_VARIABLE, pocl_environment, startup
-
-    os.environ.setdefault(WHOLE_JOB_VARIABLE, "1")
-    if builds_programs(sys.argv[1:]):
-        startup.start_pocl(pocl_environment)
+    (:func:`skip_final_collections`)."""
+    os.environ.setdefault("NRPOSE_WHOLE_JOB", "1")
     map_large_blocks()
     try:
         return main()
     finally:
-        with contextlib.suppress(KeyboardInterrupt):     # a second Ctrl-C: no traceback
-            startup.join()
         skip_final_collections()
-
-
-def builds_programs(argv: list[str]) -> bool:
-    """Whether the command line ``argv`` (without the program's name) runs a command of
-    :data:`DEVICE_COMMANDS` on the OpenCL backend, as far as it shows before argparse runs
-    (a guess either way only costs or saves PoCL's start on a thread)."""
-    numpy = "--backend=numpy" in argv or any(a == "--backend" and b == "numpy" for a, b in zip(argv, argv[1:]))
-    return bool(argv) and argv[0] in DEVICE_COMMANDS and not numpy
 
 
 def skip_final_collections() -> None:
@@ -135,10 +119,6 @@ def map_large_blocks() -> None:
 
 
 def main(argv=None) -> int:
-    import numpy as np                      # after the program's start (command())
-
-    from ..io.files import output_transaction
-
     args, status = None, 0
     notes: list[str] = []
     try:

@@ -11,7 +11,7 @@ import functools
 import os
 
 from ..errors import DeviceError
-from . import startup
+from .policy import standing_workers_possible
 
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
                 "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
@@ -134,8 +134,7 @@ def context():
     Raises DeviceError with an installation hint when no platform exists.
     """
     cl = pyopencl()
-    # PoCL reads its settings when it starts: here, unless the program's startup thread started it
-    with contextlib.nullcontext() if startup.pocl_started() else pocl_environment():
+    with pocl_environment():        # PoCL reads it when it starts, here
         ctx = _new_context(cl)
     host = [d for d in ctx.devices if _is_basic(d)]
     return ctx, cl.CommandQueue(ctx, (host or ctx.devices)[0])
@@ -154,8 +153,6 @@ def plain_opencl() -> bool:
 
 @functools.lru_cache(maxsize=None)
 def _plain_opencl(ctx) -> bool:
-    from .policy import standing_workers_possible     # numpy's import: not before the context
-
     cl = pyopencl()
     pocl_cpu = all("Portable Computing Language" in d.platform.name and d.type & cl.device_type.CPU
                    for d in ctx.devices)
