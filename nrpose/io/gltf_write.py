@@ -78,6 +78,7 @@ import pygltflib
 
 from ..checks import check_magnitude, real_rows, triangles, within_float32
 from ..errors import FileFormatError, InputError, NrposeError
+from ..model.bounds import column_bounds
 from ..model.normals import Surface, weld
 from ..model.rotation import Rotation
 from ..model.skeleton import polar_rotation
@@ -224,8 +225,8 @@ class Blob:
         acc = pygltflib.Accessor(bufferView=view, byteOffset=offset, componentType=component, count=len(array),
                                  type=kind, normalized=normalized)
         if minmax:
-            flat = np.asarray(array).reshape(len(array), -1)
-            acc.min, acc.max = [float(x) for x in flat.min(axis=0)], [float(x) for x in flat.max(axis=0)]
+            low, high = column_bounds(np.asarray(array).reshape(len(array), -1))
+            acc.min, acc.max = [float(x) for x in low], [float(x) for x in high]
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
 
@@ -282,8 +283,8 @@ class Blob:
         acc = pygltflib.Accessor(bufferView=view, componentType=_SHORT if size == 2 else _BYTE,
                                  normalized=True, count=n, type="VEC3")
         if minmax:   # normalised accessors keep min/max in the stored integers
-            acc.min = [int(x) for x in values.min(axis=0)]
-            acc.max = [int(x) for x in values.max(axis=0)]
+            low, high = column_bounds(values)
+            acc.min, acc.max = [int(x) for x in low], [int(x) for x in high]
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
 
@@ -452,27 +453,28 @@ class _Node:
         with their neighbourhood (the batch's rotations at once), smooth normals where the
         source has none."""
         turns = self.authored.any() or self.has_tangents
-        rotations = self.rotations(batch) if turns else [None] * len(batch)
+        normals = tangents = [None] * len(batch)
+        if turns:
+            R = self.rotations(batch)                   # (B, N, 3, 3), float32 from the device
+            normals = _turn(R, self.source_normals)
+            if self.has_tangents:
+                tangents = _turn(R, self.source_tangents[:, :3])
+        if turns and self.authored.all():               # every normal is the source's, turned
+            return list(zip(normals, tangents))
         out = []
-        for positions, R in zip(batch, rotations):
-            tangents = None
-            if self.authored.all():     # every normal is the source's, turned
-                normals = np.empty_like(self.source_normals)
-            else:
-                normals = self.surface.smooth_normals(positions)
+        for positions, turned, turned_tangents in zip(batch, normals, tangents):
+            smooth = self.surface.smooth_normals(positions)
             if turns:
-                turned = _turn(R, self.source_normals)
-                normals[self.authored] = turned if self.authored.all() else turned[self.authored]
-                if self.has_tangents:
-                    tangents = _turn(R, self.source_tangents[:, :3])
-            out.append((normals, tangents))
+                smooth[self.authored] = turned[self.authored]
+            out.append((smooth, turned_tangents))
         return out
 
 
 def _turn(R: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """``R @ v`` per row: R (N, 3, 3), v (N, 3); (N, 3) float64 (three whole-array products:
-    numpy's batched 3 x 3 matmul costs several times more)."""
-    return R[:, :, 0] * v[:, :1] + R[:, :, 1] * v[:, 1:2] + R[:, :, 2] * v[:, 2:3]
+    """``R @ v`` per frame and row: R (B, N, 3, 3), v (N, 3); (B, N, 3) of R's dtype (one
+    einsum over the batch: 1.7x faster than three whole-array products per frame, and numpy's
+    batched 3 x 3 matmul costs several times more)."""
+    return np.einsum("fnij,nj->fni", R, v.astype(R.dtype, copy=False))
 
 
 def _posed_nodes(meshes, starts, source: Path | None, gltf, buffers, rotations=None) -> list[tuple[int | None, _Node]]:
@@ -544,7 +546,8 @@ class _TargetWriter:
         for k, (a, b) in enumerate(zip(self.node.cuts[:-1], self.node.cuts[1:])):
             for attr, (values, base) in enc.items():
                 part = values[a:b] if base is None else _direction_delta(values[a:b], base[a:b], self.quantize)
-                key = (k, attr, part.dtype.str, hashlib.blake2b(part.tobytes(), digest_size=32).digest())
+                part = np.ascontiguousarray(part)      # hashed as it is, without a copy of its bytes
+                key = (k, attr, part.dtype.str, hashlib.blake2b(part, digest_size=32).digest())
                 if key not in self.seen:
                     fresh = True
                     self.seen[key] = self._accessor(part, part.dtype, attr == "POSITION")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import device
+from ..model.bounds import column_bounds
 from ..model.normals import Surface, closest_rotations
 
 __all__ = ["SurfaceRotations", "PROGRAM", "DEVICE_MIN_VERTEX_FRAMES", "surface_rotations_for", "prefetch_program"]
@@ -99,9 +100,11 @@ class SurfaceRotations:
         frames = len(posed)
         # rotations do not change with a move or a scale: to the unit box, so that float32 keeps the
         # shape of a surface far from the origin and squared edge lengths (|e|^4) do not overflow
-        low = posed.min(axis=(0, 1)) if posed.size else 0.0
-        span = float(np.ptp(posed, axis=(0, 1)).max(initial=0.0)) if posed.size else 0.0
-        self._posed.host[:posed.size] = ((posed - low) / (span if span > 0 else 1.0)).reshape(-1)
+        low, high = column_bounds(posed) if posed.size else (0.0, 0.0)
+        span = float(np.max(high - low))
+        unit = self._posed.host[:posed.size].reshape(posed.shape)     # float32, written in place
+        np.subtract(posed, low, out=unit, casting="same_kind")
+        unit *= np.float32(1.0 / span) if span > 0 else np.float32(1.0)
         self._posed.upload()
         if self._blocks:
             device.launch_shared(self._kernel, self._jobs, self._blocks, frames)
