@@ -1,5 +1,6 @@
 """Cold build of each program `nrpose pose` compiles: every round a fresh process with an
-empty PoCL cache per program, the programs in turn.
+empty PoCL cache and binding cache (which keeps program binaries) per program, the programs
+in turn.
 
     python bench/cold_build.py [--rounds 5] [--methods nrmls,lbs,dqs,cor] [--json bench/results/cold_build.json]
 
@@ -79,7 +80,9 @@ def run(rounds: int, methods=METHODS) -> dict:
     for r in range(rounds):
         for m in (methods if r % 2 == 0 else methods[::-1]):
             with tempfile.TemporaryDirectory() as cache:
-                env = dict(os.environ, POCL_CACHE_DIR=cache)
+                # both caches empty: PoCL's, and nrpose's of program binaries (the binding cache)
+                env = dict(os.environ, POCL_CACHE_DIR=os.path.join(cache, "pocl"),
+                           NRPOSE_CACHE_DIR=os.path.join(cache, "nrpose"))
                 got = subprocess.run([sys.executable, __file__, "--child", m], env=env, capture_output=True,
                                      text=True, check=True)
                 samples[m].append(json.loads(got.stdout.splitlines()[-1]))

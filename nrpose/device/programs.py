@@ -1,7 +1,10 @@
 """OpenCL programs: kernel sources as shipped (headers pasted) and their builds, once per
 (context, kernel file, build options) for the life of the process, started ahead in a
 background thread (:func:`prefetch`) with their kernels' compile for each device
-(:func:`warm_up`; docs/device.md, "Cold start")."""
+(:func:`warm_up`; docs/device.md, "Cold start"). On PoCL, a program's binaries are kept in
+the binding cache (:mod:`nrpose.bind.cache`) and later processes build it from them: PoCL's
+own cache still runs the preprocessor over the source and its 1 MB of headers to find its
+entry (~45 ms a program), a build from binaries takes ~3 ms."""
 from __future__ import annotations
 
 import concurrent.futures
@@ -12,6 +15,7 @@ from importlib import resources
 
 import numpy as np
 
+from ..bind.cache import cache_path, cached
 from ..errors import DeviceError
 from .env import context, plain_opencl, pyopencl, worker_device
 from .policy import LAUNCH_LOCK, stop_standing
@@ -128,12 +132,58 @@ def warm_up(prg, source: str) -> None:
 @functools.lru_cache(maxsize=None)
 def _program(ctx, name: str, options: tuple[str, ...]):
     cl = pyopencl()
-    try:
-        prg = cl.Program(ctx, kernel_source(name)).build(options=list(options))
-    except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
-        raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+    source = kernel_source(name)
+    if not _pocl_only(ctx):
+        prg = _source_build(ctx, name, source, options)
+    else:
+        built = []
+
+        def from_source() -> dict:
+            built.append(_source_build(ctx, name, source, options))
+            return {f"device{i}": np.frombuffer(b, np.uint8)
+                    for i, b in enumerate(built[0].get_info(cl.program_info.BINARIES))}
+
+        parts = program_key_parts(ctx, source, options)
+        binaries = cached(parts, from_source)
+        prg = built[0] if built else _binary_build(ctx, binaries, options)
+        if prg is None:             # an entry PoCL refuses: replaced by a build from source
+            cache_path(parts).unlink(missing_ok=True)
+            cached(parts, from_source)
+            prg = built[0]
     _BUILT.add((ctx, name, options))
     return prg
+
+
+def program_key_parts(ctx, source: str, options: tuple[str, ...]) -> dict:
+    """Key parts (:func:`nrpose.bind.cache.cached`) of the binaries of the program built from
+    ``source`` with ``options`` for the devices of ``ctx``: the source, the options and each
+    device's platform, device and driver names and versions."""
+    return {"kind": "opencl program", "source": source, "options": list(options),
+            "devices": [[d.platform.name, d.platform.version, d.name, d.version, d.driver_version]
+                        for d in ctx.devices]}
+
+
+def _pocl_only(ctx) -> bool:
+    return all("Portable Computing Language" in d.platform.name for d in ctx.devices)
+
+
+def _source_build(ctx, name: str, source: str, options: tuple[str, ...]):
+    cl = pyopencl()
+    try:
+        return cl.Program(ctx, source).build(options=list(options))
+    except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
+        raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+
+
+def _binary_build(ctx, binaries: dict, options: tuple[str, ...]):
+    """The program of PoCL binaries (one per device of ``ctx``, as stored by :func:`_program`),
+    or None where PoCL refuses them."""
+    cl = pyopencl()
+    try:
+        data = [binaries[f"device{i}"].tobytes() for i in range(len(ctx.devices))]
+        return cl.Program(ctx, ctx.devices, data).build(options=list(options))
+    except (KeyError, cl.Error, cl.RuntimeError):
+        return None
 
 
 def build_source(source: str, options: tuple[str, ...] = ()):

@@ -1,0 +1,74 @@
+"""Program binaries in the binding cache (nrpose.device.programs): a later process builds a
+program from its PoCL binaries, not its source; a binary PoCL refuses is replaced by a build
+from source; the poses are the same bits either way."""
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import FOX
+
+pytest.importorskip("pyopencl")
+
+SCRIPT = r"""
+import json, sys
+import numpy as np
+import pyopencl as cl
+from nrpose import device
+from nrpose.bind.cache import cache_path, cached
+from nrpose.device.programs import program_key_parts
+
+ctx, _ = device.context()
+name, options = "skinning.cl", device.program_options(("-DLBS_KERNEL",))
+path = cache_path(program_key_parts(ctx, device.kernel_source(name), options))
+if sys.argv[1] == "spoil":      # an entry under the right key whose binaries PoCL cannot use
+    path.unlink()
+    cached(program_key_parts(ctx, device.kernel_source(name), options),
+           lambda: {f"device{i}": np.frombuffer(b"not a PoCL binary", np.uint8) for i in range(len(ctx.devices))})
+    print(json.dumps({}))
+    sys.exit()
+prg = device.program(name, options)
+print(json.dumps({"source_chars": len(prg.get_info(cl.program_info.SOURCE)), "entry": path.exists(),
+                  "kernels": sorted(k.function_name for k in prg.all_kernels())}))
+"""
+
+
+def run(tmp_path, mode: str) -> dict:
+    env = dict(os.environ, NRPOSE_CACHE_DIR=str(tmp_path / "nrpose"), POCL_CACHE_DIR=str(tmp_path / "pocl"))
+    out = subprocess.run([sys.executable, "-c", SCRIPT, mode], capture_output=True, text=True, env=env, check=True)
+    return json.loads(out.stdout)
+
+
+def test_a_later_process_builds_the_program_from_its_binaries(tmp_path):
+    first, second = run(tmp_path, "build"), run(tmp_path, "build")
+    assert first["entry"] and first["source_chars"] > 1000          # built from source, binaries stored
+    assert second["source_chars"] == 0                                # built from the stored binaries
+    assert second["kernels"] == first["kernels"] and "lbs" in first["kernels"]
+
+
+def test_binaries_pocl_refuses_are_replaced_by_a_build_from_source(tmp_path):
+    run(tmp_path, "build")
+    run(tmp_path, "spoil")
+    mended = run(tmp_path, "build")
+    assert mended["source_chars"] > 1000 and mended["entry"]           # from source, entry written again
+    assert run(tmp_path, "build")["source_chars"] == 0                # and usable by the next process
+
+
+@pytest.mark.skipif(not FOX.exists(), reason=f"shared assets not found at {FOX}")
+@pytest.mark.parametrize("method", ["lbs", "nrmls"])
+def test_poses_from_binaries_equal_poses_from_source(tmp_path, method):
+    env = dict(os.environ, NRPOSE_CACHE_DIR=str(tmp_path / "nrpose"), POCL_CACHE_DIR=str(tmp_path / "pocl"))
+    frames = []
+    for k in range(2):                      # source build, then binaries (and the binding from the cache)
+        out = tmp_path / f"run{k}.npz"
+        done = subprocess.run([sys.executable, "-m", "nrpose", "pose", str(FOX), "--clip", "Survey", "--method",
+                               method, "-o", str(out)], capture_output=True, text=True, env=env)
+        assert done.returncode == 0, done.stderr
+        with np.load(out) as z:
+            frames.append(z["positions"])
+    assert frames[0].tobytes() == frames[1].tobytes()
