@@ -72,3 +72,18 @@ def test_poses_from_binaries_equal_poses_from_source(tmp_path, method):
         with np.load(out) as z:
             frames.append(z["positions"])
     assert frames[0].tobytes() == frames[1].tobytes()
+
+
+def test_the_key_names_the_host_cpu(monkeypatch):
+    """Binaries are compiled for the CPU: a cache shared by machines whose CPUs differ only in
+    their instruction-set flags must not hand one machine's binaries to the other."""
+    from nrpose import device
+    from nrpose.bind.cache import cache_path
+    from nrpose.device import programs
+
+    ctx, _ = device.context()
+    parts = programs.program_key_parts(ctx, "kernel void k() {}", ())
+    if sys.platform.startswith("linux"):
+        assert "flags" in parts["cpu"]
+    monkeypatch.setattr(programs, "host_cpu", lambda: parts["cpu"].replace("avx2", "") + " (no avx2)")
+    assert cache_path(programs.program_key_parts(ctx, "kernel void k() {}", ())) != cache_path(parts)

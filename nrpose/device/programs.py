@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import functools
+import platform
 import re
 import threading
 from importlib import resources
@@ -156,11 +157,28 @@ def _program(ctx, name: str, options: tuple[str, ...]):
 
 def program_key_parts(ctx, source: str, options: tuple[str, ...]) -> dict:
     """Key parts (:func:`nrpose.bind.cache.cached`) of the binaries of the program built from
-    ``source`` with ``options`` for the devices of ``ctx``: the source, the options and each
-    device's platform, device and driver names and versions."""
+    ``source`` with ``options`` for the devices of ``ctx``: the source, the options, each
+    device's platform, device and driver names and versions, and the host CPU's model and
+    instruction-set flags (PoCL compiles for the CPU it runs on, and a cache directory may be
+    shared by machines whose CPUs carry one model name)."""
     return {"kind": "opencl program", "source": source, "options": list(options),
             "devices": [[d.platform.name, d.platform.version, d.name, d.version, d.driver_version]
-                        for d in ctx.devices]}
+                        for d in ctx.devices], "cpu": host_cpu()}
+
+
+@functools.lru_cache(maxsize=None)
+def host_cpu() -> str:
+    """The first CPU's ``model name`` and ``flags`` lines of /proc/cpuinfo (Linux), else the
+    platform module's machine and processor names."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            first = f.read(1 << 16).split("\n\n", 1)[0]
+        lines = [line for line in first.splitlines() if line.split(":")[0].strip() in ("model name", "flags")]
+        if lines:
+            return "\n".join(lines)
+    except OSError:
+        pass
+    return f"{platform.machine()} {platform.processor()}"
 
 
 def _pocl_only(ctx) -> bool:
