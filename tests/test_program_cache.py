@@ -20,16 +20,18 @@ import json, sys
 import numpy as np
 import pyopencl as cl
 from nrpose import device
-from nrpose.bind.cache import cache_path, cached
-from nrpose.device.programs import program_key_parts
+from nrpose.bind.cache import cache_dir, cache_path, cached
+from nrpose.device.programs import PROGRAM_CACHE_FOLDER, program_key_parts
 
 ctx, _ = device.context()
 name, options = "skinning.cl", device.program_options(("-DLBS_KERNEL",))
-path = cache_path(program_key_parts(ctx, device.kernel_source(name), options))
+folder = cache_dir() / PROGRAM_CACHE_FOLDER
+parts = program_key_parts(ctx, device.kernel_source(name), options)
+path = cache_path(parts or {}, folder)
 if sys.argv[1] == "spoil":      # an entry under the right key whose binaries PoCL cannot use
     path.unlink()
-    cached(program_key_parts(ctx, device.kernel_source(name), options),
-           lambda: {f"device{i}": np.frombuffer(b"not a PoCL binary", np.uint8) for i in range(len(ctx.devices))})
+    cached(parts, lambda: {f"device{i}": np.frombuffer(b"not a PoCL binary", np.uint8)
+                           for i in range(len(ctx.devices))}, folder)
     print(json.dumps({}))
     sys.exit()
 prg = device.program(name, options)
@@ -38,8 +40,9 @@ print(json.dumps({"source_chars": len(prg.get_info(cl.program_info.SOURCE)), "en
 """
 
 
-def run(tmp_path, mode: str) -> dict:
-    env = dict(os.environ, NRPOSE_CACHE_DIR=str(tmp_path / "nrpose"), POCL_CACHE_DIR=str(tmp_path / "pocl"))
+def run(tmp_path, mode: str, **extra) -> dict:
+    env = dict(os.environ, NRPOSE_CACHE_DIR=str(tmp_path / "nrpose"), POCL_CACHE_DIR=str(tmp_path / "pocl"),
+               **extra)
     out = subprocess.run([sys.executable, "-c", SCRIPT, mode], capture_output=True, text=True, env=env, check=True)
     return json.loads(out.stdout)
 
@@ -57,6 +60,43 @@ def test_binaries_pocl_refuses_are_replaced_by_a_build_from_source(tmp_path):
     mended = run(tmp_path, "build")
     assert mended["source_chars"] > 1000 and mended["entry"]           # from source, entry written again
     assert run(tmp_path, "build")["source_chars"] == 0                # and usable by the next process
+
+
+def test_build_flags_of_the_environment_bypass_the_binaries(tmp_path):
+    """pyopencl and PoCL add flags from the environment that the key does not see: such a
+    process builds from source and stores nothing."""
+    for variable in ("PYOPENCL_BUILD_OPTIONS", "POCL_EXTRA_BUILD_FLAGS"):
+        got = run(tmp_path, "build", **{variable: "-w"})
+        assert got["source_chars"] > 1000 and not got["entry"]
+        assert not (tmp_path / "nrpose").exists()
+
+
+def test_an_unwritable_cache_costs_the_binaries_quietly(tmp_path):
+    """Binaries only save time: a cache that cannot be written adds no warning of its own."""
+    blocked = tmp_path / "a file"
+    blocked.write_text("not a folder")
+    env = dict(os.environ, NRPOSE_CACHE_DIR=str(blocked), POCL_CACHE_DIR=str(tmp_path / "pocl"))
+    done = subprocess.run([sys.executable, "-c", SCRIPT, "build"], capture_output=True, text=True, env=env)
+    assert done.returncode == 0 and done.stderr == "", done.stderr
+    assert json.loads(done.stdout)["source_chars"] > 1000
+
+
+def test_forgetting_an_entry_the_folder_keeps_is_not_an_error(tmp_path, monkeypatch):
+    from pathlib import Path
+    from nrpose.bind.cache import cache_path, cached, forget
+
+    parts = {"kind": "test"}
+    cached(parts, lambda: {"a": np.zeros(3)}, tmp_path)
+
+    def refuse(self, missing_ok=False):
+        raise PermissionError(13, "read-only", str(self))
+
+    monkeypatch.setattr(Path, "unlink", refuse)
+    forget(parts, tmp_path)                                   # no exception
+    monkeypatch.undo()
+    assert cache_path(parts, tmp_path).exists()
+    forget(parts, tmp_path)
+    assert not cache_path(parts, tmp_path).exists()
 
 
 @pytest.mark.skipif(not FOX.exists(), reason=f"shared assets not found at {FOX}")

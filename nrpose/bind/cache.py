@@ -1,4 +1,5 @@
-"""On-disk cache of binding results (distance matrices, weights, ...).
+"""On-disk cache of binding results (distance matrices, weights, character binds) and of
+other results that are pure functions of their inputs (OpenCL program binaries).
 
 A binding is a pure function of its inputs, so its arrays are stored in
 ``<cache dir>/<key>.npz`` where ``key`` is a sha256 over the *content* of the
@@ -18,7 +19,7 @@ vertices) is a different key on purpose.
 
 API: ``cached(key_parts, compute) -> dict[str, np.ndarray]`` (and
 :func:`cached_status`, which also says ``"hit"``, ``"miss"`` or
-``"rebuilt"``).
+``"rebuilt"``); :func:`forget` deletes an entry its user cannot use.
 """
 from __future__ import annotations
 
@@ -37,7 +38,7 @@ import numpy as np
 from ..errors import InputError
 from ..io.npz import read_npz, write_npz
 
-__all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status",
+__all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status", "forget",
            "binding_key_parts", "code_version"]
 
 FORMAT_VERSION = 2  # 2: surface distances weld coincident vertices (old files are stale)
@@ -172,7 +173,8 @@ def _check_result(result) -> dict[str, np.ndarray]:
 
 
 def cached_status(key_parts: Mapping[str, object], compute: Callable[[], Mapping[str, np.ndarray]],
-                  directory: str | os.PathLike | None = None) -> tuple[dict[str, np.ndarray], str]:
+                  directory: str | os.PathLike | None = None, *,
+                  quiet: bool = False) -> tuple[dict[str, np.ndarray], str]:
     """Like :func:`cached`, also returning ``"hit"``, ``"miss"`` or ``"rebuilt"``
     (a file existed but was unreadable or did not match)."""
     key = cache_key(key_parts)
@@ -185,12 +187,23 @@ def cached_status(key_parts: Mapping[str, object], compute: Callable[[], Mapping
     try:
         _store(path, key, result)
     except OSError as exc:
-        warnings.warn(f"binding cache not written ({path.parent}): {exc}", RuntimeWarning, stacklevel=2)
+        if not quiet:
+            warnings.warn(f"binding cache not written ({path.parent}): {exc}", RuntimeWarning, stacklevel=2)
     return result, ("rebuilt" if existed else "miss")
 
 
 def cached(key_parts: Mapping[str, object], compute: Callable[[], Mapping[str, np.ndarray]],
-           directory: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
+           directory: str | os.PathLike | None = None, *, quiet: bool = False) -> dict[str, np.ndarray]:
     """Return the arrays stored for ``key_parts``, computing and storing them
-    (``compute()`` → dict name → array) on a miss or an unusable file."""
-    return cached_status(key_parts, compute, directory)[0]
+    (``compute()`` → dict name → array) on a miss or an unusable file. A file that cannot be
+    written warns (RuntimeWarning), unless ``quiet`` (stored results that only save time)."""
+    return cached_status(key_parts, compute, directory, quiet=quiet)[0]
+
+
+def forget(key_parts: Mapping[str, object], directory: str | os.PathLike | None = None) -> None:
+    """Delete the file stored for ``key_parts`` (a result its user found unusable), if any and
+    if the directory lets it."""
+    try:
+        cache_path(key_parts, directory).unlink(missing_ok=True)
+    except OSError:
+        pass

@@ -12,7 +12,7 @@ from here.
 """
 from .bound import BoundKernel, run_coded_rows
 from .env import (INSTALL_HINT, context, describe, fine_grain_svm, may_pin_workers, plain_opencl,
-                  pocl_environment, pocl_settings, pyopencl, usable_cpus, whole_job, work_items,
+                  pocl_cpu_context, pocl_environment, pocl_settings, pyopencl, usable_cpus, whole_job, work_items,
                   worker_device, worker_queue, WHOLE_JOB_VARIABLE)
 from .launch import launch_shared
 from .mailbox import (ENDS_MAX_BOUND_BYTES, JOB_CLOSED, JOB_DESC, JOB_DESCS, JOB_DONE, JOB_END_BITS,

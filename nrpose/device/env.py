@@ -153,10 +153,14 @@ def plain_opencl() -> bool:
 
 @functools.lru_cache(maxsize=None)
 def _plain_opencl(ctx) -> bool:
+    return not (pocl_cpu_context(ctx) and standing_workers_possible())
+
+
+def pocl_cpu_context(ctx) -> bool:
+    """True when every device of the cl.Context ``ctx`` is one of PoCL's CPU devices."""
     cl = pyopencl()
-    pocl_cpu = all("Portable Computing Language" in d.platform.name and d.type & cl.device_type.CPU
-                   for d in ctx.devices)
-    return not (pocl_cpu and standing_workers_possible())
+    return all("Portable Computing Language" in d.platform.name and d.type & cl.device_type.CPU
+               for d in ctx.devices)
 
 
 def worker_queue():

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import functools
+import os
 import platform
 import re
 import threading
@@ -16,9 +17,8 @@ from importlib import resources
 
 import numpy as np
 
-from ..bind.cache import cache_path, cached
 from ..errors import DeviceError
-from .env import context, plain_opencl, pyopencl, worker_device
+from .env import context, plain_opencl, pocl_cpu_context, pyopencl, worker_device
 from .policy import LAUNCH_LOCK, stop_standing
 
 _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
@@ -132,36 +132,51 @@ def warm_up(prg, source: str) -> None:
 
 @functools.lru_cache(maxsize=None)
 def _program(ctx, name: str, options: tuple[str, ...]):
-    cl = pyopencl()
     source = kernel_source(name)
-    if not _pocl_only(ctx):
+    parts = program_key_parts(ctx, source, options)
+    if parts is None:
         prg = _source_build(ctx, name, source, options)
     else:
-        built = []
+        from ..bind.cache import cache_dir, cached, forget      # (numpy's, io's): when first built
+
+        cl = pyopencl()
+        folder, built = cache_dir() / PROGRAM_CACHE_FOLDER, []
 
         def from_source() -> dict:
             built.append(_source_build(ctx, name, source, options))
             return {f"device{i}": np.frombuffer(b, np.uint8)
                     for i, b in enumerate(built[0].get_info(cl.program_info.BINARIES))}
 
-        parts = program_key_parts(ctx, source, options)
-        binaries = cached(parts, from_source)
+        binaries = cached(parts, from_source, folder, quiet=True)     # binaries only save time
         prg = built[0] if built else _binary_build(ctx, binaries, options)
-        if prg is None:             # an entry PoCL refuses: replaced by a build from source
-            cache_path(parts).unlink(missing_ok=True)
-            cached(parts, from_source)
-            prg = built[0]
+        if prg is None:             # binaries PoCL refuses: built from source, the entry replaced
+            forget(parts, folder)
+            prg = _source_build(ctx, name, source, options)
+            cached(parts, lambda: {f"device{i}": np.frombuffer(b, np.uint8)
+                                   for i, b in enumerate(prg.get_info(cl.program_info.BINARIES))},
+                   folder, quiet=True)
     _BUILT.add((ctx, name, options))
     return prg
 
 
-def program_key_parts(ctx, source: str, options: tuple[str, ...]) -> dict:
+#: the binding cache's folder (:mod:`nrpose.bind.cache`) of program binaries
+PROGRAM_CACHE_FOLDER = "programs"
+#: environment variables that change what pyopencl and PoCL compile: a process with one set
+#: builds from source (its binaries are not stored)
+BUILD_VARIABLES = ("PYOPENCL_BUILD_OPTIONS", "POCL_EXTRA_BUILD_FLAGS")
+
+
+def program_key_parts(ctx, source: str, options: tuple[str, ...]) -> dict | None:
     """Key parts (:func:`nrpose.bind.cache.cached`) of the binaries of the program built from
-    ``source`` with ``options`` for the devices of ``ctx``: the source, the options, each
-    device's platform, device and driver names and versions, and the host CPU's model and
-    instruction-set flags (PoCL compiles for the CPU it runs on, and a cache directory may be
-    shared by machines whose CPUs carry one model name)."""
+    ``source`` with ``options`` for the devices of ``ctx``: the source, the options, pyopencl's
+    version, each device's platform, device and driver names and versions, and the host CPU's
+    model and instruction-set flags (PoCL compiles for the CPU it runs on, and a cache directory
+    may be shared by machines whose CPUs carry one model name). None where binaries are not
+    kept: a context not all of PoCL's CPU devices, or one of :data:`BUILD_VARIABLES` set."""
+    if not pocl_cpu_context(ctx) or any(os.environ.get(v) for v in BUILD_VARIABLES):
+        return None
     return {"kind": "opencl program", "source": source, "options": list(options),
+            "pyopencl": pyopencl().VERSION_TEXT,
             "devices": [[d.platform.name, d.platform.version, d.name, d.version, d.driver_version]
                         for d in ctx.devices], "cpu": host_cpu()}
 
@@ -181,10 +196,6 @@ def host_cpu() -> str:
     return f"{platform.machine()} {platform.processor()}"
 
 
-def _pocl_only(ctx) -> bool:
-    return all("Portable Computing Language" in d.platform.name for d in ctx.devices)
-
-
 def _source_build(ctx, name: str, source: str, options: tuple[str, ...]):
     cl = pyopencl()
     try:
@@ -200,7 +211,7 @@ def _binary_build(ctx, binaries: dict, options: tuple[str, ...]):
     try:
         data = [binaries[f"device{i}"].tobytes() for i in range(len(ctx.devices))]
         return cl.Program(ctx, ctx.devices, data).build(options=list(options))
-    except (KeyError, cl.Error, cl.RuntimeError):
+    except (KeyError, cl.Error):
         return None
 
 

@@ -455,7 +455,7 @@ class _Node:
         turns = self.authored.any() or self.has_tangents
         normals = tangents = [None] * len(batch)
         if turns:
-            R = self.rotations(batch)                   # (B, N, 3, 3), float32 from the device
+            R = self.rotations(batch)                   # (B, N, 3, 3): float32 from the device
             normals = _turn(R, self.source_normals)
             if self.has_tangents:
                 tangents = _turn(R, self.source_tangents[:, :3])
