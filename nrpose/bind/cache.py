@@ -19,7 +19,8 @@ vertices) is a different key on purpose.
 
 API: ``cached(key_parts, compute) -> dict[str, np.ndarray]`` (and
 :func:`cached_status`, which also says ``"hit"``, ``"miss"`` or
-``"rebuilt"``); :func:`forget` deletes an entry its user cannot use.
+``"rebuilt"``); :func:`lookup` and :func:`store` read and write one entry,
+:func:`forget` deletes an entry its user cannot use.
 """
 from __future__ import annotations
 
@@ -39,7 +40,7 @@ from ..errors import InputError
 from ..io.npz import read_npz, write_npz
 
 __all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status", "forget",
-           "binding_key_parts", "code_version"]
+           "lookup", "store", "binding_key_parts", "code_version"]
 
 FORMAT_VERSION = 2  # 2: surface distances weld coincident vertices (old files are stale)
 _META = "__nrpose_cache_key__"
@@ -177,19 +178,31 @@ def cached_status(key_parts: Mapping[str, object], compute: Callable[[], Mapping
                   quiet: bool = False) -> tuple[dict[str, np.ndarray], str]:
     """Like :func:`cached`, also returning ``"hit"``, ``"miss"`` or ``"rebuilt"``
     (a file existed but was unreadable or did not match)."""
-    key = cache_key(key_parts)
-    path = Path(directory if directory is not None else cache_dir()) / f"{key}.npz"
-    existed = path.exists()
-    arrays = _load(path, key) if existed else None
+    existed = cache_path(key_parts, directory).exists()
+    arrays = lookup(key_parts, directory) if existed else None
     if arrays is not None:
         return arrays, "hit"
     result = _check_result(compute())
+    store(key_parts, result, directory, quiet=quiet)
+    return result, ("rebuilt" if existed else "miss")
+
+
+def lookup(key_parts: Mapping[str, object], directory: str | os.PathLike | None = None) -> dict[str, np.ndarray] | None:
+    """The arrays stored for ``key_parts``, or None (a file that cannot be used is deleted)."""
+    path = cache_path(key_parts, directory)
+    return _load(path, path.stem) if path.exists() else None
+
+
+def store(key_parts: Mapping[str, object], arrays: Mapping[str, np.ndarray],
+          directory: str | os.PathLike | None = None, *, quiet: bool = False) -> None:
+    """Store ``arrays`` (name → array) for ``key_parts``, atomically; a file that cannot be
+    written warns (RuntimeWarning), unless ``quiet``."""
+    path = cache_path(key_parts, directory)
     try:
-        _store(path, key, result)
+        _store(path, path.stem, _check_result(arrays))
     except OSError as exc:
         if not quiet:
-            warnings.warn(f"binding cache not written ({path.parent}): {exc}", RuntimeWarning, stacklevel=2)
-    return result, ("rebuilt" if existed else "miss")
+            warnings.warn(f"binding cache not written ({path.parent}): {exc}", RuntimeWarning, stacklevel=3)
 
 
 def cached(key_parts: Mapping[str, object], compute: Callable[[], Mapping[str, np.ndarray]],
