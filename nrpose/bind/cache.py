@@ -174,16 +174,16 @@ def _check_result(result) -> dict[str, np.ndarray]:
 
 
 def cached_status(key_parts: Mapping[str, object], compute: Callable[[], Mapping[str, np.ndarray]],
-                  directory: str | os.PathLike | None = None, *,
-                  quiet: bool = False) -> tuple[dict[str, np.ndarray], str]:
+                  directory: str | os.PathLike | None = None) -> tuple[dict[str, np.ndarray], str]:
     """Like :func:`cached`, also returning ``"hit"``, ``"miss"`` or ``"rebuilt"``
     (a file existed but was unreadable or did not match)."""
-    existed = cache_path(key_parts, directory).exists()
-    arrays = lookup(key_parts, directory) if existed else None
+    path = cache_path(key_parts, directory)     # the key hashed once (it may hold large arrays)
+    existed = path.exists()
+    arrays = _load(path, path.stem) if existed else None
     if arrays is not None:
         return arrays, "hit"
     result = _check_result(compute())
-    store(key_parts, result, directory, quiet=quiet)
+    _write(path, result, quiet=False)
     return result, ("rebuilt" if existed else "miss")
 
 
@@ -196,21 +196,24 @@ def lookup(key_parts: Mapping[str, object], directory: str | os.PathLike | None 
 def store(key_parts: Mapping[str, object], arrays: Mapping[str, np.ndarray],
           directory: str | os.PathLike | None = None, *, quiet: bool = False) -> None:
     """Store ``arrays`` (name → array) for ``key_parts``, atomically; a file that cannot be
-    written warns (RuntimeWarning), unless ``quiet``."""
-    path = cache_path(key_parts, directory)
+    written warns (RuntimeWarning), unless ``quiet`` (results that only save time)."""
+    _write(cache_path(key_parts, directory), _check_result(arrays), quiet)
+
+
+def _write(path: Path, arrays: dict[str, np.ndarray], quiet: bool) -> None:
     try:
-        _store(path, path.stem, _check_result(arrays))
+        _store(path, path.stem, arrays)
     except OSError as exc:
         if not quiet:
             warnings.warn(f"binding cache not written ({path.parent}): {exc}", RuntimeWarning, stacklevel=3)
 
 
 def cached(key_parts: Mapping[str, object], compute: Callable[[], Mapping[str, np.ndarray]],
-           directory: str | os.PathLike | None = None, *, quiet: bool = False) -> dict[str, np.ndarray]:
+           directory: str | os.PathLike | None = None) -> dict[str, np.ndarray]:
     """Return the arrays stored for ``key_parts``, computing and storing them
-    (``compute()`` → dict name → array) on a miss or an unusable file. A file that cannot be
-    written warns (RuntimeWarning), unless ``quiet`` (stored results that only save time)."""
-    return cached_status(key_parts, compute, directory, quiet=quiet)[0]
+    (``compute()`` → dict name → array) on a miss or an unusable file; a file that cannot be
+    written warns (RuntimeWarning)."""
+    return cached_status(key_parts, compute, directory)[0]
 
 
 def forget(key_parts: Mapping[str, object], directory: str | os.PathLike | None = None) -> None:

@@ -33,8 +33,8 @@ __all__ = ["KEY_TOLERANCE", "helper_trs", "stored_quats", "reduce_keys", "helper
 
 QUAT_SCALE = 32767      # rotations stored as normalised int16: k means k / 32767
 
-#: default key tolerance, a fraction of the character's height (10x under issue 35's held-out RMS
-#: target, 50x under its max target)
+#: default key tolerance, a fraction of the character's height (10x under the fit's held-out RMS
+#: target of 0.2 %, 50x under its max target of 1 %)
 KEY_TOLERANCE = 2e-4
 
 
