@@ -28,11 +28,19 @@ process (start to reaped), peak RSS (the job's ru_maxrss, seen from a small laun
 medians with p10/p90 over ``--repeat`` rounds; the ratio Blender / nrpose of the medians
 and per round (paired).
 
+The OpenCL floor (:data:`FLOOR`), alternated with the jobs in both modes: a process that
+imports numpy and pyopencl and builds and runs a one-line kernel on the device the jobs
+use. Beside the cold target the record puts the cold floor's median and the budget the
+target leaves a job (Blender's median / the ratio): where the budget is below the floor, no
+job that runs its kernels on PoCL can meet it. (Warm, nrpose builds its programs from the
+binaries in its binding cache, which the floor does not: its warm figure is no floor.)
+
 Breakdown: per character and method (into .npz, warm caches), instrumented runs of the
-same job: ``-X importtime`` (module import time, the modules imported); then, with every
-one of those modules imported beforehand (so no import time falls in a stage), the
-functions of :data:`STAGE_RULES` (load / bind / pose / write) timed by wrappers; and the
-same under cProfile for the functions that bound each stage.
+same job, :data:`BREAKDOWN_RUNS` of each kind (medians): ``-X importtime`` (module import
+time, the modules imported); then, with every one of those modules imported beforehand (so
+no import time falls in a stage), the functions of :data:`STAGE_RULES` (load / bind / pose
+/ write) timed by wrappers; and one run under cProfile for the functions that bound each
+stage.
 
 Not a test: no assertions; the machine is shared, so the record keeps load averages and
 CPU steal beside the figures.
@@ -91,6 +99,7 @@ STAGE_RULES = (
     ("write", r"nrpose/cli/(pose|common)\.py$", r"write_frames"),       # the pose command's writer
 )
 STAGES = ("load", "bind", "pose", "write")
+BREAKDOWN_RUNS = 5      # instrumented runs of each kind per job: the breakdown's figures are their medians
 HEAVY_MODULES = ("matplotlib", "pymeshlab", "igl", "scipy.spatial", "pygltflib")
 TARGETS = {"nrmls_warm_vs_blender_min": 3.0, "lbs_warm_vs_blender_min": 4.0, "cold_vs_blender_min": 1.5,
            "imports_s_max": 0.25, "gltf_load_mannequin_s_max": 0.030}
@@ -225,6 +234,28 @@ ru = resource.getrusage(resource.RUSAGE_CHILDREN)
 with open(sys.argv[1], "w") as f:
     json.dump({"wall_s": wall, "peak_rss_kib": ru.ru_maxrss, "cpu_s": ru.ru_utime + ru.ru_stime}, f)
 sys.exit(code)
+"""
+
+
+#: the OpenCL floor (argv: none): what any PoCL job pays before its own work -- numpy and
+#: pyopencl imported, a context on PoCL's worker-thread CPU device (the device a whole
+#: ``nrpose`` job runs on), a one-line kernel built and run once. Cold (an empty
+#: POCL_CACHE_DIR), PoCL parses its kernel library and compiles; no nrpose job can be faster.
+FLOOR = r"""
+import os
+os.environ["POCL_DEVICES"] = "pthread"
+import numpy as np
+import pyopencl as cl
+device = next(d for p in cl.get_platforms() if "Portable Computing Language" in p.name
+              for d in p.get_devices(device_type=cl.device_type.CPU))
+ctx = cl.Context([device])
+queue = cl.CommandQueue(ctx)
+program = cl.Program(ctx, "__kernel void twice(__global float *a) { a[get_global_id(0)] *= 2.0f; }").build()
+a = np.ones(16, np.float32)
+buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+program.twice(queue, a.shape, None, buf)
+cl.enqueue_copy(queue, a, buf)
+assert (a == 2).all()
 """
 
 
@@ -364,27 +395,36 @@ def _probe(py: str, mode: str, args: list, env: dict, tmp: pathlib.Path) -> floa
     return json.loads(r.stdout.strip().splitlines()[-1])["job_s"]
 
 
-def breakdown(py: str, args: list, env: dict, tmp: pathlib.Path) -> dict:
-    """Imports and stages of one job (``args`` after ``nrpose``), from three runs of it:
-    ``-X importtime``; with every module it imports imported beforehand and the
-    :data:`STAGE_RULES` functions timed; the same under cProfile (its 15 functions of
+def breakdown(py: str, args: list, env: dict, tmp: pathlib.Path, runs: int = BREAKDOWN_RUNS) -> dict:
+    """Imports and stages of one job (``args`` after ``nrpose``), medians of ``runs`` runs of
+    each kind: ``-X importtime``; with every module it imports imported beforehand and the
+    :data:`STAGE_RULES` functions timed; then one run under cProfile (its 15 functions of
     most own time)."""
     r = subprocess.run([py, "-X", "importtime", "-c", "pass"], env=env, capture_output=True, text=True)
     startup = set(import_times(r.stderr)["modules"])
-    r = subprocess.run([py, "-X", "importtime", "-m", "nrpose", *args], env=env, capture_output=True, text=True)
-    if r.returncode != 0:
-        raise RuntimeError(f"importtime run failed: {r.stderr[-2000:]}")
-    imports = import_times(r.stderr, startup)
+    runs_of_imports = []
+    for _ in range(runs):
+        r = subprocess.run([py, "-X", "importtime", "-m", "nrpose", *args], env=env, capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"importtime run failed: {r.stderr[-2000:]}")
+        runs_of_imports.append(import_times(r.stderr, startup))
+    imports = runs_of_imports[0]
     (tmp / "modules.json").write_text(json.dumps([m for m in imports["modules"] if not m.endswith("__main__")]))
     (tmp / "rules.json").write_text(json.dumps(STAGE_RULES))
-    job = _probe(py, "timers", args, env, tmp)
-    timed = json.loads((tmp / "timers").read_text())
-    secs = {s: timed["stages"].get(s, 0.0) for s in STAGES}
+    jobs, stage_runs = [], []
+    for _ in range(runs):
+        jobs.append(_probe(py, "timers", args, env, tmp))
+        timed = json.loads((tmp / "timers").read_text())
+        stage_runs.append({s: timed["stages"].get(s, 0.0) for s in STAGES})
+    secs = {s: float(np.median([r[s] for r in stage_runs])) for s in STAGES}
+    job = float(np.median(jobs))
     profiled = _probe(py, "profile", args, env, tmp)
     st = pstats.Stats(str(tmp / "profile"))
     top = sorted(st.stats.items(), key=lambda kv: -kv[1][2])[:15]
-    return {"imports_s": imports["total_s"], "interpreter_start_imports_s": imports["startup_s"],
-            "stages_s": secs, "job_s": job, "other_s": job - sum(secs.values()),
+    return {"runs": runs, "imports_s": float(np.median([i["total_s"] for i in runs_of_imports])),
+            "imports_s_runs": [i["total_s"] for i in runs_of_imports],
+            "interpreter_start_imports_s": imports["startup_s"],
+            "stages_s": secs, "stages_s_runs": stage_runs, "job_s": job, "other_s": job - sum(secs.values()),
             "stage_functions": timed["wrapped"], "import_top": imports["top"],
             "heavy_imported": imports["heavy_imported"], "modules_imported": len(imports["modules"]),
             "profiled_job_s": profiled,
@@ -434,8 +474,9 @@ def prepare(data: pathlib.Path, names, script: pathlib.Path, tmp: pathlib.Path, 
 
 
 def contestants(methods, outputs, blender: bool) -> list[tuple]:
-    """(who, method, output) in the order of round 0."""
-    out = [("nrpose", m, o) for m in methods for o in outputs]
+    """(who, method, output) in the order of round 0: nrpose's jobs, the OpenCL floor
+    (:data:`FLOOR`, no output), Blender's job."""
+    out = [("nrpose", m, o) for m in methods for o in outputs] + [("floor", None, None)]
     return out + ([("blender", None, "npz")] if blender else [])
 
 
@@ -512,6 +553,8 @@ def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, base, 
     def command(who, method, output, out):
         if who == "blender":
             return [bpy_python, HERE / "blender_bake.py", glb, clip, FPS, frames, out]
+        if who == "floor":
+            return [py, "-c", FLOOR]
         return [script, "pose", glb, "--clip", clip, "--method", method, "-o", out]
 
     players = contestants(methods, outputs, bpy_python is not None)
@@ -562,7 +605,7 @@ def _character(ch, methods, outputs, rounds, script, py, bpy_python, tmp, base, 
         row.update(cpu_steal_percent=steal, load_start=load0, load_end=load1)
     for method in methods:
         args = ["pose", str(glb), "--clip", clip, "--method", method, "-o", str(work / "probe.npz")]
-        b = breakdown(py, args, warm_env, work)
+        b = breakdown(py, args, warm_env, work, BREAKDOWN_RUNS if rounds > 1 else 1)
         b.update(character=name, method=method, output="npz", mode="warm")
         doc["breakdown"].append(b)
         if log:
@@ -591,6 +634,18 @@ def _ratios(rows: list[dict]) -> None:
                              "rss_ratio": row["peak_rss_mib"]["median"] / bl["peak_rss_mib"]["median"]}
 
 
+def floors(rows: list[dict], mode: str, target: float) -> dict:
+    """Per character (Mannequin, Ely): the OpenCL floor's median wall in ``mode`` (:data:`FLOOR`)
+    beside the budget the target leaves a whole job (Blender's median / ``target``), ms."""
+    out = {}
+    for name in ("mannequin", "ely"):
+        row = {r["who"]: r for r in rows if r["character"] == name and r["mode"] == mode}
+        if "floor" in row and "blender" in row:
+            out[name] = {"floor_ms": row["floor"]["wall_ms"]["median"],
+                         "budget_ms": row["blender"]["wall_ms"]["median"] / target}
+    return out
+
+
 def targets(doc: dict) -> list[dict]:
     """The issue's targets against this run's figures (``meaningful`` false in quick mode)."""
     q, rows, out = doc["options"]["quick"], doc["rows"], []
@@ -608,7 +663,8 @@ def targets(doc: dict) -> list[dict]:
                             "(Mannequin, Ely)", "target": TARGETS[key],
                     "measured": worst["vs_blender"]["ratio"] if worst else None,
                     "where": worst["character"] if worst else None,
-                    "met": bool(worst and worst["vs_blender"]["ratio"] >= TARGETS[key]), "meaningful": not q})
+                    "met": bool(worst and worst["vs_blender"]["ratio"] >= TARGETS[key]), "meaningful": not q,
+                    "floor": floors(rows, mode, TARGETS[key]) if mode == "cold" else {}})
     b = doc["breakdown"]
     worst = max(b, key=lambda r: r["imports_s"]) if b else None
     out.append({"name": "imports of nrpose pose <= 0.25 s", "target": TARGETS["imports_s_max"],
@@ -637,8 +693,9 @@ def table(doc: dict) -> list[str]:
     lines = [f"{'character':10s} {'mode':4s} {'job':14s} {'wall ms':>8s} {'p10':>6s} {'p90':>6s} "
              f"{'x Blender':>9s} {'RSS MiB':>8s}"]
     for r in sorted(doc["rows"], key=lambda r: (r["character"], r["mode"], r["who"] != "blender",
-                                                METHODS.index(r["method"]) if r["method"] else -1, r["output"])):
-        job = "blender" if r["who"] == "blender" else f"{r['method']}->{r['output']}"
+                                                METHODS.index(r["method"]) if r["method"] else -1,
+                                                r["output"] or "")):
+        job = r["who"] if r["who"] != "nrpose" else f"{r['method']}->{r['output']}"
         vs = f"{r['vs_blender']['ratio']:9.2f}" if r.get("vs_blender") else f"{'':9s}"
         lines.append(f"{r['character']:10s} {r['mode']:4s} {job:14s} {r['wall_ms']['median']:8.0f} "
                      f"{r['wall_ms']['p10']:6.0f} {r['wall_ms']['p90']:6.0f} {vs} {r['peak_rss_mib']['median']:8.0f}")
@@ -647,6 +704,9 @@ def table(doc: dict) -> list[str]:
         lines.append(f"target {t['name']}: " + (f"{m:.4g} ({t['where']}) -> {'met' if t['met'] else 'NOT met'}"
                                                  f"{'' if t['meaningful'] else ' (quick: not meaningful)'}"
                                                  if m is not None else "not measured"))
+        for name, f in t.get("floor", {}).items():
+            lines.append(f"  {name}: the OpenCL floor {f['floor_ms']:.0f} ms against a budget of "
+                         f"{f['budget_ms']:.0f} ms for the whole job")
     return lines
 
 

@@ -93,7 +93,10 @@ def test_quick_record_schema(quick):
         assert key in quick
     assert set(quick["modes"]) == {"cold", "warm"}
     assert quick["blender"]["available"] is False and quick["blender"]["reason"]
-    rows = quick["rows"]
+    floor = [r for r in quick["rows"] if r["who"] == "floor"]      # the OpenCL floor, in both modes
+    assert sorted(r["mode"] for r in floor) == ["cold", "warm"]
+    assert all(r["output"] is None and _positive(r["wall_ms"]["median"]) for r in floor)
+    rows = [r for r in quick["rows"] if r["who"] != "floor"]
     from nrpose.io import load_character
     from nrpose.model.timing import sample_times
     fox = load_character(DATA / "gltf" / "Fox.glb")
