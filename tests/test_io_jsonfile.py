@@ -3,12 +3,33 @@ import pytest
 
 from nrpose.errors import FileFormatError
 from nrpose.io import load_character
-from nrpose.io.jsonfile import MAX_DEPTH, nesting_depth, read_json
+from nrpose.io.jsonfile import MAX_DEPTH, document_depth, nesting_depth, read_json
 
 
 def test_nesting_depth_ignores_brackets_in_strings():
     assert nesting_depth('{"a": [1, {"b": "[[[["}], "c": "\\"[["}') == 3
     assert nesting_depth("3") == 0
+
+
+def test_document_depth_equals_the_text_scan_on_random_documents():
+    """The depth counted on decoded values (what parse_json checks) is the text scan's, with
+    empty containers, strings holding brackets and escaped quotes."""
+    import json
+    import random
+    rng = random.Random(7)
+
+    def value(d):
+        r = rng.random()
+        if d > 12 or r < 0.3:
+            return rng.choice([1, 2.5, "x[{", '"]}', None, True, "\\", [], {}])
+        if r < 0.65:
+            return [value(d + 1) for _ in range(rng.randrange(4))]
+        return {f"k{i}[": value(d + 1) for i in range(rng.randrange(4))}
+
+    for _ in range(300):
+        doc = value(0)
+        assert document_depth(doc) == nesting_depth(json.dumps(doc))
+    assert document_depth(3) == 0 and document_depth([]) == 1 and document_depth({"a": [[], {}]}) == 3
 
 
 @pytest.mark.parametrize("depth", [MAX_DEPTH + 1, 100_000])

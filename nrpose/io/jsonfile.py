@@ -48,18 +48,51 @@ def check_depth(text: str, where: str, what: str, error: type[NrposeError] = Fil
 def parse_json(text: str, where: str, what: str, error: type[NrposeError] = FileFormatError,
                finite: bool = True):
     """``json.loads(text)``, with ``error`` naming ``where`` and ``what`` for invalid JSON, too
-    deep nesting (:func:`check_depth`) and, with ``finite``, ``NaN``/``Infinity`` (not JSON,
-    though Python reads them) and numbers past float64's range (``1e999`` reads as infinity).
-    ``finite=False`` leaves them to a reader that names the field (then :func:`check_finite`)."""
+    deep nesting (more than :data:`MAX_DEPTH`) and, with ``finite``, ``NaN``/``Infinity`` (not
+    JSON, though Python reads them) and numbers past float64's range (``1e999`` reads as
+    infinity). ``finite=False`` leaves them to a reader that names the field (then
+    :func:`check_finite`).
+
+    The decoder runs first: it refuses nesting past the interpreter's recursion limit with a
+    RecursionError, not a crash, and only then is the text scanned (:func:`check_depth`) for
+    the depth the message names; a decoded document's depth is counted on its values, which is
+    faster than scanning its text."""
     if len(text) > MAX_JSON_CHARS:
         raise error(f"{where}: {what} is {len(text) / 1e6:.0f} MB of JSON (at most {MAX_JSON_CHARS // 10**6} MB); "
                     "is it the right file?")
-    check_depth(text, where, what, error)
     hooks = {"parse_float": _finite_float, "parse_constant": _not_a_number} if finite else {}
     try:
-        return json.loads(text, **hooks)
+        doc = json.loads(text, **hooks)
+    except RecursionError:
+        check_depth(text, where, what, error)
+        raise error(f"{where}: {what} nests arrays/objects too deep to read; is it the right file?") from None
     except ValueError as exc:       # JSONDecodeError, and integers past Python's digit limit
         raise error(f"{where}: {what} is not valid JSON ({exc})") from None
+    depth = document_depth(doc)
+    if depth > MAX_DEPTH:
+        raise error(f"{where}: {what} nests arrays/objects {depth} deep (at most {MAX_DEPTH}); "
+                    "is it the right file?")
+    return doc
+
+
+def document_depth(value) -> int:
+    """Deepest nesting of arrays/objects in parsed JSON ``value`` (0 for a number or string),
+    counted level by level without recursion."""
+    depth, level = 0, [value]
+    while True:
+        inner = []
+        for v in level:
+            if type(v) is dict:
+                inner.extend(v.values())
+            elif type(v) is list:
+                inner.extend(v)
+            else:
+                continue
+            inner.append(None)      # v was a container even if empty: its level counts
+        if not inner:
+            return depth
+        depth += 1
+        level = inner
 
 
 def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) -> None:
@@ -79,16 +112,18 @@ def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) 
 
 
 def _all_finite(value) -> bool:
-    """Whether parsed JSON ``value`` holds no NaN or infinite number."""
-    stack = [value]
-    while stack:
-        v = stack.pop()
-        if isinstance(v, dict):
-            stack.extend(v.values())
-        elif isinstance(v, list):
-            stack.extend(v)
-        elif isinstance(v, float) and not math.isfinite(v):
-            return False
+    """Whether parsed JSON ``value`` holds no NaN or infinite number (level by level)."""
+    level = [value]
+    while level:
+        inner = []
+        for v in level:
+            if type(v) is dict:
+                inner.extend(v.values())
+            elif type(v) is list:
+                inner.extend(v)
+            elif type(v) is float and not math.isfinite(v):
+                return False
+        level = inner
     return True
 
 
