@@ -191,3 +191,30 @@ def test_a_damaged_skin_bind_file_is_rebuilt(fox):
     assert again.bind_cache == "rebuilt"
     a, b = skin_state(first), skin_state(again)
     assert all(a[n].tobytes() == b[n].tobytes() for n in a)
+
+
+def test_segment_parameters_of_unweighted_bones_are_unused(fox):
+    """The binding cache keeps a vertex's segment parameters t on its weighted bones (0 on
+    most others): with t zeroed where the weight is 0, the rest terms other than t and the
+    float64 reference poses are bitwise those of the full t (the character's bone weights)."""
+    from test_mls import random_pose
+
+    from nrpose import Deformer, HandleSet
+    from nrpose.bind.bone_weights import SKELETON_K, bone_weights
+
+    bw = bone_weights(fox, "authored", SKELETON_K, distances=False)
+    deform = np.concatenate([np.full(len(m.vertices), m.rigid_joint is None) for m in fox.meshes])
+    W, t = bw.weights[deform], bw.t[deform]
+    zeroed = np.where(W != 0, t, 0.0)
+    assert (zeroed != t).any()                      # else the test would be moot
+    cached = CharacterPoser(fox, method="nrmls").deformer.terms.t      # what the cache gives the deformer
+    assert np.array_equal(cached[W != 0], t[W != 0]) and set(np.unique(cached[cached != t])) == {0.0}
+    rest = HandleSet.make(segments=fox.skeleton.bones().segments, what="skeleton bones")
+    V = np.concatenate([m.vertices for m in fox.meshes])[deform]
+    full, sparse = (Deformer(V, rest, weights=W, k=SKELETON_K, t=tt, backend="numpy") for tt in (t, zeroed))
+    for name in ("weights", "p_star", "u", "lever", "ref", "phat"):
+        assert getattr(full.terms, name).tobytes() == getattr(sparse.terms, name).tobytes(), name
+    rng = np.random.default_rng(3)
+    for _ in range(3):
+        pose = random_pose(rng, rest)
+        assert full.pose(pose).tobytes() == sparse.pose(pose).tobytes()

@@ -198,8 +198,8 @@ class CharacterPoser:
         self.__dict__.update(state)
 
     def _nrmls_bind(self, character, V, rest, weights, k, alpha, blend) -> tuple[np.ndarray, np.ndarray | None, dict]:
-        """(bone weights (V, B) of the deforming vertices, their segment parameters (V, B) or
-        None, the Deformer's :func:`bind_layout`),
+        """(bone weights (V, B) of the deforming vertices, their segment parameters (V, B; 0
+        where the weight is) or None, the Deformer's :func:`bind_layout`),
         from the binding cache (:mod:`nrpose.bind.cache`, its folder :data:`BIND_CACHE_FOLDER`)
         when the same character, options and code were bound before (``self.bind_cache``:
         "hit", "miss" or "rebuilt")."""
@@ -219,13 +219,21 @@ class CharacterPoser:
             t = bw.t[self._deform_idx] if bw.t is not None else None
             cols = np.argsort(W == 0, axis=1, kind="stable")[:, :max(int((W != 0).sum(axis=1).max(initial=0)), 1)]
             layout = bind_layout(kept_terms(V, rest, weights=W, k=k, t=t), rest, blend=blend)
-            return {**{f"layout_{n}": a for n, a in layout.items()}, **({} if t is None else {"t": t}),
+            # W and t on each vertex's weighted bones only: a zero weight makes its t unused
+            # (the rest terms and the kernel take w and w t), and the dense (V, B) t was 2/3 of
+            # the entry that a warm job reads and checks
+            return {**{f"layout_{n}": a for n, a in layout.items()},
+                    **({} if t is None else {"t_values": np.take_along_axis(t, cols, axis=1)}),
                     "weight_bones": cols, "weight_values": np.take_along_axis(W, cols, axis=1)}
 
         got, self.bind_cache = cached_status(parts, compute, cache_dir() / BIND_CACHE_FOLDER)
-        W = np.zeros((len(V), len(rest.segments)))
-        np.put_along_axis(W, got["weight_bones"], got["weight_values"], axis=1)
-        return W, got.get("t"), {n[7:]: a for n, a in got.items() if n.startswith("layout_")}
+        def dense(values: np.ndarray) -> np.ndarray:
+            out = np.zeros((len(V), len(rest.segments)))
+            np.put_along_axis(out, got["weight_bones"], values, axis=1)
+            return out
+
+        return (dense(got["weight_values"]), dense(got["t_values"]) if "t_values" in got else None,
+                {n[7:]: a for n, a in got.items() if n.startswith("layout_")})
 
     def _bind_key(self, character, V, segments, with_skin: bool) -> dict:
         """The arrays a character bind depends on (binding-cache key parts): deforming
