@@ -204,7 +204,7 @@ def manual_block(doc: dict, e2e: dict | None = None) -> str:
 def whole_jobs_line(e2e: dict) -> str:
     """One sentence of the e2e document: warm and cold whole-process medians to .npz per character
     and method, with Blender's of the same run."""
-    rows = [r for r in e2e["rows"] if r.get("output", "npz") == "npz"]
+    rows = [r for r in e2e["rows"] if r.get("output", "npz") == "npz" or r["who"] == "floor"]
     parts = []
     for name in dict.fromkeys(r["character"] for r in rows):
         def med(who, mode, method=None):
@@ -219,13 +219,16 @@ def whole_jobs_line(e2e: dict) -> str:
             ours = [(m, v) for m, v in ours if v is not None]
             if blender is None or not ours:
                 continue
+            floor = med("floor", mode) if mode == "cold" else None
             cells.append(f"{mode} Blender {blender:.0f}, " + ", ".join(
-                f"{ {'nrmls': 'NR-MLS', 'lbs': 'LBS', 'dqs': 'DQS'}[m]} {v:.0f} ({blender / v:.2f}×)" for m, v in ours))
+                f"{ {'nrmls': 'NR-MLS', 'lbs': 'LBS', 'dqs': 'DQS'}[m]} {v:.0f} ({blender / v:.2f}×)" for m, v in ours)
+                + (f", the OpenCL floor {floor:.0f} ({blender / floor:.2f}×)" if floor else ""))
         if cells:
             parts.append(f"{name}: " + "; ".join(cells))
     return (f"Whole jobs, `nrpose pose CHARACTER --clip CLIP -o OUT.npz` as processes against Blender 5 "
             f"importing, playing and saving the same clip (`bench/results/e2e.json` of "
-            f"{e2e.get('timestamp', '?')[:10]}, ms, medians): " + "; ".join(parts) + ".")
+            f"{e2e.get('timestamp', '?')[:10]}, ms, medians; the OpenCL floor: a process that only "
+            f"imports numpy and pyopencl and builds and runs a one-line kernel on PoCL): " + "; ".join(parts) + ".")
 
 
 def glb_jobs_line(e2e: dict) -> str:
