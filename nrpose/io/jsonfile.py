@@ -76,28 +76,30 @@ def parse_json(text: str, where: str, what: str, error: type[NrposeError] = File
 
 
 def document_depth(value) -> int:
-    """Deepest nesting of arrays/objects in parsed JSON ``value`` (0 for a number or string),
-    counted level by level without recursion."""
-    depth, level = 0, [value]
-    while True:
-        inner = []
+    """Deepest nesting of arrays/objects in parsed JSON ``value`` (0 for a number or string)."""
+    return sum(containers for _, containers in _levels(value))
+
+
+def _levels(value):
+    """Parsed JSON ``value`` level by level, without recursion: (the level's values, whether
+    any of them is an array or object), the first level ``[value]``."""
+    level = [value]
+    while level:
+        inner, containers = [], False
         for v in level:
             if type(v) is dict:
                 inner.extend(v.values())
+                containers = True
             elif type(v) is list:
                 inner.extend(v)
-            else:
-                continue
-            inner.append(None)      # v was a container even if empty: its level counts
-        if not inner:
-            return depth
-        depth += 1
+                containers = True
+        yield level, containers
         level = inner
 
 
 def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) -> None:
     """``error`` naming the first NaN or infinite number in parsed JSON ``value`` by its path
-    (depth already bounded by :func:`check_depth`)."""
+    (depth already bounded by :func:`parse_json`)."""
     if _all_finite(value):      # the common case, without a path string for every value
         return
     stack = [("", value)]
@@ -112,19 +114,8 @@ def check_finite(value, where: str, error: type[NrposeError] = FileFormatError) 
 
 
 def _all_finite(value) -> bool:
-    """Whether parsed JSON ``value`` holds no NaN or infinite number (level by level)."""
-    level = [value]
-    while level:
-        inner = []
-        for v in level:
-            if type(v) is dict:
-                inner.extend(v.values())
-            elif type(v) is list:
-                inner.extend(v)
-            elif type(v) is float and not math.isfinite(v):
-                return False
-        level = inner
-    return True
+    """Whether parsed JSON ``value`` holds no NaN or infinite number."""
+    return not any(type(v) is float and not math.isfinite(v) for level, _ in _levels(value) for v in level)
 
 
 def _finite_float(text: str) -> float:
