@@ -206,6 +206,30 @@ def test_visibility_blocks_sources_across_the_gap():
     assert (V[idx_nv, 0] > 0).any()
 
 
+def test_scrambled_faces_skip_the_visibility_test_with_a_warning(fingers, monkeypatch):
+    """A face list whose faces span the mesh (fuzzing found one: 25 s of winding numbers)
+    picks bone sources without the visibility test, saying so; a sound mesh keeps it."""
+    import warnings
+
+    from nrpose.bind import distances
+
+    V, F = fingers.vertices, np.asarray(fingers.faces)
+    assert distances.visibility_work(V, F, len(V))[0] == 0
+    scrambled = F.copy()
+    scrambled[::3, 0] = np.argmax(V[:, 0])           # every third face fans out from one far vertex
+    long, work = distances.visibility_work(V, scrambled, len(V))
+    assert long > len(F) // 10
+    monkeypatch.setattr(distances, "VISIBILITY_WORK", work / 2)     # this mesh is small: lower the budget
+    with pytest.warns(RuntimeWarning, match=rf"without the visibility test: {long} faces span"):
+        got = handle_sources(V, scrambled, None, fingers.bones)
+    plain = handle_sources(V, scrambled, None, fingers.bones, visibility=False)
+    assert all(np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1]) for a, b in zip(got, plain))
+    monkeypatch.setattr(distances, "VISIBILITY_WORK", work * 2)     # within the budget: tested, no warning
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        handle_sources(V, scrambled, None, fingers.bones)
+
+
 def _box(x0, x1, n=6):
     """Closed triangulated box [x0,x1]×[-0.5,0.5]×[-0.5,0.5] via marching cubes."""
     g = np.linspace(-0.8, 0.8, 33)

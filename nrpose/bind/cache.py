@@ -42,7 +42,7 @@ from ..io.npz import read_npz, write_npz
 __all__ = ["FORMAT_VERSION", "cache_dir", "cache_key", "cache_path", "cached", "cached_status", "forget",
            "lookup", "store", "binding_key_parts", "code_version"]
 
-FORMAT_VERSION = 2  # 2: surface distances weld coincident vertices (old files are stale)
+FORMAT_VERSION = 3  # 3: surface distances skip the visibility test past its work budget (2: weld)
 _META = "__nrpose_cache_key__"
 
 

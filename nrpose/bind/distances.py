@@ -42,7 +42,11 @@ segment), and the exact quantity we approximate is::
   segment from the vertex to its closest point on the bone must stay inside
   the shape, tested by sampling the generalised winding number
   (``igl.fast_winding_number``) at 7 interior points of that segment
-  (all > 0.5). Point clouds skip the visibility test. A bone that ends up
+  (all > 0.5). Point clouds skip the visibility test, and so does (with a
+  warning) a mesh on which it would cost more than :data:`VISIBILITY_WORK`
+  (:func:`visibility_work`: faces spanning a quarter of the mesh, which the fast
+  winding number cannot lump with others, times the samples; a scrambled face
+  list makes thousands of them, and minutes of work). A bone that ends up
   with no source (hidden by other bones) falls back to its single nearest
   visible vertex, or its nearest vertex if none is visible.
 * ``graph`` / ``knn`` evaluate the formula exactly (for their graph metric):
@@ -125,6 +129,7 @@ __all__ = [
     "distance_matrix",
     "euclidean_distances",
     "handle_sources",
+    "visibility_work",
     "point_segment_distances",
     "mesh_components",
     "weld_vertices",
@@ -135,6 +140,11 @@ _BRIDGE_K = 8
 #: the largest longest-edge / median-edge ratio given to libigl's geodesics
 MAX_EDGE_SPREAD = 1e6
 _VIS_SAMPLES = np.linspace(0.125, 0.875, 7)  # along bone point -> vertex
+#: a face whose longest edge spans this share of the mesh's bounding-box diagonal is "long"
+LONG_FACE = 0.25
+#: most winding-number samples times long faces given to the visibility test (~4 s on the
+#: 2-core VM; the shared test meshes and characters have no long face at all)
+VISIBILITY_WORK = 1e8
 
 
 # ----------------------------------------------------------------------------
@@ -298,6 +308,17 @@ def _visible(V, F, vidx, C) -> np.ndarray:
     return np.all(W > 0.5, axis=0)
 
 
+def visibility_work(V, F, vertices: int) -> tuple[int, float]:
+    """(long faces, samples x long faces) of a visibility test of ``vertices`` surface vertices
+    on the mesh V (n, 3), F (m, 3): the fast winding number evaluates a face that spans a good
+    part of the mesh (:data:`LONG_FACE`) exactly at every sample near it, so these products
+    bound its cost."""
+    P = V[F]
+    longest = np.sqrt(np.max(np.sum((P - np.roll(P, 1, axis=1)) ** 2, axis=2), axis=1))
+    long = int((longest > LONG_FACE * np.linalg.norm(V.max(axis=0) - V.min(axis=0))).sum())
+    return long, float(long) * vertices * len(_VIS_SAMPLES)
+
+
 def handle_sources(V, F, point_handles, segment_handles, *, visibility: bool = True,
                    E: np.ndarray | None = None):
     """Source vertices and offsets of every handle (see the module docstring).
@@ -330,6 +351,12 @@ def handle_sources(V, F, point_handles, segment_handles, *, visibility: bool = T
     L2 = np.einsum("ij,ij->i", AB, AB)
     t = np.einsum("ij,ij->i", V[surf_idx] - A, AB) / np.where(L2 > 0, L2, 1.0)
     Cn = A + np.clip(np.where(L2 > 0, t, 0.0), 0.0, 1.0)[:, None] * AB
+    if F is not None and visibility:
+        long, work = visibility_work(V, F, len(surf_idx))
+        if work > VISIBILITY_WORK:
+            warnings.warn(f"bone sources chosen without the visibility test: {long} faces span more than "
+                          f"{LONG_FACE:.0%} of the mesh (a scrambled face list?)", RuntimeWarning, stacklevel=2)
+            visibility = False
     if F is not None and visibility:
         vis = _visible(V, F, surf_idx, Cn)
     else:
