@@ -243,6 +243,18 @@ def test_unreadable_jobs_file_and_bad_options_exit_2(rig, tmp_path, capsys):
     assert (jobs.read_bytes(), (rig / "bend.json").read_bytes()) == before and not (tmp_path / "o").exists()
 
 
+def test_a_jobs_file_too_large_is_refused_before_it_is_read(rig, tmp_path, capsys, monkeypatch):
+    """Fuzzing made an 11 GB jobs file (its jobs repeated): read whole, it ran out of memory."""
+    from nrpose.io import jsonfile
+
+    jobs = write_jobs(rig / "big.json", {"defaults": {"character": "human.obj", "skeleton": "walk.bvh"},
+                                         "jobs": [{"output": "a.npz", "rest": True}]})
+    monkeypatch.setattr(jsonfile, "MAX_JSON_BYTES", jobs.stat().st_size - 1)
+    monkeypatch.setattr(Path, "read_text", lambda *a, **k: pytest.fail("the file was read"))
+    code, err = bake([jobs, "-o", tmp_path / "o"], capsys)
+    assert code == 2 and "the jobs file is 0 MB (at most 0 MB of JSON)" in err and err.count("\n") == 1, err
+
+
 def test_a_workers_warnings_are_the_drivers_one_line_of_notes(rig, tmp_path, capsys, monkeypatch):
     """A warning in a worker (here: the binding cache cannot be written) reaches stderr as the
     command's single line of notes after the run, not as the worker's own two-line warning."""

@@ -72,3 +72,14 @@ def test_depth_counted_across_blocks_and_json_size_bounded(monkeypatch):
     monkeypatch.setattr(jsonfile, "MAX_JSON_CHARS", 100)
     with pytest.raises(FileFormatError, match="is 0 MB of JSON"):
         jsonfile.parse_json("[" + "0," * 60 + "0]", "x.json", "a test file")
+
+
+def test_a_json_file_too_large_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    import nrpose.io.jsonfile as jsonfile
+    path = tmp_path / "pose.json"
+    path.write_text('{"a": [1, 2, 3]}')
+    assert read_json(path, "pose file") == {"a": [1, 2, 3]}
+    monkeypatch.setattr(jsonfile, "MAX_JSON_BYTES", path.stat().st_size - 1)
+    monkeypatch.setattr(jsonfile, "read_input_text", lambda *a, **k: pytest.fail("the file was read"))
+    with pytest.raises(FileFormatError, match=r"pose\.json: pose file is 0 MB \(at most 0 MB of JSON\)"):
+        read_json(path, "pose file")

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import re
 from pathlib import Path
 
@@ -18,6 +19,8 @@ MAX_DEPTH = 100
 #: longest JSON text accepted (characters): a glTF within the schema's 10,000 entries per array
 #: stays far below; Python's objects for 64 MB of JSON take ~1 GB
 MAX_JSON_CHARS = 64_000_000
+#: largest JSON file read (bytes): MAX_JSON_CHARS characters of up to 4 bytes each
+MAX_JSON_BYTES = 4 * MAX_JSON_CHARS
 _STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
 
 
@@ -42,6 +45,19 @@ def check_depth(text: str, where: str, what: str, error: type[NrposeError] = Fil
     depth = nesting_depth(text)
     if depth > MAX_DEPTH:
         raise error(f"{where}: {what} nests arrays/objects {depth} deep (at most {MAX_DEPTH}); "
+                    "is it the right file?")
+
+
+def check_json_size(path: str | Path, what: str, error: type[NrposeError] = FileFormatError) -> None:
+    """``error`` naming ``path`` and ``what`` when the file holds more bytes than a JSON input
+    nrpose reads (:data:`MAX_JSON_BYTES`): refused before it is read into memory. A file that
+    cannot be examined is left to its reader, which names the problem."""
+    try:
+        size = os.stat(path).st_size
+    except OSError:
+        return
+    if size > MAX_JSON_BYTES:
+        raise error(f"{path}: {what} is {size / 1e6:.0f} MB (at most {MAX_JSON_BYTES // 10**6} MB of JSON); "
                     "is it the right file?")
 
 
@@ -131,5 +147,6 @@ def _not_a_number(name: str):
 
 def read_json(path: str | Path, what: str, error: type[NrposeError] = FileFormatError):
     """The parsed JSON document at ``path``; ``error`` naming ``what`` (e.g. "pose file")
-    when the file cannot be read or is not valid JSON."""
+    when the file cannot be read, is too large or is not valid JSON."""
+    check_json_size(path, what, error)
     return parse_json(read_input_text(path, what, error), str(path), what, error)

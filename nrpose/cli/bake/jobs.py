@@ -28,7 +28,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path, PurePosixPath
 
 from ...errors import InputError, NrposeError
-from ...io.jsonfile import parse_json
+from ...io.jsonfile import check_json_size, parse_json
 from ...options import BACKENDS, BLENDS, DEFAULT_BLEND, METHODS, WEIGHTS
 from ...pose.retarget import ROOT_MODES
 from ..common import MAX_FRAMES, MAX_OUTPUT_VALUES, frames_output_kind
@@ -118,6 +118,7 @@ def load_jobs(path: str | Path) -> list[Job]:
     path = Path(path)
     if path.exists() and not path.is_file():     # a FIFO would block the read
         raise InputError(f"{path}: not a regular file; give the JOBS.json file")
+    check_json_size(path, "the jobs file", InputError)
     try:
         text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:

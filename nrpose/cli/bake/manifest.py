@@ -26,7 +26,7 @@ import time
 import uuid
 from pathlib import Path
 
-from ...io.jsonfile import parse_json
+from ...io.jsonfile import check_json_size, parse_json
 from .jobs import Job
 
 NAME = "manifest.json"
@@ -86,6 +86,7 @@ class Manifest:
         self.saved = -math.inf
         if self.path.exists():
             try:
+                check_json_size(self.path, "the manifest")
                 doc = parse_json(self.path.read_text(), str(self.path), "the manifest")
                 self.outputs = dict(doc["outputs"])
             except (OSError, ValueError, KeyError, TypeError):     # NrposeError is a ValueError
