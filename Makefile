@@ -6,15 +6,28 @@ PY := $(VENV)/bin/python
 
 BLENDER_VENV := .venv-blender
 
-.PHONY: venv demo test bench blender fuzz
+.PHONY: venv pocl pypi-pocl demo test bench blender fuzz
 venv:
 	@test -x $(PY) || { $(PYTHON) -m venv $(VENV) && $(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip; }
 	@$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test,bench,ray]'
 
-demo: venv
+# PyPI's PoCL 3.0 compiles with LLVM 14, which does not know newer processors (AMD Zen 5 among
+# them): where it cannot build a kernel, Debian's PoCL (LLVM 15) is installed beside it as root,
+# and nrpose passes over the one that cannot; elsewhere nrpose's error says what to install.
+pocl: venv
+	@$(MAKE) -s pypi-pocl 2>/dev/null || test -f /etc/OpenCL/vendors/pocl.icd || \
+	{ test "$$(id -u)" = 0 && command -v apt-get >/dev/null && apt-get update -qq && \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -qq pocl-opencl-icd >/dev/null; } || \
+	echo "make: PyPI's PoCL cannot compile for this CPU; install a newer PoCL (apt install pocl-opencl-icd)" >&2
+
+# exit status 0 where PyPI's PoCL, seen alone, builds a kernel on this CPU (after venv)
+pypi-pocl:
+	@$(PY) -c 'import sys; from nrpose.diagnostics import pypi_pocl_refusal; sys.exit(pypi_pocl_refusal() is not None)'
+
+demo: venv pocl
 	$(VENV)/bin/nrpose demo
 
-test: venv
+test: venv pocl
 	$(PY) -m pytest -q --ignore=tests/test_fuzz.py
 	# the fuzz cases fork from a process that has no OpenCL context yet: a pytest of their own
 	$(PY) -m pytest -q tests/test_fuzz.py

@@ -48,7 +48,6 @@ CPU steal beside the figures.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
 import pathlib
@@ -61,6 +60,8 @@ import tempfile
 import time
 
 import numpy as np
+
+from nrpose import diagnostics
 
 HERE = pathlib.Path(__file__).resolve().parent
 if str(HERE) not in sys.path:
@@ -438,12 +439,12 @@ def user_icds() -> dict:
     """The environment that gives the timed processes the OpenCL drivers of a user's install
     (``pip install nrpose``: PoCL's alone): ``{"OCL_ICD_VENDORS": <PoCL's .icd>}`` where the
     pyopencl wheel's driver folder also holds others (the test extra's Oclgrind, whose
-    loading at platform enumeration costs ~15 ms per process), else {}."""
-    spec = importlib.util.find_spec("pyopencl")
-    folder = pathlib.Path(spec.submodule_search_locations[0]) / ".libs" if spec else None
-    if folder is None or not (folder / "pocl.icd").exists() or not (set(folder.glob("*.icd")) - {folder / "pocl.icd"}):
+    loading at platform enumeration costs ~15 ms per process), else {}; {} too where that
+    PoCL cannot compile for this CPU (the machine's own PoCL is then the user's)."""
+    icd = diagnostics.pypi_pocl_icd()
+    if icd is None or not (set(icd.parent.glob("*.icd")) - {icd}) or diagnostics.pypi_pocl_refusal():
         return {}
-    return {"OCL_ICD_VENDORS": str(folder / "pocl.icd")}
+    return {"OCL_ICD_VENDORS": str(icd)}
 
 
 def prepare(data: pathlib.Path, names, script: pathlib.Path, tmp: pathlib.Path, env: dict, log=None) -> tuple:

@@ -9,6 +9,12 @@ with them. ``deformer``: an OpenCL :class:`nrpose.Deformer` (NR-MLS) or
 """
 from __future__ import annotations
 
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 
 from . import device
@@ -133,3 +139,28 @@ def bound_indices(deformer) -> tuple[np.ndarray, np.ndarray | None]:
     rec = bound_array(d, "irec", np.int32).reshape(d._npad // d.lanes, -1, d.lanes)   # ref, row, then slots
     slots = rec[:, 2:].transpose(1, 0, 2).reshape(rec.shape[1] - 2, d._npad) if rec.shape[1] > 2 else None
     return rec[:, 0].ravel(), slots
+
+
+def pypi_pocl_icd() -> Path | None:
+    """The ICD file of PyPI's PoCL (``pocl-binary-distribution``, registered in the pyopencl
+    wheel's driver folder), or None where there is none."""
+    spec = importlib.util.find_spec("pyopencl")
+    icd = Path(spec.submodule_search_locations[0]) / ".libs" / "pocl.icd" if spec else None
+    return icd if icd is not None and icd.is_file() else None
+
+
+def pypi_pocl_refusal() -> str | None:
+    """Why PyPI's PoCL cannot build a one-line kernel on this CPU (nrpose's message, from a
+    child process that sees that PoCL alone: ``OCL_ICD_VENDORS`` names its ICD file), or
+    None where it can or is not installed (e.g. its LLVM 14 does not know AMD Zen 5)."""
+    icd = pypi_pocl_icd()
+    if icd is None:
+        return None
+    code = ("import pyopencl as cl; from nrpose.device.env import compiler_refusal; "
+            "print(compiler_refusal(cl.Context(cl.get_platforms()[0].get_devices())) or '')")
+    env = {**os.environ, "OCL_ICD_VENDORS": str(icd)}
+    env.pop("PYOPENCL_CTX", None)
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
+    if proc.returncode != 0:
+        return f"PyPI's PoCL does not start: {proc.stderr.strip().splitlines()[-1:] or proc.returncode}"
+    return proc.stdout.strip() or None

@@ -17,9 +17,10 @@ every device array nrpose makes (:class:`nrpose.device.HostArray`: outputs, fram
 blocks, scratch, handoff slots, frames_array memory, on the host and on the device) and
 every output array given to a kernel here starts filled with BITS instead of whatever
 memory held, and --save also writes each such array as it ends ("memory NNN", uint32
-bits, in the order they were made), so that runs with different BITS show which lanes
-nothing wrote (BITS in each run), which were written with defined values (the same in
-every run) and which were written from memory nothing had written (neither).
+bits, in the order they were made; "mailbox NNN" for the job mailboxes), so that runs
+with different BITS show which lanes nothing wrote (BITS in each run), which were written
+with defined values (the same in every run) and which were written from memory nothing
+had written (neither).
 """
 from __future__ import annotations
 
@@ -155,7 +156,8 @@ def main() -> None:
     memory = {}
     for i, a in enumerate(made):
         a.download()
-        memory[f"memory {i:03d}"] = a.host.view(np.uint32).copy()
+        # int32 arrays are job mailboxes: protocol words (job tags count launches), not data
+        memory[f"{'mailbox' if a.host.dtype == np.int32 else 'memory'} {i:03d}"] = a.host.view(np.uint32).copy()
     if "--save" in sys.argv:
         np.savez(sys.argv[sys.argv.index("--save") + 1], **{k: got for k, (got, _, _) in cases.items()}, **memory)
     print(json.dumps({k: float(np.abs(got - want).max() / tol) for k, (got, want, tol) in cases.items()}))

@@ -12,6 +12,7 @@ either the run's own pattern (nothing wrote it) or the same bits (written from d
 values); a lane that is neither was written from memory nothing had written (a NaN pattern
 read and multiplied by a zero weight gives NaN, the finite one 0). The lanes the host reads
 (every case's output) must be of the second kind, and within their references' tolerance.
+Job mailboxes are left out: their job tags count launches, which timing decides.
 """
 from __future__ import annotations
 
@@ -67,10 +68,13 @@ def test_no_value_from_unwritten_memory(tmp_path, ctx):
     names = runs[0][1].keys()
     assert all(r[1].keys() == names for r in runs)
     memory = [k for k in names if k.startswith("memory ")]
-    outputs = [k for k in names if not k.startswith("memory ")]
+    # a mailbox's job tags count the launches, which timing decides (whether a worker stands,
+    # a launch is shared): they differ between loaded runs, and hold no data
+    outputs = [k for k in names if not k.startswith(("memory ", "mailbox "))]
+    assert sum(k.startswith("mailbox ") for k in names) >= 4, names
     assert len(memory) >= 40, memory              # the fill reached nrpose's device arrays
     undefined, unwritten = {}, 0
-    for name in names:
+    for name in memory + outputs:
         kinds = lanes_by_kind([r[1][name] for r in runs])
         if name in outputs:                       # lanes the host reads: each written, defined
             kinds = (np.zeros_like(kinds[0]), kinds[0] | kinds[1])

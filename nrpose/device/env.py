@@ -13,6 +13,7 @@ import os
 from ..errors import DeviceError
 from .policy import standing_workers_possible
 
+POCL = "Portable Computing Language"
 INSTALL_HINT = ("install one with `pip install pyopencl pocl-binary-distribution` "
                 "(PoCL, a CPU OpenCL platform) or select one with PYOPENCL_CTX")
 
@@ -159,7 +160,7 @@ def _plain_opencl(ctx) -> bool:
 def pocl_cpu_context(ctx) -> bool:
     """True when every device of the cl.Context ``ctx`` is one of PoCL's CPU devices."""
     cl = pyopencl()
-    return all("Portable Computing Language" in d.platform.name and d.type & cl.device_type.CPU
+    return all(POCL in d.platform.name and d.type & cl.device_type.CPU
                for d in ctx.devices)
 
 
@@ -201,7 +202,9 @@ def _new_context(cl):
         except (cl.Error, RuntimeError, ValueError, IndexError) as exc:
             raise DeviceError(f"PYOPENCL_CTX={os.environ['PYOPENCL_CTX']!r} selects no usable "
                               f"device ({exc}); unset it to use PoCL") from None
-    ordered = sorted(platforms, key=lambda p: "Portable Computing Language" not in p.name)
+    ordered = sorted(platforms, key=lambda p: POCL not in p.name)
+    several_pocls = sum(POCL in p.name for p in ordered) > 1
+    refused = []
     for plat in ordered:
         try:
             devs = plat.get_devices(device_type=cl.device_type.CPU)
@@ -211,10 +214,41 @@ def _new_context(cl):
             continue
         workers = [d for d in devs if d.name.startswith("pthread")]
         host = [d for d in devs if _is_basic(d)]
-        if "Portable Computing Language" in plat.name and workers and host:
-            return cl.Context(devices=[workers[0], host[0]])
-        return cl.Context(devices=[(workers or devs)[0]])
+        if POCL in plat.name and workers and host:
+            ctx = cl.Context(devices=[workers[0], host[0]])
+        else:
+            ctx = cl.Context(devices=[(workers or devs)[0]])
+        # with a choice of PoCLs, one whose LLVM does not know this CPU is passed over
+        if several_pocls and POCL in plat.name and (reason := compiler_refusal(ctx)):
+            refused.append(reason)
+            continue
+        return ctx
+    if refused:
+        raise DeviceError(refused[0])
     raise DeviceError(f"no OpenCL CPU device found; {INSTALL_HINT}")
+
+
+def compiler_refusal(ctx) -> str | None:
+    """Why the OpenCL compiler of the cl.Context ``ctx`` cannot build a one-line kernel
+    (:func:`cpu_unknown_hint`'s message or the build log), or None when it can."""
+    cl = pyopencl()
+    try:
+        cl.Program(ctx, "__kernel void probe(__global int *x) { x[0] = 0; }").build()
+    except cl.RuntimeError as exc:
+        return cpu_unknown_hint(ctx, str(exc)) or f"the OpenCL compiler fails: {exc}"
+    return None
+
+
+def cpu_unknown_hint(ctx, build_log: str) -> str | None:
+    """The error message for a program build of the cl.Context ``ctx`` that failed with
+    ``build_log`` because the platform's LLVM does not know this CPU (PyPI's PoCL 3.0,
+    LLVM 14, on AMD Zen 5 and other processors newer than it), or None for other failures."""
+    if "unknown target CPU" not in build_log:
+        return None
+    dev = ctx.devices[0]
+    return (f"{dev.platform.version.split('  ')[0]} cannot compile for this CPU ({dev.name}): its LLVM "
+            "does not know the processor; install a PoCL built with a newer LLVM (Debian, Ubuntu: "
+            "`apt install pocl-opencl-icd`), which nrpose then prefers, or select another device with PYOPENCL_CTX")
 
 
 def work_items(queues=None) -> tuple[tuple, ...]:

@@ -18,7 +18,7 @@ from importlib import resources
 import numpy as np
 
 from ..errors import DeviceError
-from .env import context, plain_opencl, pocl_cpu_context, pyopencl, worker_device
+from .env import context, cpu_unknown_hint, plain_opencl, pocl_cpu_context, pyopencl, worker_device
 from .policy import LAUNCH_LOCK, stop_standing
 
 _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
@@ -232,8 +232,8 @@ def _source_build(ctx, name: str, source: str, options: tuple[str, ...]):
     cl = pyopencl()
     try:
         return cl.Program(ctx, source).build(options=list(options))
-    except cl.RuntimeError as exc:  # build failure: a bug of ours, but say where
-        raise DeviceError(f"building kernels/{name} failed: {exc}") from None
+    except cl.RuntimeError as exc:  # build failure: a bug of ours (but say where) or a CPU PoCL does not know
+        raise DeviceError(cpu_unknown_hint(ctx, str(exc)) or f"building kernels/{name} failed: {exc}") from None
 
 
 def _binary_build(ctx, binaries: dict, options: tuple[str, ...]):
