@@ -124,6 +124,19 @@ def test_a_failing_png_leaves_no_main_output(deform_case, tmp_path, capsys, monk
     assert sorted(tmp_path.iterdir()) == before
 
 
+def test_out_of_memory_is_one_line_and_leaves_no_output(deform_case, tmp_path, capsys, monkeypatch):
+    mesh, handles = deform_case[:2]
+
+    def exhausted(path, *args, **kw):
+        raise MemoryError
+    monkeypatch.setattr("nrpose.cli.deform.save_preview", exhausted)
+    before = sorted(tmp_path.iterdir())
+    code, _, err = run(["deform", mesh, "-H", handles, "-o", tmp_path / "o.ply", "--png", tmp_path / "p.png",
+                        "--backend", "numpy"], capsys)
+    assert code == 2 and err.count("\n") == 1 and err.startswith("nrpose: error: out of memory")
+    assert sorted(tmp_path.iterdir()) == before
+
+
 @needs_data
 def test_failing_frames_leave_no_directory(tmp_path, capsys, monkeypatch):
     import nrpose.io.meshes as meshes

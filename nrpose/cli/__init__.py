@@ -147,6 +147,9 @@ def main(argv=None) -> int:
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         return fail(f"nrpose: error: {where}{exc.strerror or exc}")
+    except MemoryError:     # past the input bounds (a machine short of memory): one line, no output
+        return fail("nrpose: error: out of memory: free memory or run fewer frames or a smaller "
+                    "character per command (--max-frames, --max-output-values)")
     except KeyboardInterrupt:
         print("nrpose: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
