@@ -40,7 +40,8 @@ class FakeCL(SimpleNamespace):
         self.platforms = [SimpleNamespace(name=name, version=version, devices=[])
                           for name, version in builds]
         for plat in self.platforms:
-            plat.devices = [SimpleNamespace(name=f"{d}-CPU", platform=plat, type=2) for d in ("pthread", "basic")]
+            plat.devices = [SimpleNamespace(name=f"{d}-CPU", platform=plat, type=2, driver_version="1")
+                            for d in ("pthread", "basic")]
             plat.get_devices = (lambda p: lambda device_type=None: p.devices)(plat)
         self.Context = lambda devices: SimpleNamespace(devices=devices)
         self.Program = self._program
@@ -61,11 +62,12 @@ class FakeCL(SimpleNamespace):
 
 
 @pytest.fixture
-def fake(monkeypatch):
+def fake(monkeypatch, tmp_path):
     def make(builds):
         cl = FakeCL(builds)
         monkeypatch.setattr(env, "pyopencl", lambda: cl)
         monkeypatch.delenv("PYOPENCL_CTX", raising=False)
+        monkeypatch.setenv("NRPOSE_CACHE_DIR", str(tmp_path / "cache"))
         return cl
     return make
 
@@ -77,6 +79,28 @@ def test_a_pocl_that_cannot_compile_is_passed_over(fake):
     assert ctx.devices[0].platform.version == "PoCL 3.1+debian  LLVM 15"
     assert [d.name for d in ctx.devices] == ["pthread-CPU", "basic-CPU"]
     assert cl.built == ["PoCL 3.0-rc2  LLVM 14", "PoCL 3.1+debian  LLVM 15"]   # Oclgrind never tried
+
+
+def test_the_verdicts_are_remembered(fake, tmp_path):
+    builds = {(env.POCL, "PoCL 3.0-rc2  LLVM 14"): UNKNOWN_CPU, (env.POCL, "PoCL 3.1+debian  LLVM 15"): None}
+    first = fake(builds)
+    env._new_context(first)
+    again = fake(builds)            # a later process: no probe build, the same choice
+    assert env._new_context(again).devices[0].platform.version == "PoCL 3.1+debian  LLVM 15"
+    assert len(first.built) == 2 and again.built == []
+    verdicts = sorted(p.read_text() for p in (tmp_path / "cache" / "opencl-compilers").iterdir())
+    assert verdicts[0] == "" and "cannot compile for this CPU" in verdicts[1]
+
+
+def test_an_unusable_cache_only_means_probing_again(fake, tmp_path, monkeypatch):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("")
+    builds = {(env.POCL, "PoCL A"): UNKNOWN_CPU, (env.POCL, "PoCL B"): None}
+    for _ in range(2):
+        cl = fake(builds)
+        monkeypatch.setenv("NRPOSE_CACHE_DIR", str(blocker))
+        assert env._new_context(cl).devices[0].platform.version == "PoCL B"
+        assert cl.built == ["PoCL A", "PoCL B"]
 
 
 def test_the_first_pocl_that_compiles_is_kept(fake):

@@ -219,7 +219,7 @@ def _new_context(cl):
         else:
             ctx = cl.Context(devices=[(workers or devs)[0]])
         # with a choice of PoCLs, one whose LLVM does not know this CPU is passed over
-        if several_pocls and POCL in plat.name and (reason := compiler_refusal(ctx)):
+        if several_pocls and POCL in plat.name and (reason := remembered_refusal(ctx)):
             refused.append(reason)
             continue
         return ctx
@@ -237,6 +237,34 @@ def compiler_refusal(ctx) -> str | None:
     except cl.RuntimeError as exc:
         return cpu_unknown_hint(ctx, str(exc)) or f"the OpenCL compiler fails: {exc}"
     return None
+
+
+def remembered_refusal(ctx) -> str | None:
+    """:func:`compiler_refusal` of the cl.Context ``ctx``, probed once per platform, device
+    and CPU and remembered in the binding cache's folder (``opencl-compilers/``, a text file
+    per verdict, empty where the compiler builds): the probe costs 20-40 ms a process with
+    Debian's PoCL. An unwritable cache only means probing again."""
+    import hashlib
+
+    from ..bind.cache import cache_dir
+    from .programs import host_cpu
+
+    dev = ctx.devices[0]
+    facts = "\0".join([dev.platform.name, dev.platform.version, dev.name, dev.driver_version, host_cpu()])
+    path = cache_dir() / "opencl-compilers" / f"{hashlib.sha256(facts.encode()).hexdigest()}.txt"
+    try:
+        return path.read_text(encoding="utf-8") or None
+    except (OSError, UnicodeDecodeError):
+        pass
+    reason = compiler_refusal(ctx)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        partial.write_text(reason or "", encoding="utf-8")
+        os.replace(partial, path)
+    except OSError:
+        pass
+    return reason
 
 
 def cpu_unknown_hint(ctx, build_log: str) -> str | None:
