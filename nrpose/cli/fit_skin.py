@@ -20,7 +20,7 @@ from ..io import load_character
 from ..io.files import atomic_path
 from ..io.poses import load_pose
 from ..model.character import Character
-from ..model.skeleton import LocalPose
+from ..model.skeleton import LocalPose, concat_poses
 from ..model.timing import sample_times
 from ..pose.poser import WEIGHTS, CharacterPoser
 from .common import check_outputs
@@ -86,10 +86,6 @@ def motion(character, spec: str, fps: float, pose_ok: bool = True):
     return spec, clip.sample(sample_times(clip.duration, fps)), clip
 
 
-def concat(poses) -> LocalPose:
-    return LocalPose(*(np.concatenate([getattr(p, k) for p in poses]) for k in ("translation", "rotation", "scale")))
-
-
 def run(args) -> None:
     if args.influences not in INFLUENCES:
         raise NrposeError(f"--influences {args.influences}: expected 4 or 8")
@@ -113,12 +109,12 @@ def run(args) -> None:
     train = [motion(character, s, args.fps) for s in args.train]
     holdout = [motion(character, s, args.fps, pose_ok=False) for s in args.holdout]
     export = [motion(character, s, args.fps, pose_ok=False) for s in args.export]
-    local = concat([m[1] for m in train])
+    local = concat_poses([m[1] for m in train])
     rom_frames = 0
     if args.rom_degrees > 0:
         rom = range_of_motion(character.skeleton, args.rom_degrees)
         rom_frames = len(rom.rotation)
-        local = concat([local, rom])
+        local = concat_poses([local, rom])
     V = sum(len(m.vertices) for m in character.meshes)
     new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
     written = tuple(character.clips) + tuple(new_clips)     # the file's animations
