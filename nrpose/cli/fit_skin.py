@@ -31,7 +31,7 @@ INFLUENCES = (4, 8)
 BAKE_BYTES = 12      # morph-target bake: one float32 xyz per vertex per frame
 BAKE_SECONDS, BAKE_FPS = 10.0, 30.0
 MAX_VERTEX_FRAMES = 40_000_000   # poses x vertices held at once (targets and fitted, ~1.5 GB)
-MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (Mannequin trains on 911)
+MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (Mannequin trains on 1,159)
 
 
 def add_parser(sub) -> None:
@@ -49,7 +49,8 @@ def add_parser(sub) -> None:
     p.add_argument("--export", nargs="+", default=[], metavar="BVH|GLB",
                    help="BVH/glTF motions added to the output as animations (the source's clips are kept)")
     p.add_argument("--rom-degrees", type=float, default=ROM_DEGREES,
-                   help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}; 0: none)")
+                   help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}); a humanoid "
+                        "also gets anatomical poses (0: no range of motion at all)")
     p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation")
     p.add_argument("--influences", type=int, default=4, help="joints per vertex: 4 or 8 (default 4)")
     p.add_argument("--helpers", type=int, default=0,
