@@ -14,10 +14,11 @@ from nrpose.rigs.humanoid import humanoid
 BODY = {"Hips": (None, (0, 100, 0)), "Spine": ("Hips", (0, 120, 0)), "Neck": ("Spine", (0, 150, 0)),
         "Head": ("Neck", (0, 165, 0))}
 for _side, _x in (("Left", 1.0), ("Right", -1.0)):
-    BODY.update({f"{_side}Shoulder": ("Spine", (5 * _x, 145, 0)), f"{_side}Arm": (f"{_side}Shoulder", (18 * _x, 145, 0)),
-                 f"{_side}ForeArm": (f"{_side}Arm", (45 * _x, 145, 0)), f"{_side}Hand": (f"{_side}ForeArm", (70 * _x, 145, 0)),
-                 f"{_side}UpLeg": ("Hips", (10 * _x, 95, 0)), f"{_side}Leg": (f"{_side}UpLeg", (10 * _x, 52, 0)),
-                 f"{_side}Foot": (f"{_side}Leg", (10 * _x, 9, 0)), f"{_side}ToeBase": (f"{_side}Foot", (10 * _x, 2, 12))})
+    _chains = (("Spine", "Shoulder", 5, 145, 0), ("Shoulder", "Arm", 18, 145, 0), ("Arm", "ForeArm", 45, 145, 0),
+               ("ForeArm", "Hand", 70, 145, 0), ("Hips", "UpLeg", 10, 95, 0), ("UpLeg", "Leg", 10, 52, 0),
+               ("Leg", "Foot", 10, 9, 0), ("Foot", "ToeBase", 10, 2, 12))
+    for _parent, _part, _x0, _y, _z in _chains:
+        BODY[_side + _part] = (_parent if _parent in ("Spine", "Hips") else _side + _parent, (_x0 * _x, _y, _z))
 
 
 def mixamo_skeleton(facing: Rotation, seed: int = 1) -> Skeleton:
@@ -120,7 +121,8 @@ def test_knee_flexion_moves_the_ankle_behind_the_knee(name, skel, left, forward)
         shin = P[f, ankle] - P[f, knee]
         assert (shin @ forward < 0).all() and ((P[f, ankle] - P0[ankle]) @ forward < 0).all()
         shin0 = P0[ankle] - P0[knee]
-        bend = np.degrees(np.arccos(np.clip(shin @ shin0 / np.linalg.norm(shin, axis=1) / np.linalg.norm(shin0), -1, 1)))
+        cos = shin @ shin0 / np.linalg.norm(shin, axis=1) / np.linalg.norm(shin0)
+        bend = np.degrees(np.arccos(np.clip(cos, -1, 1)))
         assert np.allclose(bend, FLEXION, atol=1e-6)        # a hinge perpendicular to the shin
         assert np.allclose(P[f, hip], P0[hip]) and np.allclose(P[f, knee], P0[knee])
 
