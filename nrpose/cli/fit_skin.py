@@ -20,7 +20,7 @@ from ..io import load_character
 from ..io.files import atomic_path
 from ..io.poses import load_pose
 from ..model.character import Character
-from ..model.skeleton import LocalPose
+from ..model.skeleton import LocalPose, concat_poses
 from ..model.timing import sample_times
 from ..pose.poser import WEIGHTS, CharacterPoser
 from .common import check_outputs
@@ -31,7 +31,7 @@ INFLUENCES = (4, 8)
 BAKE_BYTES = 12      # morph-target bake: one float32 xyz per vertex per frame
 BAKE_SECONDS, BAKE_FPS = 10.0, 30.0
 MAX_VERTEX_FRAMES = 40_000_000   # poses x vertices held at once (targets and fitted, ~1.5 GB)
-MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (Mannequin trains on 911)
+MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (Mannequin trains on 1,159)
 
 
 def add_parser(sub) -> None:
@@ -49,7 +49,8 @@ def add_parser(sub) -> None:
     p.add_argument("--export", nargs="+", default=[], metavar="BVH|GLB",
                    help="BVH/glTF motions added to the output as animations (the source's clips are kept)")
     p.add_argument("--rom-degrees", type=float, default=ROM_DEGREES,
-                   help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}; 0: none)")
+                   help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}); a humanoid "
+                        "also gets anatomical poses (0: no range of motion at all)")
     p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation")
     p.add_argument("--influences", type=int, default=4, help="joints per vertex: 4 or 8 (default 4)")
     p.add_argument("--helpers", type=int, default=0,
@@ -86,10 +87,6 @@ def motion(character, spec: str, fps: float, pose_ok: bool = True):
     return spec, clip.sample(sample_times(clip.duration, fps)), clip
 
 
-def concat(poses) -> LocalPose:
-    return LocalPose(*(np.concatenate([getattr(p, k) for p in poses]) for k in ("translation", "rotation", "scale")))
-
-
 def run(args) -> None:
     if args.influences not in INFLUENCES:
         raise NrposeError(f"--influences {args.influences}: expected 4 or 8")
@@ -113,12 +110,12 @@ def run(args) -> None:
     train = [motion(character, s, args.fps) for s in args.train]
     holdout = [motion(character, s, args.fps, pose_ok=False) for s in args.holdout]
     export = [motion(character, s, args.fps, pose_ok=False) for s in args.export]
-    local = concat([m[1] for m in train])
+    local = concat_poses([m[1] for m in train])
     rom_frames = 0
     if args.rom_degrees > 0:
         rom = range_of_motion(character.skeleton, args.rom_degrees)
         rom_frames = len(rom.rotation)
-        local = concat([local, rom])
+        local = concat_poses([local, rom])
     V = sum(len(m.vertices) for m in character.meshes)
     new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
     written = tuple(character.clips) + tuple(new_clips)     # the file's animations

@@ -1,6 +1,7 @@
-"""Range-of-motion training poses: every joint swept about its local axes, and parent-child pairs.
+"""Range-of-motion training poses: every joint swept about its local axes, parent-child pairs, and
+a humanoid's anatomical bends.
 
-The set (:func:`range_of_motion`), for a skeleton of J joints, holds
+The axis sweeps (:func:`axis_sweeps`), for a skeleton of J joints, hold
 
 * per joint and per local axis x, y, z: the joint alone rotated by ``±degrees`` and
   ``±degrees / 2`` on top of its rest rotation (12 poses per joint);
@@ -8,6 +9,10 @@ The set (:func:`range_of_motion`), for a skeleton of J joints, holds
   about a random axis by a random angle in ``[-degrees, degrees]`` (seeded, reproducible).
 
 Translations and scales stay at rest. So ``12 J + pairs * (joints with a parent)`` poses.
+:func:`range_of_motion` is the axis sweeps followed by the anatomical poses of
+:mod:`nrpose.fit.anatomy` (knees and elbows bent to 150°, arms raised, lowered and twisted, hips
+flexed and spread; none for a skeleton without humanoid limbs recognised by name, whose set is
+the axis sweeps alone).
 """
 from __future__ import annotations
 
@@ -15,9 +20,10 @@ import numpy as np
 
 from ..errors import InputError
 from ..model.rotation import Rotation
-from ..model.skeleton import LocalPose, Skeleton
+from ..model.skeleton import LocalPose, Skeleton, concat_poses
+from .anatomy import anatomical_poses
 
-__all__ = ["range_of_motion", "ROM_DEGREES", "ROM_PAIRS"]
+__all__ = ["range_of_motion", "axis_sweeps", "ROM_DEGREES", "ROM_PAIRS"]
 
 ROM_DEGREES = 60.0   # sweep limit about each local axis
 ROM_PAIRS = 2        # random parent-child combinations per joint
@@ -25,7 +31,16 @@ ROM_PAIRS = 2        # random parent-child combinations per joint
 
 def range_of_motion(skeleton: Skeleton, degrees: float = ROM_DEGREES, pairs: int = ROM_PAIRS,
                     seed: int = 0) -> LocalPose:
-    """The range-of-motion poses of the module docstring as a LocalPose (F, J, ...) float64."""
+    """:func:`axis_sweeps` then :func:`nrpose.fit.anatomy.anatomical_poses`, a LocalPose (F, J, ...) float64
+    (the axis sweeps themselves for a skeleton without recognised humanoid limbs)."""
+    sweeps, anatomical = axis_sweeps(skeleton, degrees, pairs, seed), anatomical_poses(skeleton)
+    return concat_poses([sweeps, anatomical]) if len(anatomical.rotation) else sweeps
+
+
+def axis_sweeps(skeleton: Skeleton, degrees: float = ROM_DEGREES, pairs: int = ROM_PAIRS,
+                seed: int = 0) -> LocalPose:
+    """The single-joint sweeps and parent-child pairs of the module docstring as a LocalPose (F, J, ...)
+    float64."""
     if not (np.isfinite(degrees) and 0 < degrees <= 180):
         raise InputError(f"degrees must be in (0, 180], got {degrees}")
     if pairs < 0:

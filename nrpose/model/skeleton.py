@@ -50,7 +50,7 @@ import numpy as np
 from ..errors import InputError
 from .rotation import quat_matrices, unit_quaternions
 
-__all__ = ["LocalPose", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components",
+__all__ = ["LocalPose", "concat_poses", "Skeleton", "Bones", "local_matrices", "polar_rotation", "polar_components",
            "det_components"]
 
 #: relative length below which a bone is considered degenerate
@@ -71,6 +71,11 @@ class LocalPose:
     translation: np.ndarray
     rotation: np.ndarray
     scale: np.ndarray
+
+
+def concat_poses(poses) -> LocalPose:
+    """The frames of LocalPoses (F_i, J, ...) one after another, a LocalPose (sum F_i, J, ...)."""
+    return LocalPose(*(np.concatenate([getattr(p, k) for p in poses]) for k in ("translation", "rotation", "scale")))
 
 
 def local_matrices(translation: np.ndarray, rotation: np.ndarray, scale: np.ndarray) -> np.ndarray:
