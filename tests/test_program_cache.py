@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from conftest import FOX
+from nrpose.device.programs import PROGRAM_CACHE_FOLDER
 
 pytest.importorskip("pyopencl")
 
@@ -71,7 +72,7 @@ def test_build_flags_of_the_environment_bypass_the_binaries(tmp_path):
     for variable in ("PYOPENCL_BUILD_OPTIONS", "POCL_EXTRA_BUILD_FLAGS"):
         got = run(tmp_path, "build", **{variable: "-w"})
         assert got["source_chars"] > 1000 and not got["entry"]
-        assert not (tmp_path / "nrpose").exists()
+        assert not (tmp_path / "nrpose" / PROGRAM_CACHE_FOLDER).exists()
 
 
 def test_an_unwritable_cache_costs_the_binaries_quietly(tmp_path):

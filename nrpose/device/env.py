@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import platform
 
 from ..errors import DeviceError
 from .policy import standing_workers_possible
@@ -247,7 +248,6 @@ def remembered_refusal(ctx) -> str | None:
     import hashlib
 
     from ..bind.cache import cache_dir
-    from .programs import host_cpu
 
     dev = ctx.devices[0]
     facts = "\0".join([dev.platform.name, dev.platform.version, dev.name, dev.driver_version, host_cpu()])
@@ -265,6 +265,21 @@ def remembered_refusal(ctx) -> str | None:
     except OSError:
         pass
     return reason
+
+
+@functools.lru_cache(maxsize=None)
+def host_cpu() -> str:
+    """The first CPU's ``model name`` and ``flags`` lines of /proc/cpuinfo (Linux), else the
+    platform module's machine and processor names."""
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
+            first = f.read(1 << 16).split("\n\n", 1)[0]
+        lines = [line for line in first.splitlines() if line.split(":")[0].strip() in ("model name", "flags")]
+        if lines:
+            return "\n".join(lines)
+    except OSError:
+        pass
+    return f"{platform.machine()} {platform.processor()}"
 
 
 def cpu_unknown_hint(ctx, build_log: str) -> str | None:

@@ -10,7 +10,6 @@ from __future__ import annotations
 import concurrent.futures
 import functools
 import os
-import platform
 import re
 import threading
 from importlib import resources
@@ -18,7 +17,7 @@ from importlib import resources
 import numpy as np
 
 from ..errors import DeviceError
-from .env import context, cpu_unknown_hint, plain_opencl, pocl_cpu_context, pyopencl, worker_device
+from .env import context, cpu_unknown_hint, host_cpu, plain_opencl, pocl_cpu_context, pyopencl, worker_device
 from .policy import LAUNCH_LOCK, stop_standing
 
 _INCLUDE = re.compile(r'\s*#include\s+"([\w.]+\.h)"')
@@ -211,21 +210,6 @@ def program_key_parts(ctx, source: str, options: tuple[str, ...]) -> dict | None
             "pyopencl": pyopencl().VERSION_TEXT,
             "devices": [[d.platform.name, d.platform.version, d.name, d.version, d.driver_version]
                         for d in ctx.devices], "cpu": host_cpu()}
-
-
-@functools.lru_cache(maxsize=None)
-def host_cpu() -> str:
-    """The first CPU's ``model name`` and ``flags`` lines of /proc/cpuinfo (Linux), else the
-    platform module's machine and processor names."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as f:
-            first = f.read(1 << 16).split("\n\n", 1)[0]
-        lines = [line for line in first.splitlines() if line.split(":")[0].strip() in ("model name", "flags")]
-        if lines:
-            return "\n".join(lines)
-    except OSError:
-        pass
-    return f"{platform.machine()} {platform.processor()}"
 
 
 def _source_build(ctx, name: str, source: str, options: tuple[str, ...]):
