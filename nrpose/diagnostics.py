@@ -162,5 +162,6 @@ def pypi_pocl_refusal() -> str | None:
     env.pop("PYOPENCL_CTX", None)
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     if proc.returncode != 0:
-        return f"PyPI's PoCL does not start: {proc.stderr.strip().splitlines()[-1:] or proc.returncode}"
+        last = proc.stderr.strip().splitlines()[-1:]
+        return f"PyPI's PoCL does not start: {last[0] if last else f'exit status {proc.returncode}'}"
     return proc.stdout.strip() or None

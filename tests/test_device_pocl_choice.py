@@ -12,6 +12,7 @@ import subprocess
 import sys
 from types import SimpleNamespace
 
+import numpy as np
 import pytest
 
 import gltf_asset
@@ -88,7 +89,7 @@ def test_the_verdicts_are_remembered(fake, tmp_path):
     again = fake(builds)            # a later process: no probe build, the same choice
     assert env._new_context(again).devices[0].platform.version == "PoCL 3.1+debian  LLVM 15"
     assert len(first.built) == 2 and again.built == []
-    verdicts = sorted(p.read_text() for p in (tmp_path / "cache" / "opencl-compilers").iterdir())
+    verdicts = sorted(str(np.load(p)["refusal"]) for p in (tmp_path / "cache" / "opencl-compilers").iterdir())
     assert verdicts[0] == "" and "cannot compile for this CPU" in verdicts[1]
 
 

@@ -242,28 +242,22 @@ def compiler_refusal(ctx) -> str | None:
 
 def remembered_refusal(ctx) -> str | None:
     """:func:`compiler_refusal` of the cl.Context ``ctx``, probed once per platform, device
-    and CPU and remembered in the binding cache's folder (``opencl-compilers/``, a text file
-    per verdict, empty where the compiler builds): the probe costs 20-40 ms a process with
-    Debian's PoCL. An unwritable cache only means probing again."""
-    import hashlib
+    and CPU and remembered in the binding cache (:mod:`nrpose.bind.cache`, folder
+    ``opencl-compilers/``; ``refusal`` empty where the compiler builds): the probe costs
+    20-40 ms a process with Debian's PoCL. An unwritable cache only means probing again."""
+    import numpy as np
 
-    from ..bind.cache import cache_dir
+    from ..bind.cache import cache_dir, lookup, store
 
     dev = ctx.devices[0]
-    facts = "\0".join([dev.platform.name, dev.platform.version, dev.name, dev.driver_version, host_cpu()])
-    path = cache_dir() / "opencl-compilers" / f"{hashlib.sha256(facts.encode()).hexdigest()}.txt"
-    try:
-        return path.read_text(encoding="utf-8") or None
-    except (OSError, UnicodeDecodeError):
-        pass
+    parts = {"kind": "opencl compiler verdict", "cpu": host_cpu(),
+             "device": [dev.platform.name, dev.platform.version, dev.name, dev.driver_version]}
+    folder = cache_dir() / "opencl-compilers"
+    known = lookup(parts, folder)
+    if known is not None:
+        return str(known["refusal"]) or None
     reason = compiler_refusal(ctx)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial = path.with_name(f"{path.name}.{os.getpid()}.tmp")
-        partial.write_text(reason or "", encoding="utf-8")
-        os.replace(partial, path)
-    except OSError:
-        pass
+    store(parts, {"refusal": np.array(reason or "")}, folder, quiet=True)
     return reason
 
 
