@@ -136,7 +136,8 @@ def run(args) -> None:
     allowed = [None if p is None else p[3] for p in places]
     fitted = fit_character(character, G, targets, args.influences, allowed)
     base_seconds = fitted.seconds
-    fitted, helper_log = add_helpers(character, fitted, G, local, targets, args.helpers, args.influences, allowed)
+    fitted, helper_log = add_helpers(character, fitted, G, local, targets, args.helpers, args.influences, allowed,
+                                     per_frame=args.helper_tracks == "fitted")
     fitted_tracks = args.helper_tracks == "fitted" and bool(fitted.helpers)
     if fitted_tracks:
         fitted = refit_with_tracks(character, fitted, G, local, targets, args.influences, allowed)

@@ -22,8 +22,10 @@ Directions come from the rest joint positions (world frame, :meth:`Skeleton.rest
   limb and to forward, in the sense that moves the hand forward (the forearm folds towards
   the shoulder) and the foot backward;
 * **wrist** (the hand joint): the hand turned ±``WRIST_SWING`` about the axis perpendicular to
-  the forearm and forward, and about the axis perpendicular to both, and twisted about the
-  forearm by ±``WRIST_TWIST``;
+  the forearm and forward, about the axis perpendicular to both and about their two
+  diagonals; about each of the first two also after a twist of ±``WRIST_SWING_TWIST`` about
+  the forearm (a captured hand turns about a skew axis: 131_03 turns one 113°); and twisted
+  about the forearm alone by ±``WRIST_TWIST``;
 * **hip** (the upper-leg joint): the rest thigh direction turned by abduction a about
   forward (positive: outward), then by flexion f about left (positive: knee forward), for
   ``HIP_FLEXION`` × ``HIP_ABDUCTION`` (f = −30: extension; a = −30: adduction), so that at
@@ -47,7 +49,7 @@ from ..model.skeleton import LocalPose, Skeleton, polar_rotation
 from ..pose.retarget import joint_slots
 
 __all__ = ["anatomical_poses", "body_axes", "humanoid_limbs", "LIMB_PARTS", "FLEXION", "ARM_ELEVATIONS",
-           "ARM_PLANES", "ARM_TWISTS", "MAX_ARM_SWING", "WRIST_SWING", "WRIST_TWIST", "HIP_FLEXION",
+           "ARM_PLANES", "ARM_TWISTS", "MAX_ARM_SWING", "WRIST_SWING", "WRIST_TWIST", "WRIST_SWING_TWIST", "HIP_FLEXION",
            "HIP_ABDUCTION", "HIP_TWISTS", "HIP_KNEE", "ARM_ELBOW"]
 
 LIMB_PARTS = {"arm": ("upperarm", "forearm", "hand"), "leg": ("upperleg", "lowerleg", "foot")}
@@ -56,7 +58,8 @@ ARM_ELEVATIONS = (0.0, 45.0, 90.0, 135.0, 165.0)        # from hanging down
 ARM_PLANES = (-90.0, -45.0, 0.0, 45.0, 90.0, 135.0)     # from lateral towards forward
 ARM_TWISTS = (-90.0, -45.0, 45.0, 90.0)                 # arm at or below horizontal
 MAX_ARM_SWING = 150.0                                   # from the rest arm direction
-WRIST_SWING, WRIST_TWIST = 100.0, 90.0
+WRIST_SWING, WRIST_TWIST = 120.0, 90.0
+WRIST_SWING_TWIST = 45.0                                # twist before a swing about a main axis
 HIP_FLEXION = (-30.0, 0.0, 30.0, 60.0, 90.0, 120.0)
 HIP_ABDUCTION = (-30.0, 0.0, 45.0)
 HIP_TWISTS = (-45.0, 45.0)                              # at flexion 0 and 90
@@ -145,7 +148,11 @@ def _arm_poses(P: np.ndarray, joints, lateral, up, forward) -> list[dict[int, Ro
     elbow = _toward(np.cross(fore, forward), fore, forward)
     poses += [{lower: _turn(elbow, f)} for f in FLEXION]
     across = _unit(np.cross(fore, forward))
-    poses += [{hand: _turn(s * axis, WRIST_SWING)} for axis in (across, np.cross(fore, across)) for s in (1, -1)]
+    side = _unit(np.cross(fore, across))
+    poses += [{hand: _turn(s * axis, WRIST_SWING)} for axis in (across, side, across + side, across - side)
+              for s in (1, -1)]
+    poses += [{hand: _turn(s * axis, WRIST_SWING) * _turn(fore, t * WRIST_SWING_TWIST)}
+              for axis in (across, side) for s in (1, -1) for t in (1, -1)]
     poses += [{hand: _turn(fore, s * WRIST_TWIST)} for s in (1, -1)]
     poses += [{upper: _swing(arm, pointing(e, h)), lower: _turn(elbow, f)} for e, h, f in ARM_ELBOW]
     return poses

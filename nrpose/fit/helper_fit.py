@@ -25,6 +25,12 @@
    transforms, the ones the file plays).
 4. A helper that no region vertex uses (all its weights 0) or that does not lower the region's
    RMS residual is dropped; its region's vertices do not seed again.
+
+With ``per_frame`` (``--helper-tracks fitted``, where the file plays per-frame helper tracks,
+:mod:`nrpose.fit.helper_tracks`) the helpers move in steps 2 to 4, and in the residuals that
+seed the next one, by their per-frame rigid transforms instead of the rule: a region the rule
+cannot serve but tracks can (an upper arm's swing) then takes one helper, not many, and the
+next helpers go where the played file is still furthest from NR-MLS (the knees, the wrists).
 """
 from __future__ import annotations
 
@@ -37,7 +43,7 @@ from ..errors import InputError
 from ..model.character import Character
 from ..model.skeleton import LocalPose
 from .character_skin import FittedSkin, character_height, mesh_space, skin_matrices
-from .helper_joints import HelperJoint, driver_features, fit_rule, rigid_fit
+from .helper_joints import HelperJoint, driver_features, fit_rule, rigid_fit, rule_locals
 from .skin_weights import candidate_joints, fit_weights, skin_positions
 
 __all__ = ["add_helpers", "residuals", "REGION_RADIUS", "REGION_RESIDUAL", "ROUNDS"]
@@ -67,12 +73,13 @@ def drivers_of(character: Character, p: int, allowed: np.ndarray) -> tuple:
 
 
 def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: LocalPose, targets: np.ndarray,
-                count: int, influences: int, allowed=None) -> tuple[FittedSkin, list]:
+                count: int, influences: int, allowed=None, per_frame: bool = False) -> tuple[FittedSkin, list]:
     """``fitted`` with up to ``count`` helper joints; and per helper tried a dict (parent, drivers,
     mesh, seed vertex, region vertices, region RMS before/after, kept).
 
     G (F, J, 4, 4) global matrices of the training poses pose (F, J, ...); targets (F, V, 3)
-    their NR-MLS positions (all meshes in file order); allowed: per mesh (J,) bool or None.
+    their NR-MLS positions (all meshes in file order); allowed: per mesh (J,) bool or None;
+    per_frame: the helpers move by per-frame transforms, not their rules (module docstring).
     """
     if count < 0:
         raise InputError(f"helper count must be >= 0, got {count}")
@@ -90,13 +97,18 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
     used = [np.zeros(len(m.vertices), bool) for m in character.meshes]    # seeds and dropped regions
     peak, meansq = [], []    # per mesh, per vertex (updated in each new region): see residuals()
     current = FittedSkin(tuple(joints), tuple(weights), 0.0, tuple(helpers))
+    # per_frame: helpers move by per-frame transforms (their tracks), as --helper-tracks fitted plays them
+    moves = list(rule_locals(helpers, skeleton, pose).transpose(1, 0, 2, 3)) if per_frame else []
+
+    def tracks_with(extra=()):
+        return np.stack(moves + list(extra), axis=1) if per_frame and (moves or extra) else None
     for i, m in enumerate(character.meshes):
         if joints[i] is None:
             peak.append(None)
             meansq.append(None)
             continue
         source, _ = mesh_space(character, m)
-        pos = skin_positions(source, skin_matrices(character, m, current, G, pose), joints[i], weights[i])
+        pos = skin_positions(source, skin_matrices(character, m, current, G, pose, tracks_with()), joints[i], weights[i])
         r, ms = residuals(pos, targets[:, starts[i]:starts[i + 1]])
         peak.append(r)
         meansq.append(ms)
@@ -145,7 +157,8 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
             coef = fit_rule(phi, L)
             helper = HelperJoint(p, drivers, centre, coef)
             trial = FittedSkin(tuple(joints), tuple(weights), 0.0, tuple(helpers) + (helper,))
-            mats = skin_matrices(character, m, trial, G, pose)
+            used_L = L
+            mats = skin_matrices(character, m, trial, G, pose, tracks_with([L]))
             rj, rw = fit_weights(source[region], mats, y, cand, influences)
             trial_j[region], trial_w[region] = rj, rw
             beta = np.where(rj == J + h, rw, 0).sum(axis=1)
@@ -165,6 +178,7 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
                     "region_rms_after": after, "kept": bool(kept)})
         if kept:
             helpers.append(helper)
+            moves.append(used_L)
             joints[i], weights[i] = trial_j, trial_w
             peak[i][region], meansq[i][region] = residuals(after_pos, y)
         else:

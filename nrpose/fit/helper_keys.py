@@ -6,20 +6,20 @@ most of those keys are redundant: between two keys a player interpolates, glTF's
 the quaternion's components lerped and normalised (nlerp). :func:`reduce_keys` keeps
 the first and last frames and refines greedily (each round, in every stretch between kept
 keys, the frame furthest off) until at every frame *both* interpolations are within the
-tolerance of the helper's transform, measured as the displacement of the farthest vertex
-the helper moves:
+tolerance of the helper's transform, measured as the most it displaces a vertex it moves:
 
-    e_f = s_f (|dt_f| + r * 2 sin(theta_f / 2))
+    e_f = s_f (w |dt_f| + m * 2 sin(theta_f / 2))
 
-with s_f the largest singular value of the helper's parent's global matrix at frame f, r
-the largest distance from the helper's centre of a vertex weighted to it (in the parent's
-bind frame), dt_f the translation error and theta_f the angle between
-the interpolated and exact rotations: a bound on every vertex's error, its helper weight
-being at most 1. Interpolating two keys whose quaternions lie in opposite hemispheres, nlerp
+with s_f the largest singular value of the helper's parent's global matrix at frame f, w the
+largest weight a vertex gives the helper, m the largest product of a vertex's weight on it
+and its distance from the helper's centre (in the parent's bind frame), dt_f the
+translation error and theta_f the angle between the interpolated and exact rotations: a
+bound on the helper's share ``w_n |dR z_n + dt|`` of every vertex's error (a vertex with a
+small weight on a helper is moved little by its keys). Interpolating two keys whose quaternions lie in opposite hemispheres, nlerp
 turns the long way round, so such a gap is refined like any other. Rotations are stored as
 normalised int16 (:func:`stored_quats`, glTF's core format; each component within 1/65534):
 the interpolation starts from the stored keys, so their rounding is inside the check
-(a key itself is off by its rounding only, under 6.1e-5 r).
+(a key itself is off by its rounding only, under 6.1e-5 m).
 """
 from __future__ import annotations
 
@@ -33,9 +33,9 @@ __all__ = ["KEY_TOLERANCE", "helper_trs", "stored_quats", "reduce_keys", "helper
 
 QUAT_SCALE = 32767      # rotations stored as normalised int16: k means k / 32767
 
-#: default key tolerance, a fraction of the character's height (10x under the fit's held-out RMS
-#: target of 0.2 %, 50x under its max target of 1 %)
-KEY_TOLERANCE = 2e-4
+#: default key tolerance, a fraction of the character's height (4x under the fit's held-out RMS
+#: target of 0.2 %, 20x under its max target of 1 %)
+KEY_TOLERANCE = 5e-4
 
 
 def helper_trs(L: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -51,22 +51,25 @@ def stored_quats(q: np.ndarray) -> np.ndarray:
     return np.rint(np.asarray(q) * QUAT_SCALE).astype(np.int16)
 
 
-def _radii(character: Character, fitted: FittedSkin) -> np.ndarray:
-    """(H,) float64: per helper of ``fitted`` the largest distance from its centre, in its parent's
-    bind frame, of a vertex with weight on it (0 for a helper no vertex uses)."""
+def _reach(character: Character, fitted: FittedSkin) -> tuple[np.ndarray, np.ndarray]:
+    """Per helper of ``fitted``: the largest weight a vertex gives it, and the largest product of
+    a vertex's weight on it and its distance from the helper's centre in the parent's bind frame
+    ((H,) float64 each; 0 for a helper no vertex uses)."""
     J = character.skeleton.num_joints
-    radii = np.zeros(len(fitted.helpers))
+    weight, reach = np.zeros(len(fitted.helpers)), np.zeros(len(fitted.helpers))
     for mesh, joints, weights in zip(character.meshes, fitted.joints, fitted.weights):
         if joints is None:
             continue
         source, ibm = mesh_space(character, mesh)
         b = np.c_[source, np.ones(len(source))]
         for h, helper in enumerate(fitted.helpers):
-            used = ((joints == J + h) & (weights > 0)).any(axis=1)
+            w = np.where(joints == J + h, weights, 0.0).sum(axis=1)
+            used = w > 0
             if used.any():
                 z = (b[used] @ ibm[helper.parent].T)[:, :3] - helper.centre
-                radii[h] = max(radii[h], float(np.linalg.norm(z, axis=1).max()))
-    return radii
+                weight[h] = max(weight[h], float(w[used].max()))
+                reach[h] = max(reach[h], float((w[used] * np.linalg.norm(z, axis=1)).max()))
+    return weight, reach
 
 
 def _parent_scales(G: np.ndarray, fitted: FittedSkin) -> np.ndarray:
@@ -80,8 +83,10 @@ def reduce_keys(times: np.ndarray, t: np.ndarray, q: np.ndarray, scale: np.ndarr
                 tolerance: float) -> np.ndarray:
     """Frames kept (K,) int64, increasing, the first and last among them, of one helper's
     channels: times (F,) seconds, translations t (F, 3), unit quaternions q (F, 4) as
-    :func:`helper_trs`, parent scales (F,), radius (model units of the parent's bind frame) as
-    :func:`_radii`; tolerance in model units (module docstring; <= 0 keeps every frame)."""
+    :func:`helper_trs`; scale (F,) the parent's scale times w and radius m / w (model units of
+    the parent's bind frame; w, m of :func:`_reach`), so that the error is
+    ``scale (|dt| + radius * chord)``; tolerance in model units (module docstring; <= 0 keeps
+    every frame)."""
     F = len(times)
     if tolerance <= 0 or F <= 2:
         return np.arange(F)
@@ -129,12 +134,13 @@ def helper_keys(character: Character, fitted: FittedSkin, G: np.ndarray, local: 
     at ``times`` (lerp, slerp).
     """
     played = np.array(local, dtype=np.float64, copy=True)
-    scales, radii = _parent_scales(G, fitted), _radii(character, fitted)
+    weight, reach = _reach(character, fitted)
+    scales = _parent_scales(G, fitted) * weight
     absolute = tolerance * character_height(character)
     kept = []
     for h in range(local.shape[1]):
         t, q = helper_trs(local[:, h])
-        keys = reduce_keys(times, t, q, scales[:, h], float(radii[h]), absolute)
+        keys = reduce_keys(times, t, q, scales[:, h], float(reach[h] / max(weight[h], 1e-300)), absolute)
         kept.append(keys)
         if len(times) >= 2:
             lerp, slerp, _ = _played(times, t, q, keys)
