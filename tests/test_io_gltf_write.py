@@ -1,4 +1,7 @@
 """Baked morph-target animations written as .glb."""
+import json
+import re
+
 import numpy as np
 import pygltflib
 import pytest
@@ -44,7 +47,9 @@ def test_round_trip(tmp_path):
         prim = gltf.meshes[k].primitives[0]
         base = accessor(gltf, blob, prim.attributes.POSITION)
         acc = gltf.accessors[prim.attributes.POSITION]
-        assert np.allclose(acc.min, base.min(axis=0)) and np.allclose(acc.max, base.max(axis=0))
+        # the bounds read as float32 are the data's own, written in at most 9 significant digits
+        assert np.array_equal(np.float32(acc.min), base.min(axis=0)) and np.array_equal(np.float32(acc.max),
+                                                                                      base.max(axis=0))
         faces = accessor(gltf, blob, prim.indices).reshape(-1, 3)
         assert np.array_equal(faces, m.faces)
         assert len(prim.targets) == frames
@@ -64,6 +69,12 @@ def test_round_trip(tmp_path):
     assert np.allclose(times, T) and gltf.accessors[sampler.input].min == [0.0]
     weights = accessor(gltf, blob, sampler.output).reshape(frames, frames)
     assert np.array_equal(weights, np.eye(frames))            # one-hot at each key time
+    text = out.read_bytes()[20:20 + int.from_bytes(out.read_bytes()[12:16], "little")].decode()
+    doc = json.loads(text)
+    # glTF's defaults (LINEAR, an accessor at its view's start, not normalised) unwritten; no float64 digits
+    assert '"LINEAR"' not in text and '"normalized":false' not in text
+    assert all(a.get("byteOffset", 1) != 0 for a in doc["accessors"]), doc["accessors"]
+    assert not re.search(r"\d\.\d{10,}", text), re.findall(r"[-\d.e]{14,}", text)[:5]
 
 
 def test_humanoid_frames(tmp_path):

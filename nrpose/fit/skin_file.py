@@ -23,7 +23,7 @@ import pygltflib
 from ..checks import within_float32
 from ..errors import InputError
 from ..io.gltf_read import clip_animations, joint_nodes, node_globals, read_document
-from ..io.gltf_write import Blob, add_clip, check_copyable, copy_document, save_glb
+from ..io.gltf_write import Blob, add_channel, add_clip, check_copyable, copy_document, json_float32, save_glb
 from ..model.character import Character
 from ..model.timing import sample_times
 from .character_skin import FittedSkin, mesh_space
@@ -180,7 +180,7 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
         while name in names:
             name, k = f"nrpose_helper_{h}_{k}", k + 1
         names.add(name)
-        gltf.nodes.append(pygltflib.Node(name=name, translation=t[0].tolist(), rotation=q[0].tolist()))
+        gltf.nodes.append(pygltflib.Node(name=name, translation=json_float32(t[0]), rotation=json_float32(q[0])))
         parent = gltf.nodes[int(nodes[helper.parent])]
         parent.children = list(parent.children or []) + [len(gltf.nodes) - 1]
         added.append(len(gltf.nodes) - 1)
@@ -225,6 +225,4 @@ def add_helper_channels(blob: Blob, animation, local: np.ndarray, helper_nodes, 
     index = blob.add_together(items)
     for node, (k, t, r) in zip(helper_nodes, slots):
         for path, output in (("translation", index[t]), ("rotation", index[r])):
-            animation.samplers.append(pygltflib.AnimationSampler(input=index[k], output=output, interpolation="LINEAR"))
-            animation.channels.append(pygltflib.AnimationChannel(
-                sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path=path)))
+            add_channel(animation, node, path, index[k], output)

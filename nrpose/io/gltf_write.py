@@ -87,7 +87,7 @@ from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 from .gltf_schema import MAX_ITEMS
 
 __all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
-           "save_glb", "add_clip", "BakeReport", "Blob",
+           "save_glb", "add_clip", "add_channel", "json_float32", "BakeReport", "Blob",
            "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
@@ -222,11 +222,12 @@ class Blob:
     def _accessor(self, view: int, offset: int, array, kind: str, component: int, normalized: bool,
                   minmax: bool) -> int:
         """Append the accessor of ``array`` at ``offset`` in buffer view ``view``; its index."""
-        acc = pygltflib.Accessor(bufferView=view, byteOffset=offset, componentType=component, count=len(array),
-                                 type=kind, normalized=normalized)
+        acc = pygltflib.Accessor(bufferView=view, byteOffset=offset or None, componentType=component,
+                                 count=len(array), type=kind, normalized=normalized or None)
         if minmax:
             low, high = column_bounds(np.asarray(array).reshape(len(array), -1))
-            acc.min, acc.max = [float(x) for x in low], [float(x) for x in high]
+            acc.min, acc.max = (json_float32(low), json_float32(high)) if component == _FLOAT else \
+                ([float(x) for x in low], [float(x) for x in high])
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
 
@@ -249,7 +250,7 @@ class Blob:
         view.byteStride, view.target, view.byteLength = None, target, data.nbytes
         self.replaced[acc.bufferView] = data.tobytes()
         self.gltf.accessors[accessor] = pygltflib.Accessor(bufferView=acc.bufferView, componentType=component,
-                                                           count=len(data), type=kind, normalized=normalized,
+                                                           count=len(data), type=kind, normalized=normalized or None,
                                                            name=acc.name, extras=acc.extras,
                                                            extensions=acc.extensions)
         return accessor
@@ -287,6 +288,23 @@ class Blob:
             acc.min, acc.max = [int(x) for x in low], [int(x) for x in high]
         self.gltf.accessors.append(acc)
         return len(self.gltf.accessors) - 1
+
+
+def json_float32(values) -> list[float]:
+    """values (any shape, finite reals) as a flat list of the shortest decimals that read back as
+    the same float32: glTF readers take JSON numbers as float32, and float64's 17 digits would
+    double the text of accessor bounds and node transforms."""
+    return [float(str(x)) for x in np.asarray(values, np.float32).reshape(-1)]
+
+
+def add_channel(animation: pygltflib.Animation, node: int, path: str, input: int, output: int,
+                interpolation: str = "LINEAR") -> None:
+    """Append a sampler (accessors ``input``, ``output``) and the channel driving ``path`` of node
+    ``node`` with it; LINEAR, glTF's default interpolation, is left unwritten."""
+    animation.samplers.append(pygltflib.AnimationSampler(
+        input=input, output=output, interpolation=None if interpolation == "LINEAR" else interpolation))
+    animation.channels.append(pygltflib.AnimationChannel(
+        sampler=len(animation.samplers) - 1, target=pygltflib.AnimationChannelTarget(node=node, path=path)))
 
 
 def _references(gltf: pygltflib.GLTF2) -> tuple[np.ndarray, np.ndarray]:
@@ -714,11 +732,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         key = keys.tobytes()
         if key not in outputs:
             outputs[key] = blob.add(keys.reshape(-1), "SCALAR", _FLOAT)
-        animation.samplers.append(pygltflib.AnimationSampler(input=input_acc, output=outputs[key],
-                                                             interpolation="LINEAR"))
-        animation.channels.append(pygltflib.AnimationChannel(
-            sampler=len(animation.samplers) - 1,
-            target=pygltflib.AnimationChannelTarget(node=len(gltf.nodes) - 1, path="weights")))
+        add_channel(animation, len(gltf.nodes) - 1, "weights", input_acc, outputs[key])
     if report.quantized_frames:
         for field in ("extensionsUsed", "extensionsRequired"):
             names = list(getattr(gltf, field) or [])
@@ -784,11 +798,7 @@ def add_clip(gltf: pygltflib.GLTF2, blob: Blob, nodes, skeleton, clip) -> str:
             inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)
         output = blob.add(track.values.astype(np.float32),
                           {"rotation": "VEC4", "translation": "VEC3", "scale": "VEC3"}[track.path])
-        animation.samplers.append(pygltflib.AnimationSampler(input=inputs[key], output=output,
-                                                             interpolation=track.interpolation))
-        animation.channels.append(pygltflib.AnimationChannel(
-            sampler=len(animation.samplers) - 1,
-            target=pygltflib.AnimationChannelTarget(node=int(nodes[track.joint]), path=track.path)))
+        add_channel(animation, int(nodes[track.joint]), track.path, inputs[key], output, track.interpolation)
     gltf.animations = list(gltf.animations or []) + [animation]
     return name
 
