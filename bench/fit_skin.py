@@ -3,7 +3,8 @@
 Cases (issue 35's targets): Fox trained on Walk + Survey, Run held out; Mannequin and Ely
 trained on their own clip + the range of motion, CMU 131_03 retargeted onto them
 (``nrpose retarget``, in a temporary folder) held out. Each case is fitted with the given
-influences (default 4), helper-joint counts (default 0, 8, 16) and ``--helper-tracks`` modes
+influences (default 4), helper-joint counts (default 0, 8, 16; per character with
+``--helpers NAME=N``) and ``--helper-tracks`` modes
 (``--tracks``, default rule); the held-out motion is also exported into the file
 (``--export``), so the file size includes it. Output: the reports of ``nrpose fit-skin
 --report`` in one JSON (``results/fit_skin.json``), a table on stdout (RMS / max as % of the
@@ -86,7 +87,8 @@ def main(argv=None) -> int:
     ap.add_argument("--data", default=str(table1.DEFAULT_DATA), help="shared data folder (gltf/, bvh/)")
     ap.add_argument("--json", default=str(pathlib.Path(__file__).with_name("results") / "fit_skin.json"))
     ap.add_argument("--influences", type=int, nargs="+", default=[4], choices=(4, 8))
-    ap.add_argument("--helpers", type=int, nargs="+", default=[0, 8, 16])
+    ap.add_argument("--helpers", nargs="+", default=["0", "8", "16"],
+                    help="helper counts: N for every character, NAME=N for one (Fox=44 Ely=64)")
     ap.add_argument("--tracks", nargs="+", default=["rule"], choices=("rule", "fitted"),
                     help="fit-skin --helper-tracks modes to run (default rule)")
     ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES], help="characters to run (default all)")
@@ -95,12 +97,21 @@ def main(argv=None) -> int:
     if not (data / "gltf").is_dir():
         print(f"bench/fit_skin.py: error: no gltf/ folder in {data}", file=sys.stderr)
         return 2
+    counts = {name: [] for name, *_ in CASES}
+    for item in a.helpers:
+        name, _, n = item.rpartition("=")
+        if not n.isdigit() or (name and name not in counts):
+            print(f"bench/fit_skin.py: error: --helpers {item}: expected N or NAME=N with NAME one of "
+                  f"{', '.join(counts)}", file=sys.stderr)
+            return 2
+        for key in [name] if name else counts:
+            counts[key].append(int(n))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name, train, holdout in CASES:
             if a.only and name not in a.only:
                 continue
-            for k, n, mode in [(k, n, m) for k in a.influences for n in a.helpers for m in a.tracks]:
+            for k, n, mode in [(k, n, m) for k in a.influences for n in counts[name] for m in a.tracks]:
                 r = run_case(data, pathlib.Path(tmp), name, train, holdout, k, n, mode)
                 for label, e in r["errors"].items():
                     rows.append({"character": name, "influences": k, "helpers": r["helpers"], "tracks": mode,
