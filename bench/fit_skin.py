@@ -11,7 +11,8 @@ influences (default 4), helper-joint counts (default 0, 8, 16; per character wit
 height), and per case a map of the held-out error (rule mode: 4-influence fits,
 ``results/fit_skin_<name>_h<N>.png``; fitted tracks: ``fit_skin_<name>_k<k>_h<N>_tracks.png``;
 per-vertex RMS over the held-out frames, colour scale 0 to 1 % of the height), evaluated by
-loading the written file (helpers move by the animation channels it holds).
+loading the written file (helpers move by the animation channels it holds). ``--curve PNG``
+plots the held-out errors and the size ratio against the helper count.
 """
 from __future__ import annotations
 
@@ -91,6 +92,7 @@ def main(argv=None) -> int:
                     help="helper counts: N for every character, NAME=N for one (Fox=44 Ely=64)")
     ap.add_argument("--tracks", nargs="+", default=["rule"], choices=("rule", "fitted"),
                     help="fit-skin --helper-tracks modes to run (default rule)")
+    ap.add_argument("--curve", help="also a PNG of held-out RMS / max and file size against the helper count")
     ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES], help="characters to run (default all)")
     a = ap.parse_args(argv)
     data = pathlib.Path(a.data)
@@ -127,7 +129,46 @@ def main(argv=None) -> int:
               f"{row['max_pct']:7.3f} {row['authored_rms_pct']:15.3f} {row['fit_seconds']:6.1f} "
               f"{row['file_bytes'] / row['bake_10s_bytes']:15.4f}")
     common.write_record({"created": common.now(), "environment": common.environment(), "rows": rows}, a.json)
+    if a.curve:
+        helper_curve(rows, pathlib.Path(a.curve))
     return 0
+
+
+def helper_curve(rows: list[dict], png: pathlib.Path) -> None:
+    """Per character and influence count: held-out RMS and max (% of the height, left) and the
+    file / 10 s bake ratio (right) against the helper count, with issue 35's targets dashed."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from nrpose.io.files import atomic_path
+    held = [r for r in rows if r["set"] == "held-out"]
+    groups = list(dict.fromkeys((r["character"], r["influences"], r["tracks"]) for r in held))
+    fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False)
+    for ax, (name, k, mode) in zip(axes[0], groups):
+        g = sorted((r for r in held if (r["character"], r["influences"], r["tracks"]) == (name, k, mode)),
+                   key=lambda r: r["helpers"])
+        n = [r["helpers"] for r in g]
+        ax.plot(n, [r["max_pct"] for r in g], "o-", color="#d62728", label="held-out max %")
+        ax.plot(n, [r["rms_pct"] for r in g], "o-", color="#1f77b4", label="held-out RMS %")
+        ax.axhline(1.0, ls="--", color="#d62728", lw=0.8)
+        ax.axhline(0.2, ls="--", color="#1f77b4", lw=0.8)
+        ax.set_yscale("log")
+        ax.set_xlabel("helper joints")
+        ax.set_ylabel("% of height")
+        size = ax.twinx()
+        size.plot(n, [r["file_bytes"] / r["bake_10s_bytes"] for r in g], "s:", color="#2ca02c",
+                  label="file / 10 s bake")
+        size.axhline(0.05, ls="--", color="#2ca02c", lw=0.8)
+        size.set_ylim(0, 1.25 * max([0.05] + [r["file_bytes"] / r["bake_10s_bytes"] for r in g]))
+        size.set_ylabel("file / 10 s morph-target bake")
+        ax.set_title(f"{name}, {k} influences, {mode} tracks (dashed: targets)", fontsize=9)
+        lines = ax.get_legend_handles_labels(), size.get_legend_handles_labels()
+        ax.legend(lines[0][0] + lines[1][0], lines[0][1] + lines[1][1], fontsize=8, loc="upper right")
+    fig.tight_layout()
+    with atomic_path(png) as tmp:
+        fig.savefig(tmp, format="png", dpi=90)
+    plt.close(fig)
 
 
 if __name__ == "__main__":

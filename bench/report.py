@@ -10,7 +10,8 @@ JSON holds; everything outside the markers is left alone.
 
 * ``<!-- results -->`` / ``<!-- /results -->``: the Table-1 document (bench/README.md);
 * ``<!-- suites-results -->``: every suite of the suites document (bench/README.md);
-* ``<!-- readme-results -->``: one summary table of the suites document (the user manual);
+* ``<!-- readme-results -->``: one summary table of the suites document (the user manual), with
+  the e2e and fit-skin documents' lines;
 * ``<!-- bounds -->``: what bounds each Table-1 row (docs/performance.md).
 
 Writes atomically; exits 2 with one line, writing nothing, on a missing or
@@ -159,9 +160,10 @@ def suites_block(doc: dict) -> str:
     return "\n".join(out)
 
 
-def manual_block(doc: dict, e2e: dict | None = None) -> str:
+def manual_block(doc: dict, e2e: dict | None = None, fit: dict | None = None) -> str:
     """Markdown for the user manual: one table of the suites document's Table-1 rows, its
-    characters' per-frame times and, given the e2e document, whole jobs against Blender."""
+    characters' per-frame times, given the e2e document whole jobs against Blender and, given
+    bench/fit_skin.py's document, the fitted skins' errors and sizes."""
     s = doc["suites"]
     env = doc.get("environment", {})
     roof = {f"{r['model']}/{r['kind']}": r for r in s.get("roofline", {}).get("rows", [])}
@@ -198,7 +200,23 @@ def manual_block(doc: dict, e2e: dict | None = None) -> str:
         glb = glb_jobs_line(e2e)
         if glb:
             out += ["", glb]
+    if fit:
+        out += ["", fit_skin_line(fit)]
     return "\n".join(out)
+
+
+def fit_skin_line(fit: dict) -> str:
+    """One sentence of bench/fit_skin.py's document: per character and helper count, the held-out
+    RMS / max (% of the height) and the file against a 10 s morph-target bake."""
+    cells = []
+    for r in fit["rows"]:
+        if r["set"] == "held-out":
+            cells.append(f"{r['character']} {r['helpers']} helpers {r['rms_pct']:.3f} / {r['max_pct']:.2f}, "
+                         f"{r['file_bytes'] / r['bake_10s_bytes']:.3f}")
+    k = sorted({r["influences"] for r in fit["rows"]})
+    return (f"NR-MLS exported as LBS (`nrpose fit-skin`, {'/'.join(map(str, k))} influences, "
+            f"`--helper-tracks fitted`; `bench/results/fit_skin_tracks.json` of {fit.get('created', '?')[:10]}): "
+            f"held-out RMS / max % of the height, file / 10 s morph-target bake: " + "; ".join(cells) + ".")
 
 
 def whole_jobs_line(e2e: dict) -> str:
@@ -287,6 +305,7 @@ def main(argv=None) -> int:
     ap.add_argument("--table1", default=str(HERE / "results" / "table1.json"))
     ap.add_argument("--suites", default=str(HERE / "results" / "suites.json"))
     ap.add_argument("--e2e", default=str(HERE / "results" / "e2e.json"))
+    ap.add_argument("--fit-skin", default=str(HERE / "results" / "fit_skin_tracks.json"))
     ap.add_argument("--readme", action="append",
                     help="a file to render into (repeatable; default: bench/README.md, README.md, "
                          "docs/performance.md)")
@@ -296,9 +315,10 @@ def main(argv=None) -> int:
     try:
         suites = json.loads(pathlib.Path(a.suites).read_text())
         e2e = json.loads(pathlib.Path(a.e2e).read_text()) if pathlib.Path(a.e2e).exists() else None
+        fit = json.loads(pathlib.Path(a.fit_skin).read_text()) if pathlib.Path(a.fit_skin).exists() else None
         blocks = {"results": lambda: table1_block(json.loads(pathlib.Path(a.table1).read_text())),
                   "suites-results": lambda: suites_block(suites),
-                  "readme-results": lambda: manual_block(suites, e2e),
+                  "readme-results": lambda: manual_block(suites, e2e, fit),
                   "bounds": lambda: bounds_block(suites)}
         rendered = []
         for path in paths:
