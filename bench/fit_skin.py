@@ -12,7 +12,7 @@ height), and per case a map of the held-out error (rule mode: 4-influence fits,
 ``results/fit_skin_<name>_h<N>.png``; fitted tracks: ``fit_skin_<name>_k<k>_h<N>_tracks.png``;
 per-vertex RMS over the held-out frames, colour scale 0 to 1 % of the height), evaluated by
 loading the written file (helpers move by the animation channels it holds). ``--curve PNG``
-plots the held-out errors and the size ratio against the helper count.
+plots the held-out errors and the size ratio against the helper count instead of the maps.
 """
 from __future__ import annotations
 
@@ -42,7 +42,7 @@ CASES = (("Fox", ["Walk", "Survey"], "Run"),
 
 
 def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: str, k: int, helpers: int,
-             tracks: str = "rule") -> dict:
+             tracks: str = "rule", maps: bool = True) -> dict:
     src = data / "gltf" / f"{name}.glb"
     if holdout == "131_03":
         motion = tmp / f"{name}_131_03.glb"
@@ -56,7 +56,7 @@ def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: s
                "--influences", str(k), "--helpers", str(helpers), "--helper-tracks", tracks,
                "-o", str(out), "--report", str(report)]):
         raise SystemExit(2)
-    if k == 4 or tracks == "fitted":
+    if maps and (k == 4 or tracks == "fitted"):
         png = f"fit_skin_{name}_h{helpers}.png" if tracks == "rule" else f"fit_skin_{name}_k{k}_h{helpers}_tracks.png"
         error_map(src, out, holdout, pathlib.Path(__file__).with_name("results") / png)
     return json.loads(report.read_text())
@@ -92,7 +92,7 @@ def main(argv=None) -> int:
                     help="helper counts: N for every character, NAME=N for one (Fox=44 Ely=64)")
     ap.add_argument("--tracks", nargs="+", default=["rule"], choices=("rule", "fitted"),
                     help="fit-skin --helper-tracks modes to run (default rule)")
-    ap.add_argument("--curve", help="also a PNG of held-out RMS / max and file size against the helper count")
+    ap.add_argument("--curve", help="a PNG of held-out RMS / max and file size against the helper count (no maps)")
     ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES], help="characters to run (default all)")
     a = ap.parse_args(argv)
     data = pathlib.Path(a.data)
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
             if a.only and name not in a.only:
                 continue
             for k, n, mode in [(k, n, m) for k in a.influences for n in counts[name] for m in a.tracks]:
-                r = run_case(data, pathlib.Path(tmp), name, train, holdout, k, n, mode)
+                r = run_case(data, pathlib.Path(tmp), name, train, holdout, k, n, mode, maps=not a.curve)
                 for label, e in r["errors"].items():
                     rows.append({"character": name, "influences": k, "helpers": r["helpers"], "tracks": mode,
                                  "set": "training" if label == "training" else "held-out",
