@@ -160,7 +160,8 @@ def suites_block(doc: dict) -> str:
     return "\n".join(out)
 
 
-def manual_block(doc: dict, e2e: dict | None = None, fit: dict | None = None) -> str:
+def manual_block(doc: dict, e2e: dict | None = None, fit: dict | None = None,
+                 fit_source: str = "bench/results/fit_skin_tracks.json") -> str:
     """Markdown for the user manual: one table of the suites document's Table-1 rows, its
     characters' per-frame times, given the e2e document whole jobs against Blender and, given
     bench/fit_skin.py's document, the fitted skins' errors and sizes."""
@@ -201,22 +202,19 @@ def manual_block(doc: dict, e2e: dict | None = None, fit: dict | None = None) ->
         if glb:
             out += ["", glb]
     if fit:
-        out += ["", fit_skin_line(fit)]
+        out += ["", fit_skin_line(fit, fit_source)]
     return "\n".join(out)
 
 
-def fit_skin_line(fit: dict) -> str:
-    """One sentence of bench/fit_skin.py's document: per character and helper count, the held-out
-    RMS / max (% of the height) and the file against a 10 s morph-target bake."""
-    cells = []
-    for r in fit["rows"]:
-        if r["set"] == "held-out":
-            cells.append(f"{r['character']} {r['helpers']} helpers {r['rms_pct']:.3f} / {r['max_pct']:.2f}, "
-                         f"{r['file_bytes'] / r['bake_10s_bytes']:.3f}")
-    k = sorted({r["influences"] for r in fit["rows"]})
-    return (f"NR-MLS exported as LBS (`nrpose fit-skin`, {'/'.join(map(str, k))} influences, "
-            f"`--helper-tracks fitted`; `bench/results/fit_skin_tracks.json` of {fit.get('created', '?')[:10]}): "
-            f"held-out RMS / max % of the height, file / 10 s morph-target bake: " + "; ".join(cells) + ".")
+def fit_skin_line(fit: dict, source: str = "bench/results/fit_skin_tracks.json") -> str:
+    """One sentence of bench/fit_skin.py's document (read from ``source``): per character, helper
+    count, influences and helper-track mode, the held-out RMS / max (% of the height) and the file
+    against a 10 s morph-target bake."""
+    cells = [f"{r['character']} {r['helpers']} helpers ({r['influences']} influences, {r['tracks']} tracks) "
+             f"{r['rms_pct']:.3f} / {r['max_pct']:.2f}, {r['file_bytes'] / r['bake_10s_bytes']:.3f}"
+             for r in fit["rows"] if r["set"] == "held-out"]
+    return (f"NR-MLS exported as LBS (`nrpose fit-skin`; `{source}` of {fit.get('created', '?')[:10]}): held-out "
+            f"RMS / max % of the height, file / 10 s morph-target bake: " + "; ".join(cells) + ".")
 
 
 def whole_jobs_line(e2e: dict) -> str:
@@ -292,6 +290,12 @@ def bounds_block(doc: dict) -> str:
                 "waiting for memory", "scattered stores", "pose wall outside the kernel", "bound"], rows)])
 
 
+def _shown(path: str) -> str:
+    """path relative to the checkout where it lies inside it (as the docs name files), else as given."""
+    p = pathlib.Path(path).resolve()
+    return str(p.relative_to(HERE.parent)) if p.is_relative_to(HERE.parent) else path
+
+
 def splice(text: str, tag: str, block: str) -> str:
     """text with the part between <!-- tag --> and <!-- /tag --> replaced by block."""
     pat = re.compile(rf"(<!-- {re.escape(tag)} -->\n).*?(\n<!-- /{re.escape(tag)} -->)", re.S)
@@ -318,7 +322,7 @@ def main(argv=None) -> int:
         fit = json.loads(pathlib.Path(a.fit_skin).read_text()) if pathlib.Path(a.fit_skin).exists() else None
         blocks = {"results": lambda: table1_block(json.loads(pathlib.Path(a.table1).read_text())),
                   "suites-results": lambda: suites_block(suites),
-                  "readme-results": lambda: manual_block(suites, e2e, fit),
+                  "readme-results": lambda: manual_block(suites, e2e, fit, _shown(a.fit_skin)),
                   "bounds": lambda: bounds_block(suites)}
         rendered = []
         for path in paths:

@@ -200,8 +200,9 @@ def test_report_fit_skin_line():
     row = {"character": "Fox", "influences": 8, "helpers": 44, "tracks": "fitted", "rms_pct": 0.0912,
            "max_pct": 0.941, "file_bytes": 300_000, "bake_10s_bytes": 6_000_000}
     doc = {"created": "2026-11-29T05:00:00", "rows": [dict(row, set="training", rms_pct=0.5), dict(row, set="held-out")]}
-    line = report.fit_skin_line(doc)
-    assert "Fox 44 helpers 0.091 / 0.94, 0.050" in line and "0.500" not in line and "2026-11-29" in line
+    line = report.fit_skin_line(doc, "some/fit.json")
+    assert "Fox 44 helpers (8 influences, fitted tracks) 0.091 / 0.94, 0.050" in line
+    assert "0.500" not in line and "2026-11-29" in line and "`some/fit.json`" in line
 
 
 def test_steal_percent_from_cpu_time_counters():

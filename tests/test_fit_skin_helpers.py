@@ -192,7 +192,7 @@ def test_a_region_vertex_the_helper_does_not_serve_seeds_the_next():
 def test_per_frame_placement_serves_a_motion_no_rule_follows():
     """A region slid by a random offset per pose (no function of the joints' rotations): placed
     with per-frame transforms (``--helper-tracks fitted``) one helper takes most of it; placed
-    with the rule the same helper cannot, and the residuals seeding the next differ."""
+    with the rule the same helper cannot."""
     fox, rom, G, targets, leg, _ = fox_lbs_case()
     rng = np.random.default_rng(5)
     targets[:, leg] += 0.02 * character_height(fox) * rng.normal(size=(len(targets), 1, 3))

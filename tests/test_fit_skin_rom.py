@@ -3,7 +3,8 @@ limbs, plus anatomical bends (knees, elbows, shoulders, hips, wrists) for a reco
 import numpy as np
 import pytest
 
-from nrpose.fit.anatomy import (ARM_ELEVATIONS, FLEXION, HIP_ABDUCTION, HIP_FLEXION, MAX_ARM_SWING,
+from nrpose.fit.anatomy import (ARM_ELEVATIONS, FLEXION, HIP_ABDUCTION, HIP_FLEXION, MAX_ARM_SWING, WRIST_SWING,
+                                WRIST_SWING_TWIST, WRIST_TWIST,
                                 anatomical_poses, body_axes, humanoid_limbs)
 from nrpose.fit.rom import axis_sweeps, range_of_motion
 from nrpose.model.rotation import Rotation
@@ -197,3 +198,31 @@ def test_shoulder_poses_lower_raise_and_twist_the_arm_within_the_limit(name, ske
         _, counts = np.unique(np.round(arm / np.linalg.norm(arm, axis=1, keepdims=True), 6), axis=0,
                               return_counts=True)
         assert counts.max() >= 5
+
+
+@pytest.mark.parametrize("name,skel,left,forward", CASES, ids=[c[0] for c in CASES])
+def test_wrist_poses_swing_about_four_axes_across_the_forearm_twist_and_combine(name, skel, left, forward):
+    """Hand-only poses per side: ±WRIST_SWING about 4 axes across the forearm (the main two and
+    their diagonals), the main two after a ±WRIST_SWING_TWIST twist, ±WRIST_TWIST about the
+    forearm; the hand turns in the world as stated (its rest global rotation to the posed one)."""
+    pose = anatomical_poses(skel)
+    G, G0 = skel.forward_kinematics(pose), skel.rest_globals()
+    lower = "ForeArm" if name == "mixamo" else "LowerArm"
+    for side in ("Left", "Right"):
+        hand, elbow = index(skel, side + "Hand"), index(skel, side + lower)
+        f = only(skel, pose, side + "Hand")
+        assert len(f) == 8 + 8 + 2
+        fore = (G0[hand, :3, 3] - G0[elbow, :3, 3]) / np.linalg.norm(G0[hand, :3, 3] - G0[elbow, :3, 3])
+        turns = Rotation.from_matrix(G[f, hand, :3, :3] / np.linalg.norm(G[f, hand, :3, 0], axis=-1)[:, None, None]
+                                     ) * Rotation.from_matrix(G0[hand, :3, :3] / np.linalg.norm(G0[hand, :3, 0])).inv()
+        vec = turns.as_rotvec()
+        angle, axis = np.degrees(np.linalg.norm(vec, axis=1)), vec / np.linalg.norm(vec, axis=1)[:, None]
+        swings = np.isclose(angle, WRIST_SWING, atol=1e-6) & (np.abs(axis @ fore) < 1e-6)
+        assert swings.sum() == 8
+        directions = {tuple(np.round(a * np.sign(a[np.argmax(np.abs(a))]), 6)) for a in axis[swings]}
+        assert len(directions) == 4                       # 4 axes, each both ways
+        twists = np.isclose(angle, WRIST_TWIST, atol=1e-6) & np.isclose(np.abs(axis @ fore), 1, atol=1e-6)
+        assert twists.sum() == 2
+        combined = 2 * np.degrees(np.arccos(np.cos(np.radians(WRIST_SWING / 2)) *
+                                            np.cos(np.radians(WRIST_SWING_TWIST / 2))))
+        assert np.isclose(angle[~swings & ~twists], combined, atol=1e-6).all()

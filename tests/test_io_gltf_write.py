@@ -8,7 +8,7 @@ import pytest
 
 from nrpose.model.character import Mesh
 from nrpose.errors import InputError
-from nrpose.io.gltf_write import write_animated_glb
+from nrpose.io.gltf_write import json_float32, write_animated_glb
 
 
 def accessor(gltf, blob, index):
@@ -74,7 +74,12 @@ def test_round_trip(tmp_path):
     # glTF's defaults (LINEAR, an accessor at its view's start, not normalised) unwritten; no float64 digits
     assert '"LINEAR"' not in text and '"normalized":false' not in text
     assert all(a.get("byteOffset", 1) != 0 for a in doc["accessors"]), doc["accessors"]
-    assert not re.search(r"\d\.\d{10,}", text), re.findall(r"[-\d.e]{14,}", text)[:5]
+    numbers = [float(x) for x in re.findall(r"-?\d+\.\d+(?:e[-+]?\d+)?", text)]
+    assert numbers and json_float32(numbers) == numbers       # each the shortest float32 decimal
+    with pytest.raises(InputError, match="NaN or infinite"):
+        json_float32([1.0, np.nan])
+    with pytest.raises(InputError, match="float32"):
+        json_float32([1e39])
 
 
 def test_humanoid_frames(tmp_path):

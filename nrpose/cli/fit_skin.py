@@ -60,8 +60,9 @@ def add_parser(sub) -> None:
                         "on the training poses; default) or 'fitted' (solved per frame against each written "
                         "clip's NR-MLS, weights fitted the same way; motions not written by nrpose get the rule)")
     p.add_argument("--key-tolerance", type=float, default=KEY_TOLERANCE,
-                   help=f"helper channels keep the keys a player needs to stay within this fraction of the "
-                        f"character's height at every frame (default {KEY_TOLERANCE:g}; 0: a key every frame)")
+                   help=f"helper channels keep the keys a player needs for each helper's share of a vertex's "
+                        f"position to stay within this fraction of the character's height at every frame "
+                        f"(default {KEY_TOLERANCE:g}; 0: a key every frame)")
     p.add_argument("-o", "--output", required=True, help="OUT.glb")
     p.add_argument("--report", help="R.json: errors vs NR-MLS, sizes, times")
     p.set_defaults(func=run, flags=FLAGS)

@@ -249,7 +249,8 @@ class Blob:
         view = self.gltf.bufferViews[acc.bufferView]
         view.byteStride, view.target, view.byteLength = None, target, data.nbytes
         self.replaced[acc.bufferView] = data.tobytes()
-        self.gltf.accessors[accessor] = pygltflib.Accessor(bufferView=acc.bufferView, componentType=component,
+        self.gltf.accessors[accessor] = pygltflib.Accessor(bufferView=acc.bufferView, byteOffset=None,
+                                                           componentType=component,
                                                            count=len(data), type=kind, normalized=normalized or None,
                                                            name=acc.name, extras=acc.extras,
                                                            extensions=acc.extensions)
@@ -281,7 +282,7 @@ class Blob:
         padded = np.zeros((n, 4), dtype)
         padded[:, :3] = values
         view = self.raw(padded.tobytes(), pygltflib.ARRAY_BUFFER, 4 * size)
-        acc = pygltflib.Accessor(bufferView=view, componentType=_SHORT if size == 2 else _BYTE,
+        acc = pygltflib.Accessor(bufferView=view, byteOffset=None, componentType=_SHORT if size == 2 else _BYTE,
                                  normalized=True, count=n, type="VEC3")
         if minmax:   # normalised accessors keep min/max in the stored integers
             low, high = column_bounds(values)
@@ -291,10 +292,14 @@ class Blob:
 
 
 def json_float32(values) -> list[float]:
-    """values (any shape, finite reals) as a flat list of the shortest decimals that read back as
-    the same float32: glTF readers take JSON numbers as float32, and float64's 17 digits would
-    double the text of accessor bounds and node transforms."""
-    return [float(str(x)) for x in np.asarray(values, np.float32).reshape(-1)]
+    """values (any shape, reals) as a flat list of the shortest decimals that read back as the same
+    float32: glTF readers take JSON numbers as float32, and float64's 17 digits would double the
+    text of accessor bounds and node transforms. InputError where a value is not a finite float32."""
+    values = np.asarray(values, np.float64)
+    if not np.isfinite(values).all():
+        raise InputError("a number for the glTF's JSON is NaN or infinite; check the data it comes from")
+    within_float32(values, "a number for the glTF's JSON")
+    return [float(str(x)) for x in values.astype(np.float32).reshape(-1)]
 
 
 def add_channel(animation: pygltflib.Animation, node: int, path: str, input: int, output: int,
