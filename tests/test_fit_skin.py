@@ -219,9 +219,9 @@ def test_cli_writes_the_file_and_report(tmp_path, capsys):
     assert len(load_character(out).clips) == 3
 
 
-@pytest.fixture(scope="module", params=[(4, 0), (8, 0), (4, 3)], ids=["k4", "k8", "k4-helpers3"])
+@pytest.fixture(scope="module", params=[(4, 0), (8, 0), (4, 3), (8, 3)], ids=["k4", "k8", "k4-helpers3", "k8-helpers3"])
 def fitted_fox(tmp_path_factory, request):
-    """Fox fitted with 4 or 8 influences (JOINTS_0/1, WEIGHTS_0/1), and with 3 helper joints, from
+    """Fox fitted with 4 or 8 influences (JOINTS_0/1, WEIGHTS_0/1), without and with 3 helper joints, from
     Walk poses and a small range of motion."""
     if not FOX.is_file():
         pytest.skip(f"shared assets not found at {DATA}")
