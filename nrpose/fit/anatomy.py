@@ -49,7 +49,8 @@ from ..model.skeleton import LocalPose, Skeleton, polar_rotation
 from ..pose.retarget import joint_slots
 
 __all__ = ["anatomical_poses", "body_axes", "humanoid_limbs", "LIMB_PARTS", "FLEXION", "ARM_ELEVATIONS",
-           "ARM_PLANES", "ARM_TWISTS", "MAX_ARM_SWING", "WRIST_SWING", "WRIST_TWIST", "WRIST_SWING_TWIST", "HIP_FLEXION",
+           "ARM_PLANES", "ARM_TWISTS", "MAX_ARM_SWING", "WRIST_SWING", "WRIST_TWIST", "WRIST_SWING_TWIST",
+           "HIP_FLEXION",
            "HIP_ABDUCTION", "HIP_TWISTS", "HIP_KNEE", "ARM_ELBOW"]
 
 LIMB_PARTS = {"arm": ("upperarm", "forearm", "hand"), "leg": ("upperleg", "lowerleg", "foot")}

@@ -108,7 +108,8 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
             meansq.append(None)
             continue
         source, _ = mesh_space(character, m)
-        pos = skin_positions(source, skin_matrices(character, m, current, G, pose, tracks_with()), joints[i], weights[i])
+        mats = skin_matrices(character, m, current, G, pose, tracks_with())
+        pos = skin_positions(source, mats, joints[i], weights[i])
         r, ms = residuals(pos, targets[:, starts[i]:starts[i + 1]])
         peak.append(r)
         meansq.append(ms)
@@ -157,7 +158,7 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
             coef = fit_rule(phi, L)
             helper = HelperJoint(p, drivers, centre, coef)
             trial = FittedSkin(tuple(joints), tuple(weights), 0.0, tuple(helpers) + (helper,))
-            used_L = L
+            used_L = L      # per_frame: the transforms these weights are fitted against
             mats = skin_matrices(character, m, trial, G, pose, tracks_with([L]))
             rj, rw = fit_weights(source[region], mats, y, cand, influences)
             trial_j[region], trial_w[region] = rj, rw
@@ -169,7 +170,7 @@ def add_helpers(character: Character, fitted: FittedSkin, G: np.ndarray, pose: L
             q = (y[:, ok] - others) / beta[ok][None, :, None]
             u = np.einsum("fij,fnj->fni", Ginv[:, :3, :3], q) + Ginv[:, None, :3, 3]
             L = rigid_fit(z[ok], u, beta[ok] ** 2)
-        # the weights were fitted against the last rule evaluated: keep that pair
+        # the weights were fitted against the last rule (per_frame: transforms) evaluated: keep that pair
         after_pos = skin_positions(source[region], mats, trial_j[region], trial_w[region])
         after = float(np.sqrt(((after_pos - y) ** 2).sum(axis=2).mean()))
         kept = helper is not None and (trial_j[region] == J + h).any() and after < before

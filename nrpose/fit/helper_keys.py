@@ -15,11 +15,12 @@ largest weight a vertex gives the helper, m the largest product of a vertex's we
 and its distance from the helper's centre (in the parent's bind frame), dt_f the
 translation error and theta_f the angle between the interpolated and exact rotations: a
 bound on the helper's share ``w_n |dR z_n + dt|`` of every vertex's error (a vertex with a
-small weight on a helper is moved little by its keys). Interpolating two keys whose quaternions lie in opposite hemispheres, nlerp
-turns the long way round, so such a gap is refined like any other. Rotations are stored as
-normalised int16 (:func:`stored_quats`, glTF's core format; each component within 1/65534):
-the interpolation starts from the stored keys, so their rounding is inside the check
-(a key itself is off by its rounding only, under 6.1e-5 m).
+small weight on a helper is moved little by its keys). Interpolating two keys whose
+quaternions lie in opposite hemispheres, nlerp turns the long way round, so such a gap is
+refined like any other. Rotations are stored as normalised int16 (:func:`stored_quats`,
+glTF's core format; each component within 1/65534): the interpolation starts from the
+stored keys, so their rounding is inside the check (a key itself is off by its rounding
+only, under 6.1e-5 m).
 """
 from __future__ import annotations
 
