@@ -1,10 +1,10 @@
 """The range of motion of ``nrpose fit-skin``: axis sweeps alone for a skeleton without humanoid
-limbs, plus anatomical bends (knees, elbows, shoulders, hips, wrists) for a recognised humanoid."""
+limbs, plus anatomical bends (knees, elbows, shoulders, hips, wrists, thumbs) for a recognised humanoid."""
 import numpy as np
 import pytest
 
-from nrpose.fit.anatomy import (ARM_ELEVATIONS, FLEXION, HIP_ABDUCTION, HIP_FLEXION, MAX_ARM_SWING, WRIST_SWING,
-                                WRIST_SWING_TWIST, WRIST_TWIST,
+from nrpose.fit.anatomy import (ARM_ELEVATIONS, FLEXION, HIP_ABDUCTION, HIP_FLEXION, MAX_ARM_SWING, THUMB_SWING,
+                                THUMB_WRIST, WRIST_SWING, WRIST_SWING_TWIST, WRIST_TWIST,
                                 anatomical_poses, body_axes, humanoid_limbs)
 from nrpose.fit.rom import axis_sweeps, range_of_motion
 from nrpose.model.rotation import Rotation
@@ -17,7 +17,8 @@ BODY = {"Hips": (None, (0, 100, 0)), "Spine": ("Hips", (0, 120, 0)), "Neck": ("S
 for _side, _x in (("Left", 1.0), ("Right", -1.0)):
     _chains = (("Spine", "Shoulder", 5, 145, 0), ("Shoulder", "Arm", 18, 145, 0), ("Arm", "ForeArm", 45, 145, 0),
                ("ForeArm", "Hand", 70, 145, 0), ("Hips", "UpLeg", 10, 95, 0), ("UpLeg", "Leg", 10, 52, 0),
-               ("Leg", "Foot", 10, 9, 0), ("Foot", "ToeBase", 10, 2, 12))
+               ("Leg", "Foot", 10, 9, 0), ("Foot", "ToeBase", 10, 2, 12),
+               ("Hand", "HandThumb1", 72, 143, 3), ("HandThumb1", "HandThumb2", 75, 140, 6))
     for _parent, _part, _x0, _y, _z in _chains:
         BODY[_side + _part] = (_parent if _parent in ("Spine", "Hips") else _side + _parent, (_x0 * _x, _y, _z))
 
@@ -87,7 +88,7 @@ def test_a_skeleton_without_humanoid_limbs_gets_exactly_the_axis_sweeps():
 
 @pytest.mark.parametrize("name,skel,left,forward", CASES, ids=[c[0] for c in CASES])
 def test_humanoid_gets_the_sweeps_then_anatomical_poses(name, skel, left, forward):
-    assert len(humanoid_limbs(skel)) == 4
+    assert len(humanoid_limbs(skel)) == (6 if name == "mixamo" else 4)      # the test rig has no thumbs
     axes = body_axes(skel)
     assert np.allclose(axes[0], left, atol=1e-9) and axes[2] @ forward > 0.99
     rom, sweeps, anatomy = range_of_motion(skel), axis_sweeps(skel), anatomical_poses(skel)
@@ -101,7 +102,7 @@ def test_humanoid_gets_the_sweeps_then_anatomical_poses(name, skel, left, forwar
     assert np.array_equal(anatomy.scale, np.broadcast_to(skel.scale, anatomy.scale.shape))
     again = anatomical_poses(skel)
     assert again.rotation.tobytes() == q.tobytes()
-    # one joint moves, or a limb's upper and middle joint together; no pose twice
+    # one joint moves, or a limb's upper and middle joint together (a thumb's: the hand and thumb1); no pose twice
     m = moved(skel, anatomy)
     assert ((m.sum(axis=1) == 1) | (m.sum(axis=1) == 2)).all()
     pairs = {tuple(np.flatnonzero(row)) for row in m if row.sum() == 2}
@@ -226,3 +227,39 @@ def test_wrist_poses_swing_about_four_axes_across_the_forearm_twist_and_combine(
         combined = 2 * np.degrees(np.arccos(np.cos(np.radians(WRIST_SWING / 2)) *
                                             np.cos(np.radians(WRIST_SWING_TWIST / 2))))
         assert np.isclose(angle[~swings & ~twists], combined, atol=1e-6).all()
+
+
+def world_turns(G, G0, frames, joint):
+    """Rotation vectors (n, 3) of joint's world rotation from rest in frames, and their angles in degrees."""
+    unit = np.linalg.norm(G0[joint, :3, 0])
+    turns = Rotation.from_matrix(G[frames, joint, :3, :3] / unit) * Rotation.from_matrix(G0[joint, :3, :3] / unit).inv()
+    vec = turns.as_rotvec()
+    return vec, np.degrees(np.linalg.norm(vec, axis=1))
+
+
+def test_thumb_poses_turn_the_thumb_across_itself_alone_and_with_the_hand():
+    """Per side: the thumb turned ±THUMB_SWING about 4 axes across its bone (8 poses), each alone
+    and with the hand turned ±THUMB_WRIST about the wrist's 2 swing axes (32); the thumb's tip
+    moves, its base stays; a skeleton without thumbs has none of these poses."""
+    name, skel, left, forward = CASES[0]
+    pose = anatomical_poses(skel)
+    G, G0 = skel.forward_kinematics(pose), skel.rest_globals()
+    m = moved(skel, pose)
+    for side in ("Left", "Right"):
+        hand, first, second = (index(skel, side + n) for n in ("Hand", "HandThumb1", "HandThumb2"))
+        alone = only(skel, pose, side + "HandThumb1")
+        assert len(alone) == 8
+        bone = G0[second, :3, 3] - G0[first, :3, 3]
+        vec, angle = world_turns(G, G0, alone, first)
+        assert np.allclose(angle, THUMB_SWING, atol=1e-6)
+        assert np.allclose(vec @ bone, 0, atol=1e-9)                    # across the thumb
+        assert len({tuple(np.round(v * np.sign(v[np.argmax(np.abs(v))]), 6)) for v in vec}) == 4
+        assert np.allclose(G[alone, first, :3, 3], G0[first, :3, 3], atol=1e-9)
+        assert (np.linalg.norm(G[alone, second, :3, 3] - G0[second, :3, 3], axis=1) > 0.01).all()
+        both = np.flatnonzero(m[:, hand] & m[:, first])
+        assert len(both) == 32 and (m[both].sum(axis=1) == 2).all()
+        hand_vec, hand_angle = world_turns(G, G0, both, hand)
+        fore = G0[hand, :3, 3] - G0[index(skel, side + "ForeArm"), :3, 3]
+        assert np.allclose(hand_angle, THUMB_WRIST, atol=1e-6) and np.allclose(hand_vec @ fore, 0, atol=1e-9)
+    bare = CASES[1][1]
+    assert not any(k[1] == "thumb" for k in humanoid_limbs(bare))
