@@ -1,5 +1,7 @@
 """The range of motion of ``nrpose fit-skin``: axis sweeps alone for a skeleton without humanoid
 limbs, plus anatomical bends (knees, elbows, shoulders, hips, wrists, thumbs) for a recognised humanoid."""
+from collections import Counter
+
 import numpy as np
 import pytest
 
@@ -88,7 +90,7 @@ def test_a_skeleton_without_humanoid_limbs_gets_exactly_the_axis_sweeps():
 
 @pytest.mark.parametrize("name,skel,left,forward", CASES, ids=[c[0] for c in CASES])
 def test_humanoid_gets_the_sweeps_then_anatomical_poses(name, skel, left, forward):
-    assert len(humanoid_limbs(skel)) == (6 if name == "mixamo" else 4)      # the test rig has no thumbs
+    assert len(humanoid_limbs(skel)) == (6 if name == "mixamo" else 4)      # nrpose's humanoid rig has no thumbs
     axes = body_axes(skel)
     assert np.allclose(axes[0], left, atol=1e-9) and axes[2] @ forward > 0.99
     rom, sweeps, anatomy = range_of_motion(skel), axis_sweeps(skel), anatomical_poses(skel)
@@ -239,8 +241,8 @@ def world_turns(G, G0, frames, joint):
 
 def test_thumb_poses_turn_the_thumb_across_itself_alone_and_with_the_hand():
     """Per side: the thumb turned ±THUMB_SWING about 4 axes across its bone (8 poses), each alone
-    and with the hand turned ±THUMB_WRIST about the wrist's 2 swing axes (32); the thumb's tip
-    moves, its base stays; a skeleton without thumbs has none of these poses."""
+    and with the hand turned ±THUMB_WRIST about the wrist's 2 swing axes (the 4 x 8 pairs once
+    each); a skeleton without thumbs has none of these poses."""
     name, skel, left, forward = CASES[0]
     pose = anatomical_poses(skel)
     G, G0 = skel.forward_kinematics(pose), skel.rest_globals()
@@ -253,13 +255,45 @@ def test_thumb_poses_turn_the_thumb_across_itself_alone_and_with_the_hand():
         vec, angle = world_turns(G, G0, alone, first)
         assert np.allclose(angle, THUMB_SWING, atol=1e-6)
         assert np.allclose(vec @ bone, 0, atol=1e-9)                    # across the thumb
-        assert len({tuple(np.round(v * np.sign(v[np.argmax(np.abs(v))]), 6)) for v in vec}) == 4
-        assert np.allclose(G[alone, first, :3, 3], G0[first, :3, 3], atol=1e-9)
+        assert len({key(v) for v in vec}) == 4                          # 4 axes, each both ways
         assert (np.linalg.norm(G[alone, second, :3, 3] - G0[second, :3, 3], axis=1) > 0.01).all()
         both = np.flatnonzero(m[:, hand] & m[:, first])
         assert len(both) == 32 and (m[both].sum(axis=1) == 2).all()
         hand_vec, hand_angle = world_turns(G, G0, both, hand)
         fore = G0[hand, :3, 3] - G0[index(skel, side + "ForeArm"), :3, 3]
-        assert np.allclose(hand_angle, THUMB_WRIST, atol=1e-6) and np.allclose(hand_vec @ fore, 0, atol=1e-9)
-    bare = CASES[1][1]
-    assert not any(k[1] == "thumb" for k in humanoid_limbs(bare))
+        across = np.cross(fore, forward) / np.linalg.norm(np.cross(fore, forward))
+        side_axis = np.cross(fore, across) / np.linalg.norm(fore)
+        assert np.allclose(hand_angle, THUMB_WRIST, atol=1e-6)
+        axes = hand_vec / np.linalg.norm(hand_vec, axis=1)[:, None]
+        assert np.allclose(np.abs(axes @ across) + np.abs(axes @ side_axis), 1, atol=1e-9)   # the two main axes
+        assert sorted(Counter(tuple(np.round(h, 6)) for h in hand_vec).values()) == [8] * 4    # each turn with 8 thumbs
+        # the thumb's own turn (its world turn with the hand's taken off) is one of the 8 alone
+        unit = np.linalg.norm(G0[first, :3, 0])
+        own = (Rotation.from_rotvec(hand_vec).inv() * Rotation.from_matrix(G[both, first, :3, :3] / unit)
+               * Rotation.from_matrix(G0[first, :3, :3] / unit).inv()).as_rotvec()
+        alone_turns = {tuple(np.round(v, 6)) for v in vec}
+        pairs = [(tuple(np.round(o, 6)), tuple(np.round(h, 6))) for o, h in zip(own, hand_vec)]
+        assert {p[0] for p in pairs} == alone_turns and len(set(pairs)) == 32
+    assert not any(k[1] == "thumb" for k in humanoid_limbs(CASES[1][1]))
+
+
+def test_a_thumb_along_forward_or_of_no_length_gets_no_nan():
+    """A thumb bone along forward takes its axes across it from up; a thumb of zero length is not a limb."""
+    name, skel, left, forward = CASES[0]
+    first = index(skel, "LeftHandThumb1")
+    second = index(skel, "LeftHandThumb2")
+    for offset, limb in ((np.array([0.0, 0.0, 5.0]), True), (np.zeros(3), False)):
+        t = skel.translation.copy()
+        # thumb2's offset in thumb1's frame that puts it `offset` cm (body frame) from thumb1
+        R1 = Rotation.from_matrix(skel.rest_globals()[first, :3, :3] / np.linalg.norm(skel.rest_globals()[first, :3, 0]))
+        t[second] = R1.inv().apply(Rotation.from_euler("y", 70, degrees=True).apply(offset) * 0.01) / 0.01
+        bent = Skeleton(skel.names, skel.parents, t, skel.rotation, skel.scale)
+        assert (("left", "thumb") in humanoid_limbs(bent)) == limb
+        q = anatomical_poses(bent).rotation
+        assert np.isfinite(q).all() and np.allclose(np.linalg.norm(q, axis=-1), 1, atol=1e-12)
+        assert len(q) == len(anatomical_poses(skel).rotation) - (0 if limb else 40)
+
+
+def key(v):
+    """A rotation vector's axis line, rounded (v and -v give the same key)."""
+    return tuple(np.round(v * np.sign(v[np.argmax(np.abs(v))]) / np.linalg.norm(v), 6))

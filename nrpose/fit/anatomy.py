@@ -4,7 +4,8 @@ The axis sweeps of :mod:`nrpose.fit.rom` turn a joint at most ±60° from rest; 
 motion bends knees and elbows to 130°, swings an upper arm 130° from its T-pose rest with a
 90° twist. :func:`anatomical_poses` adds those bends for the limbs it recognises by their
 joint names (:func:`nrpose.pose.retarget.joint_slots`: Mixamo ``mixamorig:LeftArm``,
-``LeftForeArm``, ``LeftHand``, ``LeftUpLeg``, ``LeftLeg``, ``LeftFoot``, with or without a
+``LeftForeArm``, ``LeftHand``, ``LeftHandThumb1``, ``LeftHandThumb2``, ``LeftUpLeg``, ``LeftLeg``,
+``LeftFoot``, with or without a
 ``prefix:``, any case, and the other conventions it knows). A skeleton without such limbs
 (the Fox's ``b_...`` names) gets none.
 
@@ -26,7 +27,8 @@ Directions come from the rest joint positions (world frame, :meth:`Skeleton.rest
   diagonals; about each of the first two also after a twist of ±``WRIST_SWING_TWIST`` about
   the forearm (a captured hand turns about a skew axis: 131_03 turns one 113°); and twisted
   about the forearm alone by ±``WRIST_TWIST``;
-* **thumb** (the first thumb joint, where its second is recognised below it): the thumb turned
+* **thumb** (the first thumb joint, below a recognised arm's hand, with the second thumb joint
+  below it): the thumb turned
   ±``THUMB_SWING`` about the axis perpendicular to the thumb and forward, about the axis
   perpendicular to both and about their two diagonals, each alone and with the hand turned
   ±``THUMB_WRIST`` about each of the wrist's two swing axes (131_03 holds the right thumb
@@ -37,13 +39,14 @@ Directions come from the rest joint positions (world frame, :meth:`Skeleton.rest
   ``HIP_FLEXION`` × ``HIP_ABDUCTION`` (f = −30: extension; a = −30: adduction), so that at
   90° flexion each abduction is a distinct pose; at f = 0 and 90 (a = 0) also twisted about
   the thigh by ``HIP_TWISTS``;
-* **combinations**: hip flexion with knee flexion (``HIP_KNEE``) and an arm direction with
-  elbow flexion (``ARM_ELBOW``).
+* **combinations**: hip flexion with knee flexion (``HIP_KNEE``), an arm direction with
+  elbow flexion (``ARM_ELBOW``) and the thumb with the hand (above).
 
 Each moved joint gets a world rotation W: a *swing* (the shortest arc carrying its child's
 rest direction to the target direction, then the twist about the target) or a turn about a
 hinge. Its local rotation becomes ``q_rest ⊗ g⁻¹ W g`` with g the rotation of its rest global
-transform, so in a combination the child's hinge is carried by the parent's swing. Every
+transform, so in a combination the child's turn is carried by the parent's. An axis across a
+bone is perpendicular to the bone and forward (to the bone and up for a bone along forward). Every
 other joint, translation and scale stays at rest.
 """
 from __future__ import annotations
@@ -98,11 +101,15 @@ def _swing(bone: np.ndarray, target: np.ndarray, twist: float = 0.0) -> Rotation
 
 def humanoid_limbs(skeleton: Skeleton) -> dict[tuple[str, str], tuple[int, int, int]]:
     """{(side 'left'/'right', 'arm'/'leg'/'thumb'): (upper, lower, end joint indices)} of the limbs whose
-    three joints are recognised by name, each below the one before; a thumb is (hand, thumb1, thumb2)
-    below a recognised arm."""
+    three joints are recognised by name, each below the one before and apart from it at rest; a thumb
+    is (hand, thumb1, thumb2) below a recognised arm's hand."""
     index = {slot: j for j, slot in joint_slots(skeleton).items()}
+    P = skeleton.rest_globals()[:, :3, 3]
 
     def below(j: int, a: int) -> bool:
+        """j is a descendant of a, apart from it at rest (a bone with a direction)."""
+        if np.allclose(P[j], P[a], rtol=0, atol=1e-9 * max(1.0, float(np.abs(P).max()))):
+            return False
         while j >= 0 and j != a:
             j = int(skeleton.parents[j])
         return j == a
@@ -137,19 +144,20 @@ def body_axes(skeleton: Skeleton) -> tuple[np.ndarray, np.ndarray, np.ndarray] |
     return left, up, np.cross(left, up)
 
 
-def _wrist_axes(P: np.ndarray, joints, forward) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(forearm direction, across, side) of an arm's (upper, lower, hand) joints: the wrist's swing axes."""
-    fore = P[joints[2]] - P[joints[1]]
-    across = _unit(np.cross(fore, forward))
-    return fore, across, _unit(np.cross(fore, across))
+def _across(bone: np.ndarray, forward: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit axes (3,) perpendicular to ``bone`` and each other: across (⟂ forward, or ⟂ up for a
+    bone along forward) and side."""
+    across = np.cross(bone, forward)
+    if np.linalg.norm(across) <= 1e-6 * np.linalg.norm(bone):
+        across = np.cross(bone, up)
+    across = _unit(across)
+    return across, _unit(np.cross(bone, across))
 
 
-def _thumb_poses(P: np.ndarray, arm, thumb, forward) -> list[dict[int, Rotation]]:
+def _thumb_poses(P: np.ndarray, arm, thumb, up, forward) -> list[dict[int, Rotation]]:
     hand, first, second = thumb
-    bone = P[second] - P[first]
-    across = _unit(np.cross(bone, forward))
-    side = _unit(np.cross(bone, across))
-    _, wrist_across, wrist_side = _wrist_axes(P, arm, forward)
+    across, side = _across(P[second] - P[first], forward, up)
+    wrist_across, wrist_side = _across(P[arm[2]] - P[arm[1]], forward, up)
     turns = [_turn(s * axis, THUMB_SWING) for axis in (across, side, across + side, across - side) for s in (1, -1)]
     return [{first: t} for t in turns] + [{first: t, hand: _turn(s * axis, THUMB_WRIST)} for t in turns
                                          for axis in (wrist_across, wrist_side) for s in (1, -1)]
@@ -157,8 +165,8 @@ def _thumb_poses(P: np.ndarray, arm, thumb, forward) -> list[dict[int, Rotation]
 
 def _arm_poses(P: np.ndarray, joints, lateral, up, forward) -> list[dict[int, Rotation]]:
     upper, lower, hand = joints
-    arm = P[lower] - P[upper]
-    fore, across, side = _wrist_axes(P, joints, forward)
+    arm, fore = P[lower] - P[upper], P[hand] - P[lower]
+    across, side = _across(fore, forward, up)
 
     def pointing(e: float, h: float) -> np.ndarray:
         e, h = np.radians(e), np.radians(h)
@@ -176,7 +184,7 @@ def _arm_poses(P: np.ndarray, joints, lateral, up, forward) -> list[dict[int, Ro
             for twist in (0.0,) + (ARM_TWISTS if e <= 90 else ()):
                 if twist or swing_angle(target) > 1e-6:
                     poses.append({upper: _swing(arm, target, twist)})
-    elbow = _toward(np.cross(fore, forward), fore, forward)
+    elbow = _toward(across, fore, forward)
     poses += [{lower: _turn(elbow, f)} for f in FLEXION]
     poses += [{hand: _turn(s * axis, WRIST_SWING)} for axis in (across, side, across + side, across - side)
               for s in (1, -1)]
@@ -216,7 +224,7 @@ def anatomical_poses(skeleton: Skeleton) -> LocalPose:
             if (side, "arm") in limbs:
                 poses += _arm_poses(P, limbs[side, "arm"], sign * left, up, forward)
             if (side, "thumb") in limbs:
-                poses += _thumb_poses(P, limbs[side, "arm"], limbs[side, "thumb"], forward)
+                poses += _thumb_poses(P, limbs[side, "arm"], limbs[side, "thumb"], up, forward)
             if (side, "leg") in limbs:
                 poses += _leg_poses(P, limbs[side, "leg"], sign * left, left, forward)
     rest = skeleton.rest_pose
