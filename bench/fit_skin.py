@@ -144,7 +144,7 @@ def helper_curve(rows: list[dict], png: pathlib.Path) -> None:
     from nrpose.io.files import atomic_path
     held = [r for r in rows if r["set"] == "held-out"]
     groups = list(dict.fromkeys((r["character"], r["influences"], r["tracks"]) for r in held))
-    fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4), squeeze=False)
+    fig, axes = plt.subplots(1, len(groups), figsize=(5.5 * len(groups), 4.4), squeeze=False)
     for ax, (name, k, mode) in zip(axes[0], groups):
         g = sorted((r for r in held if (r["character"], r["influences"], r["tracks"]) == (name, k, mode)),
                    key=lambda r: r["helpers"])
@@ -164,7 +164,8 @@ def helper_curve(rows: list[dict], png: pathlib.Path) -> None:
         size.set_ylabel("file / 10 s morph-target bake")
         ax.set_title(f"{name}, {k} influences, {mode} tracks (dashed: targets)", fontsize=9)
         lines = ax.get_legend_handles_labels(), size.get_legend_handles_labels()
-        ax.legend(lines[0][0] + lines[1][0], lines[0][1] + lines[1][1], fontsize=8, loc="upper right")
+        ax.legend(lines[0][0] + lines[1][0], lines[0][1] + lines[1][1], fontsize=8, loc="upper center",
+                  bbox_to_anchor=(0.5, -0.16), ncol=3)     # below the axes: never over a curve
     fig.tight_layout()
     with atomic_path(png) as tmp:
         fig.savefig(tmp, format="png", dpi=90)
