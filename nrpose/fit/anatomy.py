@@ -4,9 +4,9 @@ The axis sweeps of :mod:`nrpose.fit.rom` turn a joint at most ±60° from rest; 
 motion bends knees and elbows to 130°, swings an upper arm 130° from its T-pose rest with a
 90° twist. :func:`anatomical_poses` adds those bends for the limbs it recognises by their
 joint names (:func:`nrpose.pose.retarget.joint_slots`: Mixamo ``mixamorig:LeftArm``,
-``LeftForeArm``, ``LeftHand``, ``LeftHandThumb1``, ``LeftHandThumb2``, ``LeftUpLeg``, ``LeftLeg``,
-``LeftFoot``, with or without a
-``prefix:``, any case, and the other conventions it knows). A skeleton without such limbs
+``LeftForeArm``, ``LeftHand``, ``LeftHandThumb1``, ``LeftHandThumb2``, ``LeftUpLeg``,
+``LeftLeg``, ``LeftFoot``, with or without a ``prefix:``, any case, and the other conventions
+it knows). A skeleton without such limbs
 (the Fox's ``b_...`` names) gets none.
 
 Directions come from the rest joint positions (world frame, :meth:`Skeleton.rest_globals`):
@@ -28,9 +28,9 @@ Directions come from the rest joint positions (world frame, :meth:`Skeleton.rest
   the forearm (a captured hand turns about a skew axis: 131_03 turns one 113°); and twisted
   about the forearm alone by ±``WRIST_TWIST``;
 * **thumb** (the first thumb joint, below a recognised arm's hand, with the second thumb joint
-  below it): the thumb turned
-  ±``THUMB_SWING`` about the axis perpendicular to the thumb and forward, about the axis
-  perpendicular to both and about their two diagonals, each alone and with the hand turned
+  below it): the thumb turned ±``THUMB_SWING`` about the axis perpendicular to the thumb and
+  forward, about the axis perpendicular to both and about their two diagonals, each alone and
+  with the hand turned
   ±``THUMB_WRIST`` about each of the wrist's two swing axes (131_03 holds the right thumb
   90° from rest with the hand turned 65°, where LBS of thumb and hand weights alone misses
   NR-MLS by 1 % of the height: these poses make that residual show in training);
@@ -154,11 +154,16 @@ def _across(bone: np.ndarray, forward: np.ndarray, up: np.ndarray) -> tuple[np.n
     return across, _unit(np.cross(bone, across))
 
 
+def _turns_across(across: np.ndarray, side: np.ndarray, degrees: float) -> list[Rotation]:
+    """Turns by ±degrees about across, side and their two diagonals (8)."""
+    return [_turn(s * axis, degrees) for axis in (across, side, across + side, across - side) for s in (1, -1)]
+
+
 def _thumb_poses(P: np.ndarray, arm, thumb, up, forward) -> list[dict[int, Rotation]]:
     hand, first, second = thumb
     across, side = _across(P[second] - P[first], forward, up)
     wrist_across, wrist_side = _across(P[arm[2]] - P[arm[1]], forward, up)
-    turns = [_turn(s * axis, THUMB_SWING) for axis in (across, side, across + side, across - side) for s in (1, -1)]
+    turns = _turns_across(across, side, THUMB_SWING)
     return [{first: t} for t in turns] + [{first: t, hand: _turn(s * axis, THUMB_WRIST)} for t in turns
                                          for axis in (wrist_across, wrist_side) for s in (1, -1)]
 
@@ -186,8 +191,7 @@ def _arm_poses(P: np.ndarray, joints, lateral, up, forward) -> list[dict[int, Ro
                     poses.append({upper: _swing(arm, target, twist)})
     elbow = _toward(across, fore, forward)
     poses += [{lower: _turn(elbow, f)} for f in FLEXION]
-    poses += [{hand: _turn(s * axis, WRIST_SWING)} for axis in (across, side, across + side, across - side)
-              for s in (1, -1)]
+    poses += [{hand: t} for t in _turns_across(across, side, WRIST_SWING)]
     poses += [{hand: _turn(s * axis, WRIST_SWING) * _turn(fore, t * WRIST_SWING_TWIST)}
               for axis in (across, side) for s in (1, -1) for t in (1, -1)]
     poses += [{hand: _turn(fore, s * WRIST_TWIST)} for s in (1, -1)]
