@@ -17,7 +17,10 @@ from nrpose.errors import FileFormatError, InputError
 from nrpose.io import load_character
 from nrpose.io.tgf import bone_joints, read_dmat_animation, read_dmat_weights
 from nrpose.model.rotation import Rotation
+from nrpose.model.skeleton import LocalPose
 from nrpose.pose.poser import CharacterPoser
+
+from dmat_files import motion_matrix, transforms_matrix, write_dmat
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "libigl"
 ARM = (DATA / "arm.obj", DATA / "arm.tgf", DATA / "arm-weights.dmat")
@@ -38,33 +41,23 @@ def animation(skeleton, frames: int, seed: int, hierarchy: bool) -> np.ndarray:
     follow); else independent random rigid motions per bone (LBS still defines the result).
     """
     rng = np.random.default_rng(seed)
-    joints = bone_joints(skeleton, "test")
-    G0 = skeleton.rest_globals()
-    B = len(joints)
-    T = np.zeros((12 * B, frames))
-    for f in range(frames):
-        if hierarchy:
-            pose = skeleton.rest_pose
-            pose.rotation[:] = Rotation.from_rotvec(rng.normal(scale=0.6, size=(skeleton.num_joints, 3))).as_quat()
-            A = skeleton.forward_kinematics(pose)[joints] @ np.linalg.inv(G0[joints])
-        else:
-            A = np.tile(np.eye(4), (B, 1, 1))
-            A[:, :3, :3] = Rotation.from_rotvec(rng.normal(scale=0.8, size=(B, 3))).as_matrix()
-            A[:, :3, 3] = rng.normal(scale=0.3, size=(B, 3))
-        Tf = np.concatenate([A[e, :3, :].T for e in range(B)])          # (4B, 3): [R | t] transposed
-        T[:, f] = Tf.ravel(order="F")                                    # the column, column-major
-    return T
+    if hierarchy:
+        pose = skeleton.rest_pose
+        pose = LocalPose(np.tile(pose.translation, (frames, 1, 1)),
+                         Rotation.from_rotvec(rng.normal(scale=0.6, size=(frames * skeleton.num_joints, 3)))
+                         .as_quat().reshape(frames, -1, 4), np.tile(pose.scale, (frames, 1, 1)))
+        return motion_matrix(skeleton, skeleton.forward_kinematics(pose))
+    B = len(bone_joints(skeleton, "test"))
+    A = np.tile(np.eye(4), (frames, B, 1, 1))
+    A[..., :3, :3] = Rotation.from_rotvec(rng.normal(scale=0.8, size=(frames * B, 3))).as_matrix().reshape(frames, B, 3, 3)
+    A[..., :3, 3] = rng.normal(scale=0.3, size=(frames, B, 3))
+    return transforms_matrix(A)
 
 
 def libigl_lbs(V, W, T) -> np.ndarray:
     M = igl.lbs_matrix(V, W)
     B = W.shape[1]
     return np.stack([M @ T[:, f].reshape(3, 4 * B).T for f in range(T.shape[1])])
-
-
-def write(path, matrix) -> Path:
-    igl.writeDMAT(str(path), np.asarray(matrix, dtype=np.float64), True)
-    return Path(path)
 
 
 @needs_data
@@ -84,7 +77,7 @@ def test_animation_lbs_equals_libigl(arm, tmp_path, backend, hierarchy):
     raw = igl.readDMAT(str(ARM[2]))
     V = arm.meshes[0].vertices
     T = animation(arm.skeleton, 6, seed=int(hierarchy), hierarchy=hierarchy)
-    clip = read_dmat_animation(write(tmp_path / "anim.dmat", T), arm.skeleton, fps=24)
+    clip = read_dmat_animation(write_dmat(tmp_path / "anim.dmat", T), arm.skeleton, fps=24)
     assert clip.duration == pytest.approx(5 / 24)
     character = with_skin_weights(arm, read_dmat_weights(ARM[2], arm.skeleton, len(V)))
     frames = CharacterPoser(character, method="lbs", weights="authored", backend=backend).pose(
@@ -103,8 +96,8 @@ def test_animation_lbs_equals_libigl(arm, tmp_path, backend, hierarchy):
 @needs_data
 def test_one_column_layout_is_the_same_animation(arm, tmp_path):
     T = animation(arm.skeleton, 4, seed=7, hierarchy=True)
-    a = read_dmat_animation(write(tmp_path / "a.dmat", T), arm.skeleton)
-    b = read_dmat_animation(write(tmp_path / "b.dmat", T.ravel(order="F")[:, None]), arm.skeleton)
+    a = read_dmat_animation(write_dmat(tmp_path / "a.dmat", T), arm.skeleton)
+    b = read_dmat_animation(write_dmat(tmp_path / "b.dmat", T.ravel(order="F")[:, None]), arm.skeleton)
     t = np.linspace(0, a.duration, 9)
     assert np.array_equal(a.sample(t).rotation, b.sample(t).rotation)
 
@@ -123,19 +116,19 @@ def test_bad_dmats_raise_typed_errors(arm, tmp_path):
     cases += [(neg, "vertex 10 on bone 2 is negative"), (zero, "vertex 17 has no weight"), (nan, "NaN")]
     for k, (matrix, message) in enumerate(cases):
         with pytest.raises(FileFormatError, match=message):
-            read_dmat_weights(write(tmp_path / f"w{k}.dmat", matrix), skel, n)
+            read_dmat_weights(write_dmat(tmp_path / f"w{k}.dmat", matrix), skel, n)
     T = animation(skel, 3, seed=1, hierarchy=True)
     with pytest.raises(FileFormatError, match="do not divide into frames of 4 bones"):
-        read_dmat_animation(write(tmp_path / "short.dmat", T[:-1]), skel)
+        read_dmat_animation(write_dmat(tmp_path / "short.dmat", T[:-1]), skel)
     scaled = T.copy()
     scaled[:, 1] *= 1.5
     with pytest.raises(FileFormatError, match="frame 1, bone 0: the 3×3 part is not a rotation"):
-        read_dmat_animation(write(tmp_path / "scaled.dmat", scaled), skel)
+        read_dmat_animation(write_dmat(tmp_path / "scaled.dmat", scaled), skel)
     with pytest.raises(FileFormatError, match="no such DMAT"):
         read_dmat_animation(tmp_path / "missing.dmat", skel)
     from nrpose.rigs.humanoid import humanoid
     with pytest.raises(InputError, match="needs a skeleton read from TGF"):
-        read_dmat_animation(write(tmp_path / "h.dmat", T), humanoid().skeleton)
+        read_dmat_animation(write_dmat(tmp_path / "h.dmat", T), humanoid().skeleton)
 
 
 def run(args, capsys):
@@ -147,7 +140,7 @@ def run(args, capsys):
 @needs_data
 def test_cli_weights_file_and_dmat_motion(arm, tmp_path, capsys):
     T = animation(arm.skeleton, 5, seed=3, hierarchy=True)
-    anim = write(tmp_path / "anim.dmat", T)
+    anim = write_dmat(tmp_path / "anim.dmat", T)
     out = tmp_path / "arm.npz"
     code, stdout, err = run(["pose", ARM[0], "--skeleton", ARM[1], "--weights-file", ARM[2], "--motion", anim,
                              "--method", "lbs", "-o", out], capsys)
@@ -157,8 +150,8 @@ def test_cli_weights_file_and_dmat_motion(arm, tmp_path, capsys):
         want = libigl_lbs(arm.meshes[0].vertices, igl.readDMAT(str(ARM[2])), T)
         assert np.abs(z["positions"] - want).max() <= 2e-6 * np.ptp(want[0], axis=0).max()
     out.unlink()
-    bad_w = write(tmp_path / "w.dmat", np.ones((5, 4)))
-    bad_a = write(tmp_path / "a.dmat", T[:-5])
+    bad_w = write_dmat(tmp_path / "w.dmat", np.ones((5, 4)))
+    bad_a = write_dmat(tmp_path / "a.dmat", T[:-5])
     for args, message in [
             (["--weights-file", bad_w, "--rest"], "expected 8311 rows"),
             (["--weights-file", ARM[2], "--motion", bad_a], "do not divide into frames"),

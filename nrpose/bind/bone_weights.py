@@ -57,7 +57,7 @@ from .distances import arrival_parameters, point_segment_distances, segment_para
 from .weights import dense_weights, keep_top_k
 
 __all__ = ["WEIGHTS", "SKELETON_K", "BoneWeights", "bone_weights", "authored_joint_weights", "authored_bone_weights",
-           "skin_entries", "group_centers", "with_skin_weights"]
+           "skin_entries", "group_centers", "with_skin_weights", "joint_weights"]
 
 SKELETON_K = 8        # bones kept per vertex by default on skeletons with more bones
 
@@ -199,6 +199,15 @@ def with_skin_weights(character, joint_weights: np.ndarray):
         meshes.append(replace(m, joints=np.tile(np.arange(J), (n, 1)), weights=rows))
         start += n
     return replace(character, meshes=tuple(meshes))
+
+
+def joint_weights(bone_w: np.ndarray, bones: Bones, n_joints: int) -> np.ndarray:
+    """(V, J) float64 weights on the joints from bone weights (V, B): each bone's weight goes to
+    the joint that drives it (``bones.joints``); rows keep their sums."""
+    bone_w = np.asarray(bone_w, np.float64)
+    out = np.zeros((len(bone_w), n_joints))
+    np.add.at(out.T, bones.joints, bone_w.T)
+    return out
 
 
 def authored_bone_weights(meshes, X: np.ndarray, bones: Bones, parents: np.ndarray) -> np.ndarray:

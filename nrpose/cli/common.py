@@ -11,11 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import NrposeError
+from ..io import load_character
 from ..io.files import atomic_path, check_writable, on_commit
 from ..io.npz import Streamed, write_npz
 
 __all__ = ["add_budget_options", "check_budget", "output_values", "median_ms", "median", "progress",
-           "frames_output_kind", "check_outputs", "write_frames", "device_text"]
+           "frames_output_kind", "check_outputs", "write_frames", "device_text", "character_with_weights"]
 
 
 #: defaults of --max-frames and --max-output-values: a long clip of a large character fits
@@ -105,6 +106,24 @@ def check_outputs(out: str | None, suffixes, png: str | None, out_is_dir: bool =
         if Path(png).suffix.lower() != ".png":
             raise NrposeError(f"--png {png}: the preview must end in .png")
         check_writable(png)
+
+
+def character_with_weights(path: str, skeleton: str | None, weights_file: str | None):
+    """The character of ``path`` (a mesh with ``skeleton``: :func:`nrpose.io.load_character`),
+    with ``weights_file``, libigl's per-vertex bone weights of a mesh + TGF character (rows =
+    vertices, columns = bones in TGF order), as its skin weights when given."""
+    character = load_character(path, skeleton)
+    if not weights_file:
+        return character
+    if skeleton is None:
+        raise NrposeError("--weights-file gives the weights of a mesh character (a mesh with --skeleton "
+                          "SKELETON.tgf); a glTF file carries its own")
+    # --weights-file only (a mesh + TGF character): libigl's DMAT reader, the bone weights' module
+    from ..bind.bone_weights import with_skin_weights
+    from ..io.tgf import read_dmat_weights
+
+    W = read_dmat_weights(weights_file, character.skeleton, sum(len(m.vertices) for m in character.meshes))
+    return with_skin_weights(character, W)
 
 
 def write_frames(out: str, frames, times: np.ndarray, fmt: str, character, source=None, quantize: bool = False,

@@ -3,13 +3,14 @@ from __future__ import annotations
 
 import json
 import time
+from dataclasses import astuple
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import NrposeError
 from ..fit.character_skin import (FittedSkin, character_height, error_table, fit_character, fitted_positions,
-                                  nrmls_targets)
+                                  nrmls_targets, with_computed_skin)
 from ..fit.helper_fit import add_helpers
 from ..fit.helper_joints import rule_locals
 from ..fit.helper_keys import KEY_TOLERANCE, helper_keys
@@ -19,11 +20,12 @@ from ..fit.skin_file import skinned_primitives, stored_skin, write_fitted_glb
 from ..io import load_character
 from ..io.files import atomic_path
 from ..io.poses import load_pose
+from ..io.tgf import dmat_is_pose, read_dmat_animation
 from ..model.character import Character
 from ..model.skeleton import LocalPose, concat_poses
 from ..model.timing import sample_times
 from ..pose.poser import WEIGHTS, CharacterPoser
-from .common import check_outputs
+from .common import character_with_weights, check_outputs
 from .pose import motion_clip
 
 FLAGS = {"weights": "--weights", "alpha": "--alpha", "influences": "--influences", "skeleton": "--skeleton"}
@@ -37,17 +39,22 @@ MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (
 def add_parser(sub) -> None:
     p = sub.add_parser("fit-skin", help="fit LBS weights that reproduce NR-MLS; write a copy of the glTF "
                                         "any engine plays")
-    p.add_argument("character", help=".glb/.gltf character (skinned)")
+    p.add_argument("character", help=".glb/.gltf character (skinned; the output is a copy of it), or a mesh "
+                                     "(OBJ, OFF, PLY, STL, .mesh) with --skeleton (the output is a new skinned glTF)")
+    p.add_argument("--skeleton", help="skeleton of a mesh character (.tgf or .bvh, whose motion is its clip)")
+    p.add_argument("--weights-file", help="libigl weight DMAT of a mesh + TGF character (rows = vertices, columns = "
+                                          "bones in TGF order): its skin weights, whose joints the fit starts from")
     p.add_argument("--method", choices=("nrmls",), default="nrmls", help="deformer fitted (nrmls)")
-    p.add_argument("--weights", choices=WEIGHTS, default="authored", help="NR-MLS weights (default: authored)")
+    p.add_argument("--weights", choices=WEIGHTS, default=None,
+                   help="NR-MLS weights (default: authored; heat for a mesh + skeleton without --weights-file)")
     p.add_argument("--alpha", type=float, default=1.0, help="weight exponent for distance weights (default 1)")
-    p.add_argument("--train", nargs="+", default=[], metavar="CLIP|BVH|GLB|POSE",
+    p.add_argument("--train", nargs="+", default=[], metavar="CLIP|BVH|GLB|DMAT|POSE",
                    help="training motion: a clip of the character, a BVH or glTF (its last clip) on its "
-                        "skeleton, or a pose JSON")
-    p.add_argument("--holdout", nargs="+", default=[], metavar="CLIP|BVH|GLB",
+                        "skeleton, a libigl animation or pose DMAT (TGF skeleton), or a pose JSON")
+    p.add_argument("--holdout", nargs="+", default=[], metavar="CLIP|BVH|GLB|DMAT|POSE",
                    help="motions evaluated in the report but not trained on")
-    p.add_argument("--export", nargs="+", default=[], metavar="BVH|GLB",
-                   help="BVH/glTF motions added to the output as animations (the source's clips are kept)")
+    p.add_argument("--export", nargs="+", default=[], metavar="BVH|GLB|DMAT",
+                   help="BVH/glTF/DMAT animations added to the output as animations (the source's clips are kept)")
     p.add_argument("--rom-degrees", type=float, default=ROM_DEGREES,
                    help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}); a humanoid "
                         "also gets anatomical poses (0: no range of motion at all)")
@@ -71,20 +78,26 @@ def add_parser(sub) -> None:
 def motion(character, spec: str, fps: float, pose_ok: bool = True):
     """(name, LocalPose (F, J, ...), clip or None) of a --train/--holdout/--export entry."""
     names = [c.name for c in character.clips]
+    suffix = Path(spec).suffix.lower()
     if spec in names:
         clip = character.clip(spec)
+    elif suffix == ".dmat" and dmat_is_pose(spec, character.skeleton):
+        if not pose_ok:
+            raise NrposeError(f"{spec}: a pose DMAT (one frame); --export takes animations")
+        return spec, LocalPose(*(a[None] for a in astuple(load_pose(spec, character.skeleton)))), None
+    elif suffix == ".dmat":
+        clip = read_dmat_animation(spec, character.skeleton, fps)
     elif Path(spec).suffix.lower() in (".bvh", ".glb", ".gltf"):
         # a glTF motion: its last clip (where `nrpose retarget` puts the retargeted one)
         loaded = load_character(spec)
         if not loaded.clips:
             raise NrposeError(f"{spec}: no animation in the file")
         clip = motion_clip(Character(loaded.skeleton, (), loaded.clips[-1:]), character.skeleton, spec)
-    elif pose_ok and Path(spec).suffix.lower() == ".json":
-        pose = load_pose(spec, character.skeleton)
-        return spec, LocalPose(*(a[None] for a in (pose.translation, pose.rotation, pose.scale))), None
+    elif pose_ok and suffix == ".json":
+        return spec, LocalPose(*(a[None] for a in astuple(load_pose(spec, character.skeleton)))), None
     else:
         raise NrposeError(f"{spec!r}: not a clip of the character ({', '.join(map(repr, names)) or 'none'}), "
-                          f"a .bvh, a .glb on its skeleton{' or a pose .json' if pose_ok else ''}")
+                          f"a .bvh, a .glb on its skeleton, a libigl .dmat{' or a pose .json' if pose_ok else ''}")
     return spec, clip.sample(sample_times(clip.duration, fps)), clip
 
 
@@ -104,12 +117,16 @@ def run(args) -> None:
     check_outputs(args.output, (".glb",), None)
     if args.report:
         check_outputs(args.report, (".json",), None)
-    if Path(args.character).suffix.lower() not in (".glb", ".gltf"):
-        raise NrposeError(f"{args.character}: fit-skin writes a copy of a glTF character; give a .glb/.gltf")
-    character = load_character(args.character)
-    places = skinned_primitives(args.character, character)
+    source = args.character if Path(args.character).suffix.lower() in (".glb", ".gltf") else None
+    character = character_with_weights(args.character, args.skeleton, args.weights_file)
+    weights = args.weights or ("heat" if source is None and not args.weights_file else "authored")
+    if source is None:      # the skin the fit starts from: the weights file's, else the NR-MLS weights'
+        character = with_computed_skin(character, weights, args.alpha)
+        allowed = [None] * len(character.meshes)
+    else:
+        allowed = [None if p is None else p[3] for p in skinned_primitives(source, character)]
     train = [motion(character, s, args.fps) for s in args.train]
-    holdout = [motion(character, s, args.fps, pose_ok=False) for s in args.holdout]
+    holdout = [motion(character, s, args.fps) for s in args.holdout]
     export = [motion(character, s, args.fps, pose_ok=False) for s in args.export]
     local = concat_poses([m[1] for m in train])
     rom_frames = 0
@@ -130,11 +147,10 @@ def run(args) -> None:
         if frames * V > MAX_VERTEX_FRAMES:
             raise NrposeError(f"{name}: {frames} poses x {V} vertices is more than {MAX_VERTEX_FRAMES:,} at once; "
                               "lower --fps or --rom-degrees, or train on less")
-    poser = CharacterPoser(character, method="nrmls", weights=args.weights, alpha=args.alpha)
+    poser = CharacterPoser(character, method="nrmls", weights=weights, alpha=args.alpha)
     t0 = time.perf_counter()
     G, targets = nrmls_targets(poser, local)
     target_s = time.perf_counter() - t0
-    allowed = [None if p is None else p[3] for p in places]
     fitted = fit_character(character, G, targets, args.influences, allowed)
     base_seconds = fitted.seconds
     fitted, helper_log = add_helpers(character, fitted, G, local, targets, args.helpers, args.influences, allowed,
@@ -154,8 +170,7 @@ def run(args) -> None:
 
     tracks = [tracks_of(clip.sample(sample_times(clip.duration, args.fps))) for clip in written] \
         if fitted_tracks else None
-    size = write_fitted_glb(args.character, args.output, character, fitted, new_clips, args.fps, tracks,
-                            args.key_tolerance)
+    size = write_fitted_glb(source, args.output, character, fitted, new_clips, args.fps, tracks, args.key_tolerance)
     print(f"{args.output}: {V} vertices, {args.influences} influences, {len(fitted.helpers)} helper joints "
           f"fitted to {len(G)} poses ({rom_frames} range of motion) in {fitted.seconds:.1f} s "
           f"(NR-MLS targets {target_s:.1f} s)")
@@ -165,7 +180,7 @@ def run(args) -> None:
                               tuple(None if m.rigid_joint is not None else m.weights for m in character.meshes), 0.0)
         errors, baseline = {}, {}
         for name, pose, clip in [("training", local, None)] + holdout:
-            Gh, Th = (G, targets) if clip is None else nrmls_targets(poser, pose)
+            Gh, Th = (G, targets) if pose is local else nrmls_targets(poser, pose)
             helper_local = tracks_of(pose, Gh, Th)
             if clip is not None and fitted.helpers:     # a clip's helpers as the file plays them: from its keys
                 if helper_local is None:
@@ -178,7 +193,7 @@ def run(args) -> None:
         # the file's animations: the source's clips and the --export ones, at --fps
         frames = sum(len(sample_times(c.duration, args.fps)) for c in written)
         report = {
-            "character": str(args.character), "vertices": V, "height": character_height(character),
+            "character": str(args.character), "skeleton": args.skeleton, "weights": weights, "vertices": V, "height": character_height(character),
             "influences": args.influences, "helpers": len(fitted.helpers), "helpers_requested": args.helpers,
             "helper_tracks": args.helper_tracks, "key_tolerance": args.key_tolerance,
             "helper_placement": helper_log,

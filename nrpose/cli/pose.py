@@ -12,9 +12,8 @@ from ..model.character import Clip, Track
 from ..model.timing import check_frame_count, sample_times
 from ..options import BACKENDS, BLENDS, DEFAULT_BLEND, METHODS, WEIGHTS
 from ..pose.poser import CharacterPoser, prefetch
-from .common import (add_budget_options, check_budget, check_outputs, frames_output_kind, median, output_values,
-                     progress,
-                     write_frames)
+from .common import (add_budget_options, character_with_weights, check_budget, check_outputs, frames_output_kind,
+                     median, output_values, progress, write_frames)
 
 #: library argument name -> the flag users type
 FLAGS = {"method": "--method", "weights": "--weights", "alpha": "--alpha", "blend": "--blend",
@@ -118,20 +117,9 @@ def run(args) -> None:
     if (args.rest or args.pose) and (args.time or args.frames):
         raise NrposeError("--time and --frames sample a clip; with --rest or --pose there is one frame: drop them")
     prefetch(args.method, args.backend)       # a skinning program compiles while the character loads
-    character = load_character(args.character, args.skeleton)
-    skel = character.skeleton
-    if args.weights_file:
-        if args.skeleton is None:
-            raise NrposeError("--weights-file gives the weights of a mesh character (a mesh with --skeleton "
-                              "SKELETON.tgf); a glTF file carries its own")
-        if args.weights != "authored":
-            raise NrposeError(f"--weights-file gives the weights; drop --weights {args.weights}")
-        # --weights-file only (a mesh + TGF character): libigl's DMAT reader, the bone weights' module
-        from ..bind.bone_weights import with_skin_weights
-        from ..io.tgf import read_dmat_weights
-
-        W = read_dmat_weights(args.weights_file, skel, sum(len(m.vertices) for m in character.meshes))
-        character = with_skin_weights(character, W)
+    if args.weights_file and args.weights != "authored":
+        raise NrposeError(f"--weights-file gives the weights; drop --weights {args.weights}")
+    character = character_with_weights(args.character, args.skeleton, args.weights_file)
     local, times, name = pose_input(character, clip=args.clip, motion=args.motion, pose=args.pose, rest=args.rest,
                                     time=args.time, frames=args.frames, fps=args.fps, kind=kind)
     vertices = sum(len(m.vertices) for m in character.meshes)
@@ -150,7 +138,7 @@ def run(args) -> None:
                              for p in ("translation", "rotation", "scale")))
         bounds = (frames.positions.min(axis=(0, 1)), frames.positions.max(axis=(0, 1)))   # viewers' culling
         from ..io.gltf_write import write_glb_with_clip
-        write_glb_with_clip(args.character, args.output, character, sampled_clip(name, times, keys, skel.rest_pose),
+        write_glb_with_clip(args.character, args.output, character, sampled_clip(name, times, keys, character.skeleton.rest_pose),
                             bounds, keep_animations=False)
     else:
         source = args.character if Path(args.character).suffix.lower() in (".glb", ".gltf") else None

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..bind.bone_weights import bone_weights, joint_weights, with_skin_weights
 from ..errors import InputError
 from ..model.character import Character, Mesh
 from ..model.skeleton import LocalPose
@@ -20,7 +21,7 @@ from ..pose.poser import CharacterPoser
 from .helper_joints import helper_skin_matrices
 from .skin_weights import candidate_joints, fit_weights, skin_positions
 
-__all__ = ["FittedSkin", "nrmls_targets", "fit_character", "fitted_positions", "mesh_space",
+__all__ = ["FittedSkin", "with_computed_skin", "nrmls_targets", "fit_character", "fitted_positions", "mesh_space",
            "error_table", "character_height", "skin_matrices"]
 
 
@@ -56,6 +57,21 @@ def mesh_space(character: Character, mesh: Mesh) -> tuple[np.ndarray, np.ndarray
     if mesh.bind_vertices is not None and mesh.inverse_bind is not None:
         return mesh.bind_vertices, mesh.inverse_bind
     return mesh.vertices, np.linalg.inv(character.skeleton.rest_globals())
+
+
+def with_computed_skin(character: Character, weights: str, alpha: float = 1.0) -> Character:
+    """A character whose meshes lack skin weights (a mesh + TGF/BVH skeleton) with the joint
+    weights of its ``weights`` bone weights (:func:`nrpose.bind.bone_weights.bone_weights`,
+    default k; :func:`~nrpose.bind.bone_weights.joint_weights`) as its skin: the joints a fit
+    starts from (:func:`nrpose.fit.skin_weights.candidate_joints`). A character with skin
+    weights is returned as it is; InputError for ``authored`` without them."""
+    if all(m.joints is not None for m in character.meshes):
+        return character
+    if weights == "authored":
+        raise InputError("the mesh has no skin weights to start the fit from: give --weights-file W.dmat, or "
+                         "--weights heat|exact|graph|euclidean to compute them")
+    bw = bone_weights(character, weights, None, alpha, parameters=False)
+    return with_skin_weights(character, joint_weights(bw.weights, bw.bones, character.skeleton.num_joints))
 
 
 def nrmls_targets(poser: CharacterPoser, local: LocalPose) -> tuple[np.ndarray, np.ndarray]:
@@ -116,9 +132,12 @@ def fitted_positions(character: Character, fitted: FittedSkin, G: np.ndarray,
 
 
 def character_height(character: Character) -> float:
-    """Vertical (Y, glTF's up) extent of the rest vertices, model units."""
-    Y = np.concatenate([m.vertices[:, 1] for m in character.meshes])
-    return float(Y.max() - Y.min())
+    """The character's height, model units: the vertical (Y, glTF's up) extent of the rest
+    vertices of a character read from glTF (its meshes have a ``source``); a mesh with a TGF or
+    BVH skeleton has no up axis, so the largest extent of its rest bounding box."""
+    V = np.concatenate([m.vertices for m in character.meshes])
+    extent = V.max(axis=0) - V.min(axis=0)
+    return float(extent[1] if all(m.source is not None for m in character.meshes) else extent.max())
 
 
 def error_table(character: Character, fitted: np.ndarray, targets: np.ndarray) -> dict:

@@ -1,4 +1,6 @@
-"""The source glTF written again with fitted skin weights (JOINTS_n / WEIGHTS_n).
+"""The source glTF written again with fitted skin weights (JOINTS_n / WEIGHTS_n), or, for a
+character with no glTF to copy (a mesh + TGF/BVH skeleton), a new skinned glTF of it
+(:mod:`nrpose.io.gltf_skinned`) with them.
 
 Everything else is kept (nodes, materials, UVs, normals, textures, the source's
 animations); all buffers are copied into the single GLB buffer and the new weights
@@ -23,6 +25,7 @@ import pygltflib
 from ..checks import within_float32
 from ..errors import InputError
 from ..io.gltf_read import clip_animations, joint_nodes, node_globals, read_document
+from ..io.gltf_skinned import skinned_document
 from ..io.gltf_write import Blob, add_channel, add_clip, check_copyable, copy_document, json_float32, save_glb
 from ..model.character import Character
 from ..model.timing import sample_times
@@ -108,6 +111,8 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     """Write source_path (.glb/.gltf of ``character``) to out_path (.glb) with the fitted weights
     on its skinned primitives, plus ``clips`` (Clips of its skeleton) as new animations; returns
     the file's size in bytes (the file itself is in place when the command's outputs commit).
+    source_path None: a character with no glTF to copy (a mesh + TGF/BVH skeleton) is written as
+    a new skinned document (:func:`nrpose.io.gltf_skinned.skinned_document`).
 
     Helper joints (``fitted.helpers``) become nodes, children of their parent joint's node, in
     every skin holding that joint (inverse bind appended); their rules are evaluated at ``fps``
@@ -118,12 +123,16 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     tracks: instead of the rules, per animation (the source's, then ``clips``) the helpers'
     local transforms (F, H, 4, 4) at ``fps`` (:func:`nrpose.fit.helper_tracks.fit_helper_tracks`).
     """
-    path = Path(source_path)
-    check_copyable(path)
-    places = skinned_primitives(path, character)
-    gltf, blob, buffers = copy_document(path)
-    _, nodes = joint_nodes(path, gltf, buffers)
     skeleton = character.skeleton
+    if source_path is None:
+        gltf, blob, nodes = skinned_document(character)
+        places = [(m, 0, 0, np.ones(skeleton.num_joints, bool)) for m in range(len(character.meshes))]
+    else:
+        path = Path(source_path)
+        check_copyable(path)
+        places = skinned_primitives(path, character)
+        gltf, blob, buffers = copy_document(path)
+        _, nodes = joint_nodes(path, gltf, buffers)
     for clip in clips:
         add_clip(gltf, blob, nodes, skeleton, clip)
     node_of = [int(n) for n in nodes] + add_helper_nodes(gltf, blob, character, places, fitted.helpers, nodes)
@@ -157,9 +166,10 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     if fitted.helpers:
         helper_nodes = node_of[skeleton.num_joints:]
         every = tuple(character.clips) + tuple(clips)
-        animations = [gltf.animations[a] for a in clip_animations(path, gltf, nodes)]    # the clips' own
+        animations = gltf.animations if source_path is None else \
+            [gltf.animations[a] for a in clip_animations(path, gltf, nodes)]    # the clips' own
         if len(animations) != len(every):
-            raise InputError(f"{path}: its animations do not match the loaded character's clips")
+            raise InputError(f"{source_path}: its animations do not match the loaded character's clips")
         for k, (animation, clip) in enumerate(zip(animations, every)):
             times = sample_times(clip.duration, fps)
             pose = clip.sample(times)

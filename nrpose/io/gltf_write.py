@@ -87,7 +87,7 @@ from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 from .gltf_schema import MAX_ITEMS
 
 __all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
-           "save_glb", "add_clip", "add_channel", "json_float32", "BakeReport", "Blob",
+           "save_glb", "add_clip", "add_channel", "json_float32", "new_document", "BakeReport", "Blob",
            "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
@@ -630,6 +630,17 @@ def _unique(name: str, gltf: pygltflib.GLTF2) -> str:
     return candidate
 
 
+def new_document() -> pygltflib.GLTF2:
+    """An empty glTF document written by nrpose: one empty scene and material 0, a grey one."""
+    gltf = pygltflib.GLTF2(asset=pygltflib.Asset(generator="nrpose", version="2.0"))
+    gltf.scene, gltf.scenes = 0, [pygltflib.Scene(nodes=[])]
+    gltf.materials = [pygltflib.Material(
+        name="nrpose", doubleSided=True,
+        pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(baseColorFactor=[0.62, 0.70, 0.86, 1.0],
+                                                            metallicFactor=0.0, roughnessFactor=0.8))]
+    return gltf
+
+
 def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets: Sequence[int] | None = None,
                        *, animation_name: str = "baked", source=None, quantize: bool = False,
                        rotations=None) -> BakeReport:
@@ -667,12 +678,7 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
         _check_required(gltf, source)
         gltf.animations = []
     else:
-        gltf, buffers = pygltflib.GLTF2(asset=pygltflib.Asset(generator="nrpose", version="2.0")), []
-        gltf.scene, gltf.scenes = 0, [pygltflib.Scene(nodes=[])]
-        gltf.materials = [pygltflib.Material(
-            name="nrpose", doubleSided=True,
-            pbrMetallicRoughness=pygltflib.PbrMetallicRoughness(baseColorFactor=[0.62, 0.70, 0.86, 1.0],
-                                                                metallicFactor=0.0, roughnessFactor=0.8))]
+        gltf, buffers = new_document(), []
         blob = Blob(gltf)
     rest_all = np.concatenate([m[1] for m in meshes])
     diagonal = float(np.linalg.norm(rest_all.max(axis=0) - rest_all.min(axis=0))) or 1.0

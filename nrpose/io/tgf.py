@@ -55,8 +55,8 @@ from ..native import quiet_native
 from . import MESH_SUFFIXES
 from .files import read_input, read_input_text
 
-__all__ = ["read_tgf", "read_dmat_pose", "read_dmat_weights", "read_dmat_animation", "bone_joints", "read_mesh",
-           "MESH_SUFFIXES"]
+__all__ = ["read_tgf", "read_dmat_pose", "read_dmat_weights", "read_dmat_animation", "dmat_is_pose", "bone_joints",
+           "read_mesh", "MESH_SUFFIXES"]
 
 
 def _tgf_sections(path: Path) -> tuple[list[tuple[int, list[str]]], list[tuple[int, list[str]]]]:
@@ -191,6 +191,12 @@ def read_dmat_pose(path: str | Path, skeleton: Skeleton) -> LocalPose:
     pose = skeleton.rest_pose
     pose.rotation[bone_joints(skeleton, "a DMAT pose")] = quats
     return pose
+
+
+def dmat_is_pose(path: str | Path, skeleton: Skeleton) -> bool:
+    """Whether a DMAT holds one pose (4·#B values: :func:`read_dmat_pose`) rather than an
+    animation (a multiple of 12·#B: :func:`read_dmat_animation`); the two never share a size."""
+    return _read_dmat(Path(path)).size == 4 * skeleton.num_joints
 
 
 def bone_joints(skeleton: Skeleton, what: str) -> np.ndarray:

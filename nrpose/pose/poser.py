@@ -268,14 +268,13 @@ class CharacterPoser:
 
         def compute() -> dict:
             # on a cache miss only: a cached skinning bind never imports the weights' module
-            from ..bind.bone_weights import authored_joint_weights, bone_weights
+            from ..bind.bone_weights import authored_joint_weights, bone_weights, joint_weights
 
             if authored:
                 joint_w = authored_joint_weights(deform, skel.num_joints)
             else:
                 bone_w = bone_weights(character, weights, SKIN_INFLUENCES, alpha).weights[self._deform_idx]
-                joint_w = np.zeros((len(V), skel.num_joints))
-                np.add.at(joint_w.T, self.bones.joints, bone_w.T)
+                joint_w = joint_weights(bone_w, self.bones, skel.num_joints)
             joints, wts = _compact(joint_w)
             joints = joints + offset[:, None]
             if faces is None:
