@@ -18,3 +18,12 @@ def played_rms(source, out, clip: str, fps: float = 30.0) -> float:
     lbs = CharacterPoser(back, method="lbs", backend="numpy").pose(played.sample(times)).positions
     _, targets = nrmls_targets(CharacterPoser(character, method="nrmls"), character.clip(clip).sample(times))
     return float(np.sqrt(((lbs - targets) ** 2).sum(axis=2).mean()) / character_height(character))
+
+
+def client_errors(positions, character, clip, times) -> list[float]:
+    """Per time, the largest distance, as a fraction of the bounding box, between a client's
+    vertex positions (one (V, 3) array per time) and nrpose's LBS of ``character`` (the file
+    loaded back) on ``clip`` at ``times``."""
+    want = CharacterPoser(character, method="lbs", backend="numpy").pose(clip.sample(times)).positions
+    size = np.ptp(want.reshape(-1, 3), axis=0).max()
+    return [np.abs(np.asarray(p, float) - w).max() / size for p, w in zip(positions, want)]

@@ -20,6 +20,8 @@ from nrpose.model.rotation import Rotation
 from nrpose.model.skeleton import LocalPose
 from nrpose.pose.poser import CharacterPoser
 
+from fit_skin_played import client_errors
+
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
 FOX = DATA / "gltf" / "Fox.glb"
@@ -240,12 +242,6 @@ def fitted_fox(tmp_path_factory, request):
     write_fitted_glb(FOX, out, fox, fitted)
     back = load_character(out)
     return out, back, back.clip("Survey")
-
-
-def client_errors(positions, character, clip, times):
-    want = CharacterPoser(character, method="lbs", backend="numpy").pose(clip.sample(times)).positions
-    size = np.ptp(want.reshape(-1, 3), axis=0).max()
-    return [np.abs(np.asarray(p, float) - w).max() / size for p, w in zip(positions, want)]
 
 
 def test_three_js_plays_the_fitted_file_as_nrpose_skins_it(fitted_fox):
