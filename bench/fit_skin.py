@@ -2,7 +2,9 @@
 
 Cases (issue 35's targets): Fox trained on Walk + Survey, Run held out; Mannequin and Ely
 trained on their own clip + the range of motion, CMU 131_03 retargeted onto them
-(``nrpose retarget``, in a temporary folder) held out. Each case is fitted with the given
+(``nrpose retarget``, in a temporary folder) held out. ``--only hand arm``: libigl's hand
+(heat weights) and arm (its weight file), meshes with a TGF skeleton, trained on 48 random
+poses + the range of motion, 48 others held out (:data:`MESH_CASES`). Each case is fitted with the given
 influences (default 4), helper-joint counts (default 0, 8, 16; per character with
 ``--helpers NAME=N``) and ``--helper-tracks`` modes
 (``--tracks``, default rule); the held-out motion is also exported into the file
@@ -27,9 +29,13 @@ import numpy as np
 import common
 import table1
 from nrpose.cli import main as nrpose
+from nrpose.cli.common import character_with_weights
 from nrpose.cli.fit_skin import motion
 from nrpose.fit.character_skin import character_height, nrmls_targets
 from nrpose.io import load_character
+from nrpose.io.bvh_write import write_bvh
+from nrpose.model.rotation import Rotation
+from nrpose.model.skeleton import LocalPose
 from nrpose.model.timing import sample_times
 from nrpose.pose.poser import CharacterPoser
 from nrpose.render.weightmap import save_weight_maps
@@ -39,40 +45,74 @@ MAP_SCALE = 0.01     # error map colour scale: 0 .. 1 % of the height
 CASES = (("Fox", ["Walk", "Survey"], "Run"),
          ("Mannequin", ["Armature|mixamo.com|Layer0"], "131_03"),
          ("Ely", ["Armature|mixamo.com|Layer0"], "131_03"))
+#: libigl characters, a mesh with a TGF skeleton (no glTF: the fitted file is a new one):
+#: (name, mesh, skeleton, libigl weight file or None for heat weights) in libigl/; trained on
+#: RANDOM_POSES random poses, another RANDOM_POSES held out (:func:`random_motion`)
+MESH_CASES = (("hand", "hand.mesh", "hand.tgf", None), ("arm", "arm.obj", "arm.tgf", "arm-weights.dmat"))
+RANDOM_POSES, RANDOM_DEGREES = 48, 40.0
+
+
+def random_motion(mesh: pathlib.Path, skeleton: pathlib.Path, out: pathlib.Path, seed: int) -> str:
+    """A BVH on the TGF skeleton (its joint names) of RANDOM_POSES poses, each joint turned by up to
+    RANDOM_DEGREES about a random axis (seeded); its path."""
+    skel = load_character(mesh, skeleton).skeleton
+    rng = np.random.default_rng(seed)
+    axes = rng.normal(size=(RANDOM_POSES, skel.num_joints, 3))
+    angles = np.radians(RANDOM_DEGREES) * rng.uniform(size=(RANDOM_POSES, skel.num_joints, 1))
+    rest = skel.rest_pose
+    pose = LocalPose(np.tile(rest.translation, (RANDOM_POSES, 1, 1)),
+                     Rotation.from_rotvec((angles * axes / np.linalg.norm(axes, axis=2, keepdims=True))
+                                          .reshape(-1, 3)).as_quat().reshape(RANDOM_POSES, -1, 4),
+                     np.tile(rest.scale, (RANDOM_POSES, 1, 1)))
+    write_bvh(out, skel, pose, 1 / 30)
+    return str(out)
 
 
 def run_case(data: pathlib.Path, tmp: pathlib.Path, name: str, train, holdout: str, k: int, helpers: int,
              tracks: str = "rule", maps: bool = True) -> dict:
-    src = data / "gltf" / f"{name}.glb"
+    mesh = {c[0]: c[1:] for c in MESH_CASES}.get(name)
+    if mesh is None:
+        source = [str(data / "gltf" / f"{name}.glb")]
+    else:
+        files = [data / "libigl" / f for f in mesh[:2]]
+        source = [str(files[0]), "--skeleton", str(files[1])] + \
+            (["--weights-file", str(data / "libigl" / mesh[2])] if mesh[2] else [])
+        train = [random_motion(*files, tmp / f"{name}_train.bvh", seed=1)]
+        holdout = random_motion(*files, tmp / f"{name}_holdout.bvh", seed=2)
     if holdout == "131_03":
         motion = tmp / f"{name}_131_03.glb"
-        if not motion.exists() and nrpose(["retarget", str(data / "bvh" / "131_03.bvh"), str(src),
+        if not motion.exists() and nrpose(["retarget", str(data / "bvh" / "131_03.bvh"), source[0],
                                            "-o", str(motion)]):
             raise SystemExit(2)
         holdout = str(motion)
     tag = f"{name}_{k}_{helpers}" + ("_tracks" if tracks == "fitted" else "")
     report, out = tmp / f"{tag}.json", tmp / f"{tag}.glb"
-    if nrpose(["fit-skin", str(src), "--train", *train, "--holdout", holdout, "--export", holdout,
+    if nrpose(["fit-skin", *source, "--train", *train, "--holdout", holdout, "--export", holdout,
                "--influences", str(k), "--helpers", str(helpers), "--helper-tracks", tracks,
                "-o", str(out), "--report", str(report)]):
         raise SystemExit(2)
+    r = json.loads(report.read_text())
     if maps and (k == 4 or tracks == "fitted"):
         png = f"fit_skin_{name}_h{helpers}.png" if tracks == "rule" else f"fit_skin_{name}_k{k}_h{helpers}_tracks.png"
-        error_map(src, out, holdout, pathlib.Path(__file__).with_name("results") / png)
-    return json.loads(report.read_text())
+        error_map(source, r["weights"], out, holdout, pathlib.Path(__file__).with_name("results") / png)
+    return r
 
 
-def error_map(src: pathlib.Path, fitted_file: pathlib.Path, holdout: str, png: pathlib.Path) -> None:
+def error_map(source: list, weights: str, fitted_file: pathlib.Path, holdout: str, png: pathlib.Path) -> None:
     """Per-vertex RMS over the held-out frames of the fitted file's LBS vs NR-MLS, drawn at rest.
 
     The file's LBS: its exported held-out animation (the last) played by nrpose's LBS, helpers
-    moved by their channels; NR-MLS of the same motion on the source character."""
-    character, back = load_character(src), load_character(fitted_file)
+    moved by their channels; NR-MLS (with ``weights``) of the same motion on the source
+    character (``source``: fit-skin's arguments naming it)."""
+    src = pathlib.Path(source[0])
+    given = dict(zip(source[1::2], source[2::2]))
+    character = character_with_weights(source[0], given.get("--skeleton"), given.get("--weights-file"))
+    back = load_character(fitted_file)
     clip = back.clips[-1]
     times = sample_times(clip.duration, 30.0)
     lbs = CharacterPoser(back, method="lbs", backend="numpy").pose(clip.sample(times)).positions
     _, local, _ = motion(character, holdout, 30.0, pose_ok=False)
-    _, targets = nrmls_targets(CharacterPoser(character, method="nrmls"), local)
+    _, targets = nrmls_targets(CharacterPoser(character, method="nrmls", weights=weights), local)
     rms = np.sqrt(((lbs - targets) ** 2).sum(axis=2).mean(axis=0))
     V = np.concatenate([m.vertices for m in character.meshes])
     offsets = np.cumsum([0] + [len(m.vertices) for m in character.meshes])
@@ -93,13 +133,14 @@ def main(argv=None) -> int:
     ap.add_argument("--tracks", nargs="+", default=["rule"], choices=("rule", "fitted"),
                     help="fit-skin --helper-tracks modes to run (default rule)")
     ap.add_argument("--curve", help="a PNG of held-out RMS / max and file size against the helper count (no maps)")
-    ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES], help="characters to run (default all)")
+    ap.add_argument("--only", nargs="+", choices=[c[0] for c in CASES + MESH_CASES],
+                    help="characters to run (default: the glTF ones, Fox, Mannequin, Ely)")
     a = ap.parse_args(argv)
     data = pathlib.Path(a.data)
     if not (data / "gltf").is_dir():
         print(f"bench/fit_skin.py: error: no gltf/ folder in {data}", file=sys.stderr)
         return 2
-    counts = {name: [] for name, *_ in CASES}
+    counts = {name: [] for name, *_ in CASES + MESH_CASES}
     for item in a.helpers:
         name, _, n = item.rpartition("=")
         if not n.isdigit() or (name and name not in counts):
@@ -110,8 +151,8 @@ def main(argv=None) -> int:
             counts[key].append(int(n))
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
-        for name, train, holdout in CASES:
-            if a.only and name not in a.only:
+        for name, train, holdout in CASES + tuple((c[0], [], "") for c in MESH_CASES):
+            if (name not in a.only) if a.only else (name not in [c[0] for c in CASES]):
                 continue
             for k, n, mode in [(k, n, m) for k in a.influences for n in counts[name] for m in a.tracks]:
                 r = run_case(data, pathlib.Path(tmp), name, train, holdout, k, n, mode, maps=not a.curve)

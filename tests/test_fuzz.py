@@ -75,6 +75,8 @@ SEED_RUNS = {
     "fit-skin": ["fit-skin", "in/c/body.glb", "--train", "bend", "in/t/rig.bvh", "in/p/pose.json", "--holdout",
                  "bend", "--export", "in/t/rig.bvh", "--rom-degrees", "10", "--fps", "5", "-o", "out/f.glb",
                  "--report", "out/r.json"],
+    "fit-skin-tgf": ["fit-skin", "in/m/body.obj", "--skeleton", "in/s/rig.tgf", "--train", "in/p/pose.dmat",
+                     "--rom-degrees", "10", "-o", "out/f.glb", "--report", "out/r.json"],
     "demo": ["demo", "--out", "out/d", "--frames", "2", "--repeat", "1"],
     "bake": ["bake", "in/j/jobs.json", "-o", "out/bake", "--workers", "1", "--summary", "out/s.json"],
 }

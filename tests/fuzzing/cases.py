@@ -171,11 +171,18 @@ def _bake(b: _Builder) -> tuple[str, list]:
 
 
 def _fit_skin(b: _Builder) -> tuple[str, list]:
-    """The seed glTF (74 vertices, 7 joints) fitted to a few training motions at a low --fps."""
+    """The seed glTF (74 vertices, 7 joints), or a seed mesh with the TGF (trained on a DMAT pose)
+    or BVH skeleton (on its clip), fitted to a few training motions at a low --fps."""
     r = b.rng
-    train = r.choice([[CLIP], [CLIP], ["bvh"], ["pose_json"], ["glb"], [CLIP, "bvh", "pose_json"]])
-    specs = [t if t == CLIP else b.file(f"train{i}", t) for i, t in enumerate(train)]
-    argv = ["fit-skin", b.file("character", r.choice(GLTF)), "--train", *specs, "-o", "out/f.glb",
+    if r.random() < 0.3:
+        sk = r.choice(["tgf", "bvh"])
+        train = [r.choice(["dmat_ascii", "dmat_binary"])] if sk == "tgf" else ["rig"]
+        character = [b.file("character", r.choice(MESHES)), "--skeleton", b.file("skeleton", sk)]
+    else:
+        train = r.choice([[CLIP], [CLIP], ["bvh"], ["pose_json"], ["glb"], [CLIP, "bvh", "pose_json"]])
+        character = [b.file("character", r.choice(GLTF))]
+    specs = [t if t in (CLIP, "rig") else b.file(f"train{i}", t) for i, t in enumerate(train)]
+    argv = ["fit-skin", *character, "--train", *specs, "-o", "out/f.glb",
             "--fps", r.choice(["5", "3"]), *b.maybe(0.7, "--rom-degrees", r.choice(["0", "10", "30", "90"])),
             *b.maybe(0.3, "--report", "out/r.json")]
     if r.random() < 0.2:
