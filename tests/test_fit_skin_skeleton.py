@@ -87,13 +87,17 @@ def test_the_file_is_the_skeleton_and_mesh_with_the_exported_clip(tube, fitted_t
     out, r, back = fitted_tube
     assert r["weights"] == "heat" and r["helpers"] == 2 and r["height"] == pytest.approx(2.0)
     assert back.skeleton.names[:2] == ("bone0", "bone1")
-    assert sorted(back.skeleton.names[2:]) == ["nrpose_helper_0", "nrpose_helper_1"]
+    assert sorted(back.skeleton.names[2:]) == ["bone1_end", "nrpose_helper_0", "nrpose_helper_1"]
     assert np.array_equal(back.skeleton.parents[:2], character.skeleton.parents)
     assert np.allclose(back.skeleton.rest_globals()[:2], character.skeleton.rest_globals(), atol=1e-6)
     m = back.meshes[0]
     assert np.array_equal(m.faces, character.meshes[0].faces)
     assert np.abs(m.bind_vertices - character.meshes[0].vertices).max() < 1e-6      # POSITION: the bind shape
     assert m.joints.shape[1] == 4 and np.allclose(m.weights.sum(axis=1), 1.0) and (m.weights >= 0).all()
+    # the TGF's last tip is an end joint, so nrpose reads the file back with the TGF's bones
+    end = back.skeleton.index("bone1_end")
+    assert back.skeleton.parents[end] == 1 and np.allclose(back.skeleton.rest_globals()[end, :3, 3], [2, 0, 0])
+    assert not m.weights[m.joints == end].any()
     assert [c.name for c in back.clips] == ["bend"]
 
 
@@ -141,20 +145,50 @@ def test_a_mesh_with_a_bvh_skeleton_keeps_its_motion(tmp_path, capsys):
     assert r["errors"]["training"]["rms"] < r["authored_lbs_errors"]["training"]["rms"]
     character = load_character(tmp_path / "body.obj", tmp_path / "walk.bvh")
     back = load_character(out)
-    assert back.skeleton.names == character.skeleton.names
+    skeleton = character.skeleton
+    leaves = [n for j, n in enumerate(skeleton.names) if not len(skeleton.children(j))]
+    assert set(back.skeleton.names) == set(skeleton.names) | {f"{n}_end" for n in leaves}     # the end sites
+    index = [back.skeleton.index(n) for n in skeleton.names]
     assert [c.name for c in back.clips] == ["walk"]
-    want = character.skeleton.forward_kinematics(character.clip("walk").sample(times))
-    assert np.abs(back.skeleton.forward_kinematics(back.clip("walk").sample(times)) - want).max() < 1e-4
+    want = skeleton.forward_kinematics(character.clip("walk").sample(times))
+    assert np.abs(back.skeleton.forward_kinematics(back.clip("walk").sample(times))[:, index] - want).max() < 1e-4
+
+
+def test_several_roots_get_a_common_root_and_every_bone_reads_back(tmp_path, capsys):
+    """Two separate TGF chains (two roots, one a single bone): the skin's joints share the root node
+    glTF requires, and nrpose poses the file it wrote with NR-MLS."""
+    V, F = cylinder_mesh(rings=21, sectors=12)
+    write_geometry(tmp_path / "two.obj", V, F)
+    (tmp_path / "two.tgf").write_text("1 0 0 0\n2 1 0 0\n3 1 0 0\n4 2 0 0\n#\n1 2\n3 4\n#\n")
+    (tmp_path / "pose.json").write_text(json.dumps({"rotations": {"bone1": quat([0, 0, 1], 50).tolist()}}))
+    out = tmp_path / "two.glb"
+    code, _, err = run(["fit-skin", tmp_path / "two.obj", "--skeleton", tmp_path / "two.tgf", "--weights",
+                        "euclidean", "--train", tmp_path / "pose.json", "-o", out], capsys)
+    assert code == 0, err
+    import pygltflib
+    gltf = pygltflib.GLTF2.load(str(out))
+    root = gltf.skins[0].skeleton
+    assert gltf.nodes[root].name == "nrpose_root" and root not in gltf.skins[0].joints
+    assert sorted(gltf.nodes[root].children) == [0, 1] and gltf.scenes[0].nodes[0] == root
+    assert {"bone0_end", "bone1_end"} <= {n.name for n in gltf.nodes}
+    code, _, err = run(["pose", out, "--rest", "-o", tmp_path / "rest.npz"], capsys)
+    assert code == 0, err
 
 
 @needs_data
 def test_libigl_arm_with_its_weights_file(tmp_path, capsys):
+    arm = load_character(LIBIGL / "arm.obj", LIBIGL / "arm.tgf")
     (tmp_path / "pose.json").write_text(json.dumps({"rotations": {"bone1": quat([0, 0, 1], 45).tolist(),
                                                                   "bone2": quat([1, 0, 0], 30).tolist()}}))
+    pose = arm.skeleton.rest_pose
+    pose.rotation[arm.skeleton.index("bone2")] = quat([0, 1, 0], 40)
+    lift = LocalPose(*(np.stack([getattr(arm.skeleton.rest_pose, f), getattr(pose, f)])
+                       for f in ("translation", "rotation", "scale")))
+    write_dmat(tmp_path / "lift.dmat", motion_matrix(arm.skeleton, arm.skeleton.forward_kinematics(lift)))
     out, report = tmp_path / "arm.glb", tmp_path / "r.json"
     code, _, err = run(["fit-skin", LIBIGL / "arm.obj", "--skeleton", LIBIGL / "arm.tgf", "--weights-file",
                         LIBIGL / "arm-weights.dmat", "--train", tmp_path / "pose.json", "--influences", 8,
-                        "--helpers", 4, "-o", out, "--report", report], capsys)
+                        "--helpers", 4, "--export", tmp_path / "lift.dmat", "-o", out, "--report", report], capsys)
     assert code == 0, err
     r = json.loads(report.read_text())
     assert r["weights"] == "authored" and r["vertices"] == 8311
@@ -167,6 +201,8 @@ def test_libigl_arm_with_its_weights_file(tmp_path, capsys):
     (["--skeleton", None], "needs a skeleton"),
     (["--weights", "authored"], "no skin weights"),
     (["--export", "pose.dmat"], "--export takes animations"),
+    (["--skeleton", "tube.obj"], "a mesh needs a skeleton, a .tgf or .bvh"),
+    (["--helpers", "2"], "helper joints move only in the file's animations"),
     (["--weights-file", "pose.dmat"], "expected"),
     (["--train", "bones.dmat"], "do not divide into frames"),
 ])
@@ -174,10 +210,11 @@ def test_cli_bad_mesh_inputs_exit_2_one_line_no_output(tube, tmp_path, capsys, e
     d, character = tube
     write_dmat(d / "pose.dmat", np.tile([0.0, 0, 0, 1], 2)[:, None])
     write_dmat(d / "bones.dmat", np.ones((5, 1)))
-    args = ["fit-skin", d / "tube.obj", "--skeleton", d / "tube.tgf", "--train", d / "pose.json"]
+    skeleton = [] if extra == ["--skeleton", None] else ["--skeleton", d / "tube.tgf"]
     if extra[0] == "--skeleton":
-        args = ["fit-skin", d / "tube.obj", "--train", d / "pose.json"]
-    else:
+        skeleton, extra = ([] if extra[1] is None else ["--skeleton", d / extra[1]]), []
+    args = ["fit-skin", d / "tube.obj", *skeleton, "--train", d / "pose.json"]
+    if extra:
         args += [extra[0], d / extra[1] if extra[1].endswith(".dmat") else extra[1]]
     out = tmp_path / "o.glb"
     code, _, err = run(args + ["-o", out], capsys)

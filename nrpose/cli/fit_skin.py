@@ -37,8 +37,8 @@ MAX_POSES = 10_000   # poses of one set: the helper fit's time grows with them (
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("fit-skin", help="fit LBS weights that reproduce NR-MLS; write a copy of the glTF "
-                                        "any engine plays")
+    p = sub.add_parser("fit-skin", help="fit LBS weights that reproduce NR-MLS; write a skinned glTF any engine "
+                                        "plays (a copy of a glTF character, or a new file for a mesh + skeleton)")
     p.add_argument("character", help=".glb/.gltf character (skinned; the output is a copy of it), or a mesh "
                                      "(OBJ, OFF, PLY, STL, .mesh) with --skeleton (the output is a new skinned glTF)")
     p.add_argument("--skeleton", help="skeleton of a mesh character (.tgf or .bvh, whose motion is its clip)")
@@ -58,7 +58,8 @@ def add_parser(sub) -> None:
     p.add_argument("--rom-degrees", type=float, default=ROM_DEGREES,
                    help=f"range-of-motion sweep about each local axis, degrees (default {ROM_DEGREES:g}); a humanoid "
                         "also gets anatomical poses (0: no range of motion at all)")
-    p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation")
+    p.add_argument("--fps", type=float, default=30.0, help="clip sampling rate for training and evaluation, and the "
+                                                                 "frame rate of a DMAT animation (default 30)")
     p.add_argument("--influences", type=int, default=4, help="joints per vertex: 4 or 8 (default 4)")
     p.add_argument("--helpers", type=int, default=0,
                    help="helper joints added where the residual is largest (default 0)")
@@ -81,9 +82,9 @@ def motion(character, spec: str, fps: float, pose_ok: bool = True):
     suffix = Path(spec).suffix.lower()
     if spec in names:
         clip = character.clip(spec)
-    elif suffix == ".dmat" and dmat_is_pose(spec, character.skeleton):
+    elif suffix == ".json" or (suffix == ".dmat" and dmat_is_pose(spec, character.skeleton)):
         if not pose_ok:
-            raise NrposeError(f"{spec}: a pose DMAT (one frame); --export takes animations")
+            raise NrposeError(f"{spec}: a pose (one frame); --export takes animations")
         return spec, LocalPose(*(a[None] for a in astuple(load_pose(spec, character.skeleton)))), None
     elif suffix == ".dmat":
         clip = read_dmat_animation(spec, character.skeleton, fps)
@@ -93,8 +94,6 @@ def motion(character, spec: str, fps: float, pose_ok: bool = True):
         if not loaded.clips:
             raise NrposeError(f"{spec}: no animation in the file")
         clip = motion_clip(Character(loaded.skeleton, (), loaded.clips[-1:]), character.skeleton, spec)
-    elif pose_ok and suffix == ".json":
-        return spec, LocalPose(*(a[None] for a in astuple(load_pose(spec, character.skeleton)))), None
     else:
         raise NrposeError(f"{spec!r}: not a clip of the character ({', '.join(map(repr, names)) or 'none'}), "
                           f"a .bvh, a .glb on its skeleton, a libigl .dmat{' or a pose .json' if pose_ok else ''}")
@@ -107,7 +106,8 @@ def run(args) -> None:
     if args.helpers < 0:
         raise NrposeError(f"--helpers {args.helpers}: expected a count >= 0")
     if not args.train:
-        raise NrposeError("no training motion: give --train CLIP|BVH|POSE (the range of motion is added to it)")
+        raise NrposeError("no training motion: give --train CLIP|BVH|GLB|DMAT|POSE (the range of motion is added "
+                          "to it)")
     if not (np.isfinite(args.fps) and args.fps > 0):
         raise NrposeError(f"--fps {args.fps}: expected a positive number")
     if not (np.isfinite(args.rom_degrees) and 0 <= args.rom_degrees <= 180):
@@ -120,11 +120,8 @@ def run(args) -> None:
     source = args.character if Path(args.character).suffix.lower() in (".glb", ".gltf") else None
     character = character_with_weights(args.character, args.skeleton, args.weights_file)
     weights = args.weights or ("heat" if source is None and not args.weights_file else "authored")
-    if source is None:      # the skin the fit starts from: the weights file's, else the NR-MLS weights'
-        character = with_computed_skin(character, weights, args.alpha)
-        allowed = [None] * len(character.meshes)
-    else:
-        allowed = [None if p is None else p[3] for p in skinned_primitives(source, character)]
+    allowed = [None] * len(character.meshes) if source is None else \
+        [None if p is None else p[3] for p in skinned_primitives(source, character)]
     train = [motion(character, s, args.fps) for s in args.train]
     holdout = [motion(character, s, args.fps) for s in args.holdout]
     export = [motion(character, s, args.fps, pose_ok=False) for s in args.export]
@@ -147,6 +144,11 @@ def run(args) -> None:
         if frames * V > MAX_VERTEX_FRAMES:
             raise NrposeError(f"{name}: {frames} poses x {V} vertices is more than {MAX_VERTEX_FRAMES:,} at once; "
                               "lower --fps or --rom-degrees, or train on less")
+    if args.helpers and not written:
+        raise NrposeError(f"--helpers {args.helpers}: helper joints move only in the file's animations and it "
+                          "has none; add one with --export MOTION, or use --helpers 0")
+    if source is None:      # the skin the fit starts from: the weights file's, else the NR-MLS weights'
+        character = with_computed_skin(character, weights, args.alpha)
     poser = CharacterPoser(character, method="nrmls", weights=weights, alpha=args.alpha)
     t0 = time.perf_counter()
     G, targets = nrmls_targets(poser, local)
@@ -181,10 +183,12 @@ def run(args) -> None:
         errors, baseline = {}, {}
         for name, pose, clip in [("training", local, None)] + holdout:
             Gh, Th = (G, targets) if pose is local else nrmls_targets(poser, pose)
-            helper_local = tracks_of(pose, Gh, Th)
+            # fitted tracks where the file holds them: the training set's and the written clips'
+            played = pose is local or (clip is not None and (clip in character.clips or name in args.export))
+            helper_local = tracks_of(pose, Gh, Th) if played else None
+            if helper_local is None and fitted.helpers:
+                helper_local = rule_locals(fitted.helpers, character.skeleton, pose)
             if clip is not None and fitted.helpers:     # a clip's helpers as the file plays them: from its keys
-                if helper_local is None:
-                    helper_local = rule_locals(fitted.helpers, character.skeleton, pose)
                 helper_local = helper_keys(character, fitted, Gh, helper_local, sample_times(clip.duration, args.fps),
                                            args.key_tolerance)[1]
             errors[name] = error_table(character, fitted_positions(character, fitted, Gh, pose, helper_local), Th)
@@ -193,7 +197,8 @@ def run(args) -> None:
         # the file's animations: the source's clips and the --export ones, at --fps
         frames = sum(len(sample_times(c.duration, args.fps)) for c in written)
         report = {
-            "character": str(args.character), "skeleton": args.skeleton, "weights": weights, "vertices": V, "height": character_height(character),
+            "character": str(args.character), "skeleton": args.skeleton, "weights_file": args.weights_file,
+            "weights": weights, "vertices": V, "height": character_height(character),
             "influences": args.influences, "helpers": len(fitted.helpers), "helpers_requested": args.helpers,
             "helper_tracks": args.helper_tracks, "key_tolerance": args.key_tolerance,
             "helper_placement": helper_log,
@@ -212,5 +217,5 @@ def run(args) -> None:
         for name, e in errors.items():
             b = baseline[name]
             print(f"  {name}: RMS {100 * e['rms_fraction']:.3f} % of height, max {100 * e['max_fraction']:.3f} %"
-                  f" ({e['frames']} frames; authored weights: RMS {100 * b['rms_fraction']:.3f} %, "
+                  f" ({e['frames']} frames; LBS with the skin weights: RMS {100 * b['rms_fraction']:.3f} %, "
                   f"max {100 * b['max_fraction']:.3f} %)")

@@ -138,8 +138,8 @@ def run(args) -> None:
                              for p in ("translation", "rotation", "scale")))
         bounds = (frames.positions.min(axis=(0, 1)), frames.positions.max(axis=(0, 1)))   # viewers' culling
         from ..io.gltf_write import write_glb_with_clip
-        write_glb_with_clip(args.character, args.output, character, sampled_clip(name, times, keys, character.skeleton.rest_pose),
-                            bounds, keep_animations=False)
+        clip = sampled_clip(name, times, keys, character.skeleton.rest_pose)
+        write_glb_with_clip(args.character, args.output, character, clip, bounds, keep_animations=False)
     else:
         source = args.character if Path(args.character).suffix.lower() in (".glb", ".gltf") else None
         report = write_frames(args.output, frames, times, args.format, character, source, args.quantize, name,

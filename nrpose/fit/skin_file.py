@@ -125,8 +125,7 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     """
     skeleton = character.skeleton
     if source_path is None:
-        gltf, blob, nodes = skinned_document(character)
-        places = [(m, 0, 0, np.ones(skeleton.num_joints, bool)) for m in range(len(character.meshes))]
+        gltf, blob, nodes, places = skinned_document(character)
     else:
         path = Path(source_path)
         check_copyable(path)
@@ -166,10 +165,11 @@ def write_fitted_glb(source_path, out_path, character: Character, fitted: Fitted
     if fitted.helpers:
         helper_nodes = node_of[skeleton.num_joints:]
         every = tuple(character.clips) + tuple(clips)
-        animations = gltf.animations if source_path is None else \
-            [gltf.animations[a] for a in clip_animations(path, gltf, nodes)]    # the clips' own
-        if len(animations) != len(every):
-            raise InputError(f"{source_path}: its animations do not match the loaded character's clips")
+        animations = gltf.animations
+        if source_path is not None:
+            animations = [gltf.animations[a] for a in clip_animations(path, gltf, nodes)]    # the clips' own
+            if len(animations) != len(every):
+                raise InputError(f"{path}: its animations do not match the loaded character's clips")
         for k, (animation, clip) in enumerate(zip(animations, every)):
             times = sample_times(clip.duration, fps)
             pose = clip.sample(times)
@@ -204,7 +204,9 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
         skin = gltf.skins[place[2]]
         _, ibm = mesh_space(character, mesh)
         joint_of = {int(n): j for j, n in enumerate(nodes)}
-        mats = [ibm[joint_of[int(n)]] for n in skin.joints]
+        # a skin's node that is no joint of the character (a new document's end node): bound at rest
+        world = node_globals("the document", gltf)[1]
+        mats = [ibm[joint_of[int(n)]] if int(n) in joint_of else np.linalg.inv(world[int(n)]) for n in skin.joints]
         for helper, node in zip(helpers, added):
             if int(nodes[helper.parent]) in skin.joints:
                 skin.joints.append(node)

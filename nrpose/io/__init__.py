@@ -70,8 +70,9 @@ def load_character(path: str | Path, skeleton: str | Path | None = None) -> Char
                               f".tgf or a mesh ({', '.join(MESH_SUFFIXES)}) with a skeleton")
     reader, kind = READERS[suffix]
     if kind == "mesh":
-        if skeleton is None:
-            raise InputError(f"{path}: a mesh needs a skeleton (a .tgf or .bvh file)")
+        if skeleton is None or READERS.get(Path(skeleton).suffix.lower(), (None, None))[1] != "skeleton":
+            raise InputError(f"{path}: a mesh needs a skeleton, a .tgf or .bvh file"
+                             + ("" if skeleton is None else f" (got {skeleton})"))
         base = load_character(skeleton)
         return Character(base.skeleton, (reader(path),), base.clips)
     if skeleton is not None:

@@ -87,8 +87,8 @@ from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 from .gltf_schema import MAX_ITEMS
 
 __all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
-           "save_glb", "add_clip", "add_channel", "json_float32", "new_document", "BakeReport", "Blob",
-           "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
+           "save_glb", "add_clip", "add_channel", "json_float32", "new_document", "unique_name", "BakeReport",
+           "Blob", "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
 QUANTIZATION = "KHR_mesh_quantization"
@@ -622,11 +622,13 @@ def _primitive(blob: Blob, template, base_positions, base_normals, base_tangents
                                extensions=extensions, extras=template.extras)
 
 
-def _unique(name: str, gltf: pygltflib.GLTF2) -> str:
-    """``name``, or ``name.2``, ``name.3`` ... : the first no node of ``gltf`` has."""
-    taken, candidate, k = {n.name for n in gltf.nodes}, name, 2
+def unique_name(name: str, taken: set) -> str:
+    """``name``, or ``name.2``, ``name.3`` ... : the first not in ``taken`` (node names), which
+    it joins."""
+    candidate, k = name, 2
     while candidate in taken:
         candidate, k = f"{name}.{k}", k + 1
+    taken.add(candidate)
     return candidate
 
 
@@ -734,9 +736,9 @@ def write_animated_glb(path, character_or_meshes, positions, times, mesh_offsets
             kept = gltf.nodes[source_node]
             kept.mesh = kept.skin = None
             if source_node in joints:
-                name = _unique(f"{node.name}.posed", gltf)
+                name = unique_name(f"{node.name}.posed", {n.name for n in gltf.nodes})
             else:
-                kept.name = _unique(f"{node.name}.bind", gltf)
+                kept.name = unique_name(f"{node.name}.bind", {n.name for n in gltf.nodes})
         gltf.nodes.append(pygltflib.Node(name=name, mesh=len(gltf.meshes) - 1,
                                          scale=[scale] * 3 if scale != 1.0 else None))
         scene.nodes = list(scene.nodes or []) + [len(gltf.nodes) - 1]
