@@ -137,9 +137,12 @@ def main(argv=None) -> int:
                     help="characters to run (default: the glTF ones, Fox, Mannequin, Ely)")
     a = ap.parse_args(argv)
     data = pathlib.Path(a.data)
-    if not (data / "gltf").is_dir():
-        print(f"bench/fit_skin.py: error: no gltf/ folder in {data}", file=sys.stderr)
-        return 2
+    meshes = [c[0] for c in MESH_CASES]
+    folders = {"libigl" if name in meshes else "gltf" for name in a.only or [c[0] for c in CASES]}
+    for folder in sorted(folders):
+        if not (data / folder).is_dir():
+            print(f"bench/fit_skin.py: error: no {folder}/ folder in {data}", file=sys.stderr)
+            return 2
     counts = {name: [] for name, *_ in CASES + MESH_CASES}
     for item in a.helpers:
         name, _, n = item.rpartition("=")
