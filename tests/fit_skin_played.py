@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from nrpose.fit.character_skin import character_height, nrmls_targets
 from nrpose.io import load_character
@@ -27,3 +28,31 @@ def client_errors(positions, character, clip, times) -> list[float]:
     want = CharacterPoser(character, method="lbs", backend="numpy").pose(clip.sample(times)).positions
     size = np.ptp(want.reshape(-1, 3), axis=0).max()
     return [np.abs(np.asarray(p, float) - w).max() / size for p, w in zip(positions, want)]
+
+
+def three_js_errors(out, back, clip) -> list[float]:
+    """:func:`client_errors` of three.js (headless Chromium) playing the file ``out``, loaded back
+    by nrpose as ``back``, at the start, middle and end of ``clip``; skips without Chromium."""
+    from clients import browser
+    reason = browser.available()
+    if reason:
+        pytest.skip(reason)
+    times = np.array([0.0, 0.49 * clip.duration, clip.duration - 1e-3])   # three.js loops at the end
+    report = browser.probe(out, times, clip=clip.name)
+    assert not report.get("errors") and report.get("warnings", []) == [], report
+    return client_errors([s["meshes"][0]["positions"] for s in report["samples"]], back, clip, times)
+
+
+def blender_errors(out, back, clip) -> list[float]:
+    """:func:`client_errors` of Blender importing and playing the file ``out`` at the first,
+    middle and last keys of ``clip`` (Blender interpolates quaternion components between keys);
+    skips without a Python with bpy."""
+    from clients import blender
+    reason = blender.available()
+    if reason:
+        pytest.skip(reason)
+    keys = max(clip.tracks, key=lambda t: len(t.times)).times
+    times = keys[[0, len(keys) // 2, -1]]
+    report = blender.probe(out, times, clip.name)
+    assert "ERROR" not in report["log"], report["log"]
+    return client_errors([report["positions"][i][0] for i in range(len(times))], back, clip, times)

@@ -20,7 +20,7 @@ from nrpose.model.rotation import Rotation
 from nrpose.model.skeleton import LocalPose
 from nrpose.pose.poser import CharacterPoser
 
-from fit_skin_played import client_errors
+from fit_skin_played import blender_errors, three_js_errors
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 needs_data = pytest.mark.skipif(not DATA.is_dir(), reason=f"shared assets not found at {DATA}")
@@ -245,29 +245,13 @@ def fitted_fox(tmp_path_factory, request):
 
 
 def test_three_js_plays_the_fitted_file_as_nrpose_skins_it(fitted_fox):
-    from clients import browser
-    reason = browser.available()
-    if reason:
-        pytest.skip(reason)
     out, back, clip = fitted_fox
     if back.meshes[0].joints.shape[1] > 4:
         pytest.skip("three.js r111 skins with JOINTS_0/WEIGHTS_0 only (4 influences)")
-    times = np.array([0.0, 0.49 * clip.duration, clip.duration - 1e-3])   # three.js loops at the end
-    report = browser.probe(out, times, clip=clip.name)
-    assert not report.get("errors") and report.get("warnings", []) == [], report
-    errors = client_errors([s["meshes"][0]["positions"] for s in report["samples"]], back, clip, times)
+    errors = three_js_errors(out, back, clip)
     assert max(errors) <= 1e-5, errors
 
 
 def test_blender_plays_the_fitted_file_as_nrpose_skins_it(fitted_fox):
-    from clients import blender
-    reason = blender.available()
-    if reason:
-        pytest.skip(reason)
-    out, back, clip = fitted_fox
-    keys = max(clip.tracks, key=lambda t: len(t.times)).times
-    times = keys[[0, len(keys) // 2, -1]]              # at keys: Blender interpolates components
-    report = blender.probe(out, times, clip.name)
-    assert "ERROR" not in report["log"], report["log"]
-    errors = client_errors([report["positions"][i][0] for i in range(len(times))], back, clip, times)
+    errors = blender_errors(*fitted_fox)
     assert max(errors) <= 1e-5, errors

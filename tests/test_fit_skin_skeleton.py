@@ -28,7 +28,7 @@ from nrpose.rigs.cylinder import cylinder_mesh
 from nrpose.rigs.humanoid import humanoid
 
 from dmat_files import motion_matrix, write_dmat
-from fit_skin_played import client_errors
+from fit_skin_played import blender_errors, three_js_errors
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 LIBIGL = DATA / "libigl"
@@ -234,30 +234,14 @@ def test_cli_glb_refuses_a_skeleton_or_weights_file(tube, tmp_path, capsys):
 
 
 def test_three_js_plays_the_new_file_as_nrpose_skins_it(fitted_tube):
-    from clients import browser
-    reason = browser.available()
-    if reason:
-        pytest.skip(reason)
     out, _, back = fitted_tube
-    clip = back.clip("bend")
-    times = np.array([0.0, 0.49 * clip.duration, clip.duration - 1e-3])   # three.js loops at the end
-    report = browser.probe(out, times, clip=clip.name)
-    assert not report.get("errors") and report.get("warnings", []) == [], report
-    errors = client_errors([s["meshes"][0]["positions"] for s in report["samples"]], back, clip, times)
+    errors = three_js_errors(out, back, back.clip("bend"))
     assert max(errors) <= 1e-5, errors
 
 
 def test_blender_plays_the_new_file_as_nrpose_skins_it(fitted_tube):
-    from clients import blender
-    reason = blender.available()
-    if reason:
-        pytest.skip(reason)
     out, _, back = fitted_tube
-    clip = back.clip("bend")
-    times = clip.tracks[0].times[[0, FRAMES // 2, -1]]      # at keys: Blender interpolates components
-    report = blender.probe(out, times, clip.name)
-    assert "ERROR" not in report["log"], report["log"]
-    errors = client_errors([report["positions"][i][0] for i in range(len(times))], back, clip, times)
+    errors = blender_errors(out, back, back.clip("bend"))
     assert max(errors) <= 1e-5, errors
 
 

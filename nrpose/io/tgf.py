@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..checks import coordinates, real_rows, triangles
+from ..checks import coordinates, triangles
 from ..errors import FileFormatError, InputError
 from ..model.character import Clip, Track
 from ..model.rotation import Rotation, unit_quaternions
