@@ -260,7 +260,8 @@ def read_dmat_animation(path: str | Path, skeleton: Skeleton, fps: float = 30.0,
     per_frame = 12 * B
     if T.size == 0 or T.size % per_frame:
         raise FileFormatError(f"{path}: {T.size} values do not divide into frames of {B} bones × 12 "
-                              f"(a (12·{B}) × frames matrix, one stacked 4×3 transform per bone per frame)")
+                              f"(a (12·{B}) × frames matrix, one stacked 4×3 transform per bone per frame; "
+                              f"a pose of this skeleton is {4 * B} values)")
     F = T.size // per_frame
     check_frame_count(F, str(path))
     if not np.isfinite(T).all():
