@@ -222,6 +222,23 @@ def test_cli_bad_mesh_inputs_exit_2_one_line_no_output(tube, tmp_path, capsys, e
     assert not out.exists()
 
 
+@pytest.mark.parametrize("frame_time, extra, message", [
+    (1e-320, [], "not strictly increasing as the file's float32 seconds"),      # keys collapse in float32
+    (1 / 30, ["--helpers", "1", "--fps", "1e6"], "poses, more than 10,000"),   # a written clip sampled whole
+])
+def test_cli_written_clips_are_checked_before_the_fit(tube, tmp_path, capsys, frame_time, extra, message):
+    d, character = tube
+    pose = character.skeleton.rest_pose
+    poses = LocalPose(*(np.repeat(getattr(pose, f)[None], 12, axis=0) for f in ("translation", "rotation", "scale")))
+    poses.rotation[:, 1] = Rotation.from_rotvec(np.outer(np.linspace(0, 1, 12), [0, 0, 1])).as_quat()
+    write_bvh(tmp_path / "swing.bvh", character.skeleton, poses, frame_time)
+    out = tmp_path / "o.glb"
+    code, _, err = run(["fit-skin", d / "tube.obj", "--skeleton", d / "tube.tgf", "--train", d / "pose.json",
+                        "--export", tmp_path / "swing.bvh", *extra, "-o", out], capsys)
+    assert code == 2 and err.count("\n") == 1 and message in err, err
+    assert not out.exists()
+
+
 @needs_data
 def test_cli_glb_refuses_a_skeleton_or_weights_file(tube, tmp_path, capsys):
     d, _ = tube

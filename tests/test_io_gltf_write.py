@@ -8,7 +8,7 @@ import pytest
 
 from nrpose.model.character import Mesh
 from nrpose.errors import InputError
-from nrpose.io.gltf_write import json_float32, write_animated_glb
+from nrpose.io.gltf_write import float32_times, json_float32, write_animated_glb
 
 
 def accessor(gltf, blob, index):
@@ -325,3 +325,23 @@ def test_nothing_is_written_that_nrpose_cannot_read_back():
     gltf.animations.append(pygltflib.Animation())
     with pytest.raises(InputError, match="o.glb: would hold 10,001 animations"):
         check_readable_size(gltf, "o.glb")
+
+
+@pytest.mark.parametrize("times, message", [
+    ([0.0, 1e-320], "not strictly increasing as the file's float32"),    # distinct in float64 only
+    ([0.0, 1.0, 1.0 + 1e-9], "not strictly increasing as the file's float32"),
+    ([0.0, 1e39], "within float32's range"),
+    ([-1.0, 0.0], "non-negative"),
+    ([0.0, float("nan")], "finite"),
+])
+def test_key_times_must_stay_strictly_increasing_as_float32(times, message):
+    with pytest.raises(InputError, match=message):
+        float32_times(times, "clip 'x'")
+    assert float32_times([0.0, 1 / 30, 2 / 30], "clip 'x'").dtype == np.float32
+
+
+def test_a_bake_refuses_times_float32_cannot_tell_apart(tmp_path):
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    with pytest.raises(InputError, match="not strictly increasing as the file's float32"):
+        write_animated_glb(tmp_path / "o.glb", [(V, np.array([[0, 1, 2]]))], np.stack([V, V]), [0.0, 1e-320])
+    assert not (tmp_path / "o.glb").exists()

@@ -19,6 +19,7 @@ from ..fit.rom import ROM_DEGREES, range_of_motion
 from ..fit.skin_file import skinned_primitives, stored_skin, write_fitted_glb
 from ..io import load_character
 from ..io.files import atomic_path
+from ..io.gltf_write import float32_times
 from ..io.poses import load_pose
 from ..io.tgf import dmat_is_pose, read_dmat_animation
 from ..model.character import Character
@@ -135,8 +136,11 @@ def run(args) -> None:
     new_clips = [m[2] for m in export if m[2] is not None and m[2] not in character.clips]
     written = tuple(character.clips) + tuple(new_clips)     # the file's animations
     held = [("the training set", len(local.rotation))] + [(h[0], len(h[1].rotation)) for h in holdout]
-    if args.helper_tracks == "fitted" and args.helpers:     # each written clip posed whole for its tracks
+    if args.helpers:     # each written clip sampled whole for its helpers' channels (and posed, for fitted tracks)
         held += [(f"clip {c.name!r}", len(sample_times(c.duration, args.fps))) for c in written]
+    for clip in written:        # the file stores key times as float32: refused now, not after the fit
+        for track in clip.tracks:
+            float32_times(track.times, f"clip {clip.name!r}")
     for name, frames in held:
         if frames > MAX_POSES:
             raise NrposeError(f"{name}: {frames:,} poses, more than {MAX_POSES:,}; lower --fps or --rom-degrees, "

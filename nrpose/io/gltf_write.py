@@ -87,8 +87,8 @@ from .gltf_read import joint_nodes, node_globals, read_accessor, read_document
 from .gltf_schema import MAX_ITEMS
 
 __all__ = ["write_animated_glb", "write_glb_with_clip", "fit_skinned_nodes", "check_copyable", "copy_document",
-           "save_glb", "add_clip", "add_channel", "json_float32", "new_document", "unique_name", "BakeReport",
-           "Blob", "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
+           "save_glb", "add_clip", "add_channel", "json_float32", "float32_times", "new_document", "unique_name",
+           "BakeReport", "Blob", "CARRIED", "QUANTIZATION_BOUND", "DIRECTION_BOUND"]
 
 _FLOAT, _UINT, _SHORT, _BYTE = pygltflib.FLOAT, pygltflib.UNSIGNED_INT, pygltflib.SHORT, pygltflib.BYTE
 QUANTIZATION = "KHR_mesh_quantization"
@@ -163,9 +163,23 @@ def _check(positions, times, total_needed: int) -> tuple[np.ndarray, np.ndarray]
     T = np.asarray(times, dtype=np.float64).reshape(-1)
     if T.shape != (P.shape[0],):
         raise InputError(f"times: expected {P.shape[0]} values (one per frame), got {T.shape[0]}")
-    if not np.isfinite(T).all() or (T < 0).any() or (np.diff(T) <= 0).any():
-        raise InputError("times must be finite, non-negative seconds, strictly increasing")
+    float32_times(T, "times")
     return P, T
+
+
+def float32_times(times, what: str) -> np.ndarray:
+    """Key times (K,) as the float32 seconds a glTF file stores them; InputError naming ``what``
+    unless they are finite, non-negative, within float32's range and strictly increasing once
+    stored (frames closer than float32 tells apart at their time would share a key time)."""
+    T = np.asarray(times, dtype=np.float64).reshape(-1)
+    if not np.isfinite(T).all() or (T < 0).any() or T.max(initial=0.0) > np.finfo(np.float32).max:
+        raise InputError(f"{what}: key times must be finite, non-negative seconds within float32's range")
+    stored = T.astype(np.float32)
+    if (np.diff(stored) <= 0).any():
+        k = int(np.argmax(np.diff(stored) <= 0))
+        raise InputError(f"{what}: key times {T[k]:.9g} s and {T[k + 1]:.9g} s are not strictly increasing as the "
+                         "file's float32 seconds; frames must be further apart (check the frame time or --fps)")
+    return stored
 
 
 class Blob:
@@ -808,7 +822,7 @@ def add_clip(gltf: pygltflib.GLTF2, blob: Blob, nodes, skeleton, clip) -> str:
                             f"clip {clip.name!r}: translations of joint {skeleton.names[track.joint]!r}")
         key = track.times.tobytes()
         if key not in inputs:
-            inputs[key] = blob.add(track.times.astype(np.float32), "SCALAR", minmax=True)
+            inputs[key] = blob.add(float32_times(track.times, f"clip {clip.name!r}"), "SCALAR", minmax=True)
         output = blob.add(track.values.astype(np.float32),
                           {"rotation": "VEC4", "translation": "VEC3", "scale": "VEC3"}[track.path])
         add_channel(animation, int(nodes[track.joint]), track.path, inputs[key], output, track.interpolation)
