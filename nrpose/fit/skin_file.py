@@ -196,16 +196,17 @@ def add_helper_nodes(gltf, blob: Blob, character: Character, places, helpers, no
         added.append(len(gltf.nodes) - 1)
     if not helpers:
         return added
-    done = set()
+    done, world = set(), None
+    joint_of = {int(n): j for j, n in enumerate(nodes)}
     for place, mesh in zip(places, character.meshes):
         if place is None or place[2] in done:
             continue
         done.add(place[2])
         skin = gltf.skins[place[2]]
         _, ibm = mesh_space(character, mesh)
-        joint_of = {int(n): j for j, n in enumerate(nodes)}
-        # a skin's node that is no joint of the character (a new document's end node): bound at rest
-        world = node_globals("the document", gltf)[1]
+        if world is None and any(int(n) not in joint_of for n in skin.joints):
+            # a skin's node that is no joint of the character (a new document's end node): bound at rest
+            world = node_globals("the document", gltf)[1]
         mats = [ibm[joint_of[int(n)]] if int(n) in joint_of else np.linalg.inv(world[int(n)]) for n in skin.joints]
         for helper, node in zip(helpers, added):
             if int(nodes[helper.parent]) in skin.joints:
