@@ -54,7 +54,9 @@ RANDOM_POSES, RANDOM_DEGREES = 48, 40.0
 
 def random_motion(mesh: pathlib.Path, skeleton: pathlib.Path, out: pathlib.Path, seed: int) -> str:
     """A BVH on the TGF skeleton (its joint names) of RANDOM_POSES poses, each joint turned by up to
-    RANDOM_DEGREES about a random axis (seeded); its path."""
+    RANDOM_DEGREES about a random axis (seeded); its path (written once per run)."""
+    if out.exists():
+        return str(out)
     skel = load_character(mesh, skeleton).skeleton
     rng = np.random.default_rng(seed)
     axes = rng.normal(size=(RANDOM_POSES, skel.num_joints, 3))
